@@ -1,0 +1,56 @@
+#pragma once
+/// @file deform_types.h
+/// Options, progress and reports shared by every deformation method (scale-aware, and the
+/// baselines added later), so callers switch methods without changing code.
+
+#include <functional>
+#include <vector>
+
+#include "core/mesh_data.h"
+
+namespace meshdeform::core {
+
+/// Where an iterative solve starts.
+enum class StartFrom {
+  Auto,       ///< the previous result when there is one, else the Laplacian-editing guess
+  Laplacian,  ///< always the Laplacian-editing guess (paper Section 5.2)
+  Previous,   ///< the previous result (the rest mesh before the first solve)
+};
+
+/// Per-solve options. Defaults follow docs/algorithm.md.
+struct SolveOptions {
+  int max_iterations = 15;      ///< outer (step one + step two) iterations, the budget
+  double tolerance = 1e-4;      ///< stop when the relative energy change falls below this
+  int inner_iterations = 5;     ///< cap on step-one local/global sweeps per outer iteration
+  double lambda = 100.0;        ///< handle weight of Eq. 12 (fixed per solver; see precompute)
+  StartFrom start = StartFrom::Auto;
+  bool track_metrics = true;    ///< compute E_theta / E_phi after every outer iteration
+};
+
+/// What one outer iteration did (iteration 0 is the starting guess).
+struct IterationInfo {
+  int iteration = 0;
+  double energy = 0;            ///< Eq. 12 objective after step two
+  double e_theta = 0;           ///< radians RMS (0 unless track_metrics)
+  double e_phi = 0;
+  double elapsed_seconds = 0;   ///< since the solve started
+  int pcg_iterations = 0;       ///< conjugate-gradient iterations of step two
+  int normal_sweeps = 0;        ///< step-one local/global sweeps run
+  bool refactored = false;      ///< step two refactored its matrix this iteration
+};
+
+/// Called after every outer iteration; runs on the solving thread.
+using ProgressCallback = std::function<void(const IterationInfo&)>;
+
+/// The outcome of a solve.
+struct SolveReport {
+  Positions V;                          ///< #V x 3 deformed positions
+  std::vector<IterationInfo> history;   ///< starting guess, then each outer iteration
+  int iterations = 0;                   ///< outer iterations run
+  bool converged = false;               ///< stopped on tolerance rather than budget
+  int factorizations = 0;               ///< numeric factorizations during this solve
+  int pcg_iterations = 0;               ///< total PCG iterations during this solve
+  double seconds = 0;                   ///< wall time of the solve
+};
+
+}  // namespace meshdeform::core

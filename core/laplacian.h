@@ -1,0 +1,50 @@
+#pragma once
+/// @file laplacian.h
+/// Laplacian editing (Sorkine et al. 2004), the starting guess of the scale-aware solver (paper
+/// Section 5.2) and a baseline: min ||L V - L V0||^2 + lambda sum_{j in C} ||v_j - v*_j||^2.
+/// One constant #V x #V matrix per handle set: factored once, three back-solves per move.
+
+#include <memory>
+
+#include <Eigen/Core>
+
+#include "core/mesh_data.h"
+#include "core/status.h"
+#include "core/topology.h"
+
+namespace meshdeform::core {
+
+enum class LaplacianWeights {
+  Uniform,    ///< graph Laplacian
+  Cotangent,  ///< cotangent weights (clamped non-negative per edge for a positive definite system)
+};
+
+/// Prefactored Laplacian editing for one handle set.
+class LaplacianEditor {
+ public:
+  /// @param[in] V0           #V x 3 rest positions.
+  /// @param[in] F            #F x 3 triangles.
+  /// @param[in] topology     build_topology(F, #V).
+  /// @param[in] constrained  #C distinct vertex indices whose targets are given at solve time.
+  /// @param[in] lambda       constraint weight.
+  /// @return the editor; InvalidArgument for a bad or repeated index or a component with no
+  ///         constrained vertex; NumericalFailure if the factorization fails.
+  [[nodiscard]] static Result<LaplacianEditor> create(const Positions& V0, const Triangles& F,
+                                                      const MeshTopology& topology,
+                                                      const Eigen::VectorXi& constrained,
+                                                      LaplacianWeights weights, double lambda);
+
+  /// Positions for #C x 3 targets (row j belongs to constrained(j)).
+  [[nodiscard]] Result<Positions> solve(const Positions& targets) const;
+
+  LaplacianEditor(LaplacianEditor&&) noexcept;
+  LaplacianEditor& operator=(LaplacianEditor&&) noexcept;
+  ~LaplacianEditor();
+
+ private:
+  struct Impl;
+  explicit LaplacianEditor(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace meshdeform::core

@@ -1,0 +1,49 @@
+#pragma once
+/// @file measures.h
+/// The scale-invariant measures of Liu et al. (Section 3.1): corner angles theta, length ratios l,
+/// and dihedral edge angles phi; the error metrics E_theta / E_phi (Section 5.1); per-vertex,
+/// per-face and area distortion.
+
+#include <Eigen/Core>
+
+#include "core/mesh_data.h"
+#include "core/topology.h"
+
+namespace meshdeform::core {
+
+/// Omega of a mesh. Corner k of face f is stored at 3 f + k; it is the corner at F(f,k) between
+/// e1 = F(f,k+1) - F(f,k) and e2 = F(f,k+2) - F(f,k) (indices mod 3).
+struct Measures {
+  Eigen::VectorXd theta;   ///< 3#F corner angles in [0, pi].
+  Eigen::VectorXd ratio;   ///< 3#F length ratios |e2| / |e1| at each corner.
+  Eigen::VectorXd phi;     ///< #IE dihedral angles in [0, pi], unsigned angle between face normals.
+  Eigen::VectorXd area;    ///< #F triangle areas.
+};
+
+/// Unit face normals normalize((b - a) x (c - a)); a zero-area face gets (0, 0, 0).
+Positions face_normals(const Positions& V, const Triangles& F);
+
+/// Computes Omega (and areas) of the mesh (V, F).
+Measures compute_measures(const Positions& V, const Triangles& F, const MeshTopology& topology);
+
+/// E_theta, E_phi (RMS radians, paper Section 5.1) and the RMS of log(area'/area) over faces.
+struct AngleErrors {
+  double e_theta = 0;
+  double e_phi = 0;
+  double area_log_rms = 0;
+};
+
+/// Errors of `deformed` against `rest` (both from compute_measures on the same F).
+AngleErrors angle_errors(const Measures& rest, const Measures& deformed);
+
+/// Local distortion for heat maps, in radians: RMS of the theta errors of a face's corners, and
+/// per vertex the RMS of the theta errors at its corners and the phi errors of its interior edges.
+struct Distortion {
+  Eigen::VectorXd per_vertex;  ///< #V
+  Eigen::VectorXd per_face;    ///< #F
+};
+
+Distortion local_distortion(const Measures& rest, const Measures& deformed, const Triangles& F,
+                            const MeshTopology& topology);
+
+}  // namespace meshdeform::core

@@ -1,0 +1,82 @@
+#pragma once
+/// @file scale_aware.h
+/// Scale-aware shape manipulation (Liu, Wang, Liu, Liu): keep corner angles and dihedral angles of
+/// a mesh under handle constraints by alternating
+///   step one (Section 4.1.1): a local/global update of face normals on the Gauss map, and
+///   step two (Sections 3.2, 4.1.2): the sparse linear solve of Eq. 12 for the vertices,
+/// starting from Laplacian editing (Section 5.2). See docs/algorithm.md in the project notes.
+///
+/// Split like libigl's precompute/solve: `ScaleAwareSolver::create` is per handle set (topology,
+/// measures, the fixed sparsity pattern, symbolic analysis, Laplacian factor); `solve` is per
+/// target set and warm-starts from the previous result with the cached (lagged) factorization.
+
+#include <memory>
+#include <stop_token>
+
+#include <Eigen/Core>
+
+#include "core/deform_types.h"
+#include "core/mesh_data.h"
+#include "core/status.h"
+
+namespace meshdeform::core {
+
+/// Settings fixed for the lifetime of a solver (they define its matrices).
+struct ScaleAwareSettings {
+  double lambda = 100.0;   ///< handle weight of Eq. 12 and of the Laplacian initialisation
+  /// Refactor step two's matrix when a PCG solve costs more (in flops) than this fraction of a
+  /// numeric factorization. Deterministic: counted in flops, not measured in seconds.
+  double refactor_cost_ratio = 0.5;
+  int threads = 0;         ///< 0: all hardware threads (OpenMP), else that many
+};
+
+/// The scale-aware deformation solver for one mesh and one handle set.
+class ScaleAwareSolver {
+ public:
+  /// Precomputes everything that depends on the mesh and the handle set.
+  /// @param[in] V0           #V x 3 rest positions.
+  /// @param[in] F            #F x 3 triangles, validate_triangle_mesh(V0, F) ok.
+  /// @param[in] constrained  #C distinct vertex indices (fixed and handle vertices alike).
+  /// @return the solver; InvalidArgument for an index out of range or repeated, a mesh that fails
+  ///         validation, or a connected component with fewer than two constrained vertices
+  ///         (the energy is invariant to translation and scale, so such a component is not pinned:
+  ///         the message names the component and one of its vertices); NumericalFailure if a
+  ///         factorization fails.
+  [[nodiscard]] static Result<ScaleAwareSolver> create(const Positions& V0, const Triangles& F,
+                                                       const Eigen::VectorXi& constrained,
+                                                       const ScaleAwareSettings& settings = {});
+
+  /// Deforms toward #C x 3 targets (row j for constrained(j)).
+  /// @return the report (positions and per-iteration history); InvalidArgument for a wrong shape or
+  ///         non-finite target, or targets of a component that coincide (no two distinct positions);
+  ///         Cancelled when `stop` is requested mid-solve (the solver keeps its previous state);
+  ///         NumericalFailure if the solve breaks down.
+  [[nodiscard]] Result<SolveReport> solve(const Positions& targets, const SolveOptions& options = {},
+                                          const ProgressCallback& progress = {},
+                                          std::stop_token stop = {});
+
+  /// The current positions (the rest mesh before the first solve).
+  const Positions& positions() const;
+  /// The constrained vertex indices given to create().
+  const Eigen::VectorXi& constrained() const;
+  /// Forgets the previous result: the next Auto solve starts from the Laplacian guess.
+  void reset();
+
+  ScaleAwareSolver(ScaleAwareSolver&&) noexcept;
+  ScaleAwareSolver& operator=(ScaleAwareSolver&&) noexcept;
+  ~ScaleAwareSolver();
+
+ private:
+  struct Impl;
+  explicit ScaleAwareSolver(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+/// One-off convenience: create + solve.
+[[nodiscard]] Result<SolveReport> deform_scale_aware(const Positions& V0, const Triangles& F,
+                                                     const Eigen::VectorXi& constrained,
+                                                     const Positions& targets,
+                                                     const SolveOptions& options = {},
+                                                     const ProgressCallback& progress = {});
+
+}  // namespace meshdeform::core
