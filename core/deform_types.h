@@ -21,10 +21,15 @@ enum class StartFrom {
 struct SolveOptions {
   int max_iterations = 15;      ///< outer (step one + step two) iterations, the budget
   double tolerance = 1e-4;      ///< stop when the relative energy change falls below this
-  int inner_iterations = 5;     ///< cap on step-one local/global sweeps per outer iteration
+  int inner_iterations = 10;    ///< cap on step-one local/global sweeps per outer iteration
   double lambda = 100.0;        ///< handle weight of Eq. 12 (fixed per solver; see precompute)
   StartFrom start = StartFrom::Auto;
   bool track_metrics = true;    ///< compute E_theta / E_phi after every outer iteration
+  /// Step two's conjugate-gradient tolerance (relative residual). With `adaptive_pcg` this is the
+  /// tightest tolerance used: early iterations solve loosely, tied to the outer progress
+  /// (inexact alternating minimisation), and tighten as the energy settles.
+  double pcg_tolerance = 1e-10;
+  bool adaptive_pcg = true;
 };
 
 /// What one outer iteration did (iteration 0 is the starting guess).

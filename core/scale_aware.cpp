@@ -1,0 +1,546 @@
+#include "core/scale_aware.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "core/constraints.h"
+#include "core/laplacian.h"
+#include "core/measures.h"
+#include "core/normals_step.h"
+#include "core/sparse_cholesky.h"
+#include "core/topology.h"
+#include "core/validate.h"
+
+namespace meshdeform::core {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point start) {
+  return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+// Rotation by angle (cos c, sin s) about the unit axis n, right-hand rule (Rodrigues).
+Eigen::Matrix3d rodrigues(const Eigen::Vector3d& n, double c, double s) {
+  Eigen::Matrix3d K;
+  K << 0, -n.z(), n.y(), n.z(), 0, -n.x(), -n.y(), n.x(), 0;
+  return c * Eigen::Matrix3d::Identity() + s * K + (1.0 - c) * n * n.transpose();
+}
+
+// Step two's conjugate-gradient iteration preconditioned by a (possibly lagged) factor.
+struct PcgOutcome {
+  int iterations = 0;
+  bool converged = false;
+  bool cancelled = false;
+};
+
+}  // namespace
+
+struct ScaleAwareSolver::Impl {
+  // Mesh and measures.
+  int nv = 0;
+  int nf = 0;
+  RowPositions V0;
+  Triangles F;
+  MeshTopology topology;
+  RowPositions N0;
+  Eigen::VectorXd corner_cos, corner_sin, corner_ratio;  // 3#F, corner 3f+k at F(f,k)
+  double bbox_diagonal = 1;
+
+  // Constraints.
+  Eigen::VectorXi constrained;
+  std::vector<int> slot;  // #V: row in targets, or -1
+  ScaleAwareSettings settings;
+  int threads = 1;
+  std::optional<LaplacianEditor> laplacian;
+
+  // Step two: A(N) = G^T G + lambda C^T C in a fixed 3x3-block pattern (full symmetric storage,
+  // columns 3b..3b+2 hold the blocks of b's sorted closed neighbourhood).
+  SparseMatrix A;
+  std::vector<int> col_base;               // #V: offset of column 3b in the value array
+  std::vector<int> col_stride;             // #V: entries per column of b = 3 (deg(b) + 1)
+  std::vector<std::array<int, 9>> face_rank;  // rank of F(f,p) within F(f,q)'s neighbourhood
+  std::vector<Eigen::Matrix3d> corner_map;    // 3#F: l R(N_f, theta) per corner
+  SparseCholesky cholesky;
+  bool refactor_pending = true;
+  double pcg_iteration_flops = 0;
+
+  // State carried between solves (warm start).
+  Eigen::VectorXd x;  // 3#V current positions, interleaved xyz (row-major #V x 3)
+  Positions current;  // the same positions as #V x 3, for positions()
+  RowPositions N;     // current normals
+  std::vector<Eigen::Quaterniond> rotations;
+  bool has_previous = false;
+  bool rotations_warm = false;
+
+  Status build(const Positions& V0_in, const Triangles& F_in, const Eigen::VectorXi& constrained_in,
+               const ScaleAwareSettings& settings_in);
+  void build_pattern();
+  void assemble(const RowPositions& normals);
+  double energy(const Eigen::VectorXd& pos, const Eigen::VectorXd& target_vec) const;
+  Eigen::VectorXd rhs(const Positions& targets) const;
+  void multiply(const Eigen::VectorXd& in, Eigen::VectorXd& out) const;
+  PcgOutcome pcg(const Eigen::VectorXd& b, Eigen::VectorXd& sol, double reduction,
+                 double tolerance, int max_iterations, const std::stop_token& stop) const;
+  RowPositions normals_of(const Eigen::VectorXd& pos, const RowPositions& fallback) const;
+};
+
+Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_in,
+                                     const Eigen::VectorXi& constrained_in,
+                                     const ScaleAwareSettings& settings_in) {
+  if (!(settings_in.lambda > 0) || !std::isfinite(settings_in.lambda)) {
+    return Error(ErrorCode::InvalidArgument, "lambda must be positive and finite");
+  }
+  if (!(settings_in.refactor_cost_ratio > 0)) {
+    return Error(ErrorCode::InvalidArgument, "refactor_cost_ratio must be positive");
+  }
+  MD_RETURN_IF_ERROR(validate_triangle_mesh(V0_in, F_in));
+  MD_ASSIGN_OR_RETURN(topology, build_topology(F_in, static_cast<int>(V0_in.rows())));
+  MD_RETURN_IF_ERROR(check_constrained(constrained_in, topology, 2));
+
+  settings = settings_in;
+  threads = settings.threads > 0 ? settings.threads : omp_get_max_threads();
+  nv = static_cast<int>(V0_in.rows());
+  nf = static_cast<int>(F_in.rows());
+  V0 = V0_in;
+  F = F_in;
+  constrained = constrained_in;
+  slot.assign(nv, -1);
+  for (Eigen::Index j = 0; j < constrained.size(); ++j) slot[constrained(j)] = static_cast<int>(j);
+  bbox_diagonal = (V0.colwise().maxCoeff() - V0.colwise().minCoeff()).norm();
+
+  const Measures rest = compute_measures(V0_in, F_in, topology);
+  corner_cos = rest.theta.array().cos();
+  corner_sin = rest.theta.array().sin();
+  corner_ratio = rest.ratio;
+  N0 = face_normals(V0_in, F_in);
+
+  MD_ASSIGN_OR_RETURN(LaplacianEditor editor,
+                      LaplacianEditor::create(V0_in, F_in, topology, constrained,
+                                              LaplacianWeights::Cotangent, settings.lambda));
+  laplacian.emplace(std::move(editor));
+
+  build_pattern();
+  // The rest normals give the first numeric factor; later systems reuse it as a preconditioner.
+  assemble(N0);
+  MD_RETURN_IF_ERROR(cholesky.analyze(A));
+  MD_RETURN_IF_ERROR(cholesky.factorize(A));
+  refactor_pending = false;
+  pcg_iteration_flops = cholesky.solve_flops() + 2.0 * static_cast<double>(A.nonZeros());
+
+  x = Eigen::Map<const Eigen::VectorXd>(V0.data(), 3 * nv);
+  current = V0_in;
+  N = N0;
+  rotations.assign(nv, Eigen::Quaterniond::Identity());
+  has_previous = false;
+  rotations_warm = true;  // identity is exact at rest
+  return Status::success();
+}
+
+void ScaleAwareSolver::Impl::build_pattern() {
+  col_base.resize(nv);
+  col_stride.resize(nv);
+  long long nnz = 0;
+  for (int b = 0; b < nv; ++b) {
+    const int degree = topology.vv_offsets[b + 1] - topology.vv_offsets[b];
+    col_base[b] = static_cast<int>(nnz);
+    col_stride[b] = 3 * (degree + 1);
+    nnz += 3LL * col_stride[b];
+  }
+  A.resize(3 * nv, 3 * nv);
+  A.resizeNonZeros(static_cast<Eigen::Index>(nnz));
+  int* outer = A.outerIndexPtr();
+  int* inner = A.innerIndexPtr();
+  for (int b = 0; b < nv; ++b) {
+    // Closed neighbourhood of b in ascending order.
+    std::vector<int> hood(topology.vv_neighbors.begin() + topology.vv_offsets[b],
+                          topology.vv_neighbors.begin() + topology.vv_offsets[b + 1]);
+    hood.insert(std::lower_bound(hood.begin(), hood.end(), b), b);
+    for (int d = 0; d < 3; ++d) {
+      int* rows = inner + col_base[b] + d * col_stride[b];
+      outer[3 * b + d] = col_base[b] + d * col_stride[b];
+      for (size_t r = 0; r < hood.size(); ++r) {
+        for (int c = 0; c < 3; ++c) rows[3 * r + c] = 3 * hood[r] + c;
+      }
+    }
+  }
+  outer[3 * nv] = static_cast<int>(nnz);
+  std::fill(A.valuePtr(), A.valuePtr() + nnz, 0.0);
+
+  auto rank_in = [&](int a, int b) {
+    const auto first = topology.vv_neighbors.begin() + topology.vv_offsets[b];
+    const auto last = topology.vv_neighbors.begin() + topology.vv_offsets[b + 1];
+    const int below = static_cast<int>(std::lower_bound(first, last, a) - first);
+    return a == b ? below : below + (b < a ? 1 : 0);
+  };
+  face_rank.resize(nf);
+  for (int f = 0; f < nf; ++f) {
+    for (int p = 0; p < 3; ++p) {
+      for (int q = 0; q < 3; ++q) face_rank[f][3 * p + q] = rank_in(F(f, p), F(f, q));
+    }
+  }
+  corner_map.resize(3 * static_cast<size_t>(nf));
+}
+
+void ScaleAwareSolver::Impl::assemble(const RowPositions& normals) {
+  const bool parallel = nv > 2000 && threads > 1;
+#pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
+  for (int f = 0; f < nf; ++f) {
+    const Eigen::Vector3d n = normals.row(f).transpose();
+    for (int k = 0; k < 3; ++k) {
+      const int c = 3 * f + k;
+      corner_map[c] = corner_ratio(c) * rodrigues(n, corner_cos(c), corner_sin(c));
+    }
+  }
+  // Each thread owns whole block columns, so no two threads write the same value. Within a
+  // column, faces are visited in ascending order, which keeps A exactly symmetric.
+  double* values = A.valuePtr();
+  const double lambda = settings.lambda;
+#pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
+  for (int b = 0; b < nv; ++b) {
+    double* column = values + col_base[b];
+    const int stride = col_stride[b];
+    std::fill(column, column + 3 * stride, 0.0);
+    for (int t = topology.vf_offsets[b]; t < topology.vf_offsets[b + 1]; ++t) {
+      const int f = topology.vf_faces[t];
+      const int q = F(f, 0) == b ? 0 : (F(f, 1) == b ? 1 : 2);
+      for (int c = 0; c < 3; ++c) {
+        // Corner c: r = (M - I) v_c - M v_{c+1} + v_{c+2}.
+        const Eigen::Matrix3d& M = corner_map[3 * f + c];
+        auto coefficient = [&](int local) -> Eigen::Matrix3d {
+          if (local == c) return M - Eigen::Matrix3d::Identity();
+          if (local == (c + 1) % 3) return -M;
+          return Eigen::Matrix3d::Identity();
+        };
+        const Eigen::Matrix3d Kq = coefficient(q);
+        for (int p = 0; p < 3; ++p) {
+          const Eigen::Matrix3d block = coefficient(p).transpose() * Kq;
+          const int rank = face_rank[f][3 * p + q];
+          for (int d = 0; d < 3; ++d) {
+            for (int r = 0; r < 3; ++r) column[d * stride + 3 * rank + r] += block(r, d);
+          }
+        }
+      }
+    }
+    if (slot[b] >= 0) {
+      // Position of b in its own closed neighbourhood: number of neighbours below b.
+      const auto first = topology.vv_neighbors.begin() + topology.vv_offsets[b];
+      const auto last = topology.vv_neighbors.begin() + topology.vv_offsets[b + 1];
+      const int own = static_cast<int>(std::lower_bound(first, last, b) - first);
+      for (int d = 0; d < 3; ++d) column[d * stride + 3 * own + d] += lambda;
+    }
+  }
+}
+
+Eigen::VectorXd ScaleAwareSolver::Impl::rhs(const Positions& targets) const {
+  Eigen::VectorXd b = Eigen::VectorXd::Zero(3 * nv);
+  for (Eigen::Index j = 0; j < constrained.size(); ++j) {
+    b.segment<3>(3 * constrained(j)) = settings.lambda * targets.row(j).transpose();
+  }
+  return b;
+}
+
+double ScaleAwareSolver::Impl::energy(const Eigen::VectorXd& pos,
+                                      const Eigen::VectorXd& target_vec) const {
+  // Sum of squared corner residuals with the current corner maps, plus the handle term.
+  std::vector<double> per_face(nf);
+  const bool parallel = nv > 2000 && threads > 1;
+#pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
+  for (int f = 0; f < nf; ++f) {
+    double s = 0;
+    for (int c = 0; c < 3; ++c) {
+      const Eigen::Vector3d v = pos.segment<3>(3 * F(f, c));
+      const Eigen::Vector3d e1 = pos.segment<3>(3 * F(f, (c + 1) % 3)) - v;
+      const Eigen::Vector3d e2 = pos.segment<3>(3 * F(f, (c + 2) % 3)) - v;
+      s += (e2 - corner_map[3 * f + c] * e1).squaredNorm();
+    }
+    per_face[f] = s;
+  }
+  double e = 0;
+  for (double s : per_face) e += s;
+  for (Eigen::Index j = 0; j < constrained.size(); ++j) {
+    e += settings.lambda *
+         (pos.segment<3>(3 * constrained(j)) - target_vec.segment<3>(3 * j)).squaredNorm();
+  }
+  return e;
+}
+
+void ScaleAwareSolver::Impl::multiply(const Eigen::VectorXd& in, Eigen::VectorXd& out) const {
+  // A is stored in full, so A x = A^T x: each output entry gathers one column.
+  const int* outer = A.outerIndexPtr();
+  const int* inner = A.innerIndexPtr();
+  const double* values = A.valuePtr();
+  const int n = static_cast<int>(A.cols());
+  out.resize(n);
+  const bool parallel = nv > 2000 && threads > 1;
+#pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
+  for (int c = 0; c < n; ++c) {
+    double s = 0;
+    for (int k = outer[c]; k < outer[c + 1]; ++k) s += values[k] * in[inner[k]];
+    out[c] = s;
+  }
+}
+
+// Stops when the residual is below `reduction` times the starting residual (the inexact part:
+// the warm start is already close) or below `tolerance` times |b| (the absolute floor).
+PcgOutcome ScaleAwareSolver::Impl::pcg(const Eigen::VectorXd& b, Eigen::VectorXd& sol,
+                                       double reduction, double tolerance, int max_iterations,
+                                       const std::stop_token& stop) const {
+  PcgOutcome out;
+  const double b_norm = b.norm();
+  if (b_norm == 0) {
+    sol.setZero();
+    out.converged = true;
+    return out;
+  }
+  Eigen::VectorXd Ap;
+  multiply(sol, Ap);
+  Eigen::VectorXd r = b - Ap;
+  const double threshold = std::max(tolerance * b_norm, reduction * r.norm());
+  if (r.norm() <= threshold) {
+    out.converged = true;
+    return out;
+  }
+  Eigen::VectorXd z = cholesky.solve(r);
+  Eigen::VectorXd p = z;
+  double rz = r.dot(z);
+  for (int it = 0; it < max_iterations; ++it) {
+    if (stop.stop_requested()) {
+      out.cancelled = true;
+      return out;
+    }
+    multiply(p, Ap);
+    const double pAp = p.dot(Ap);
+    if (!(pAp > 0)) break;  // breakdown: the caller refactors and retries
+    const double alpha = rz / pAp;
+    sol.noalias() += alpha * p;
+    r.noalias() -= alpha * Ap;
+    ++out.iterations;
+    if (r.norm() <= threshold) {
+      out.converged = true;
+      return out;
+    }
+    z = cholesky.solve(r);
+    const double rz_next = r.dot(z);
+    p = z + (rz_next / rz) * p;
+    rz = rz_next;
+  }
+  return out;
+}
+
+RowPositions ScaleAwareSolver::Impl::normals_of(const Eigen::VectorXd& pos,
+                                                const RowPositions& fallback) const {
+  RowPositions out(nf, 3);
+  for (int f = 0; f < nf; ++f) {
+    const Eigen::Vector3d a = pos.segment<3>(3 * F(f, 0));
+    const Eigen::Vector3d n =
+        (pos.segment<3>(3 * F(f, 1)) - a).cross(pos.segment<3>(3 * F(f, 2)) - a);
+    const double len = n.norm();
+    // A collapsed face has no normal: keep its previous one.
+    if (len > 1e-300) {
+      out.row(f) = (n / len).transpose();
+    } else {
+      out.row(f) = fallback.row(f);
+    }
+  }
+  return out;
+}
+
+ScaleAwareSolver::ScaleAwareSolver(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+ScaleAwareSolver::ScaleAwareSolver(ScaleAwareSolver&&) noexcept = default;
+ScaleAwareSolver& ScaleAwareSolver::operator=(ScaleAwareSolver&&) noexcept = default;
+ScaleAwareSolver::~ScaleAwareSolver() = default;
+
+Result<ScaleAwareSolver> ScaleAwareSolver::create(const Positions& V0, const Triangles& F,
+                                                  const Eigen::VectorXi& constrained,
+                                                  const ScaleAwareSettings& settings) {
+  auto impl = std::make_unique<Impl>();
+  MD_RETURN_IF_ERROR(impl->build(V0, F, constrained, settings));
+  return ScaleAwareSolver(std::move(impl));
+}
+
+const Positions& ScaleAwareSolver::positions() const { return impl_->current; }
+
+const Eigen::VectorXi& ScaleAwareSolver::constrained() const { return impl_->constrained; }
+
+void ScaleAwareSolver::reset() {
+  Impl& s = *impl_;
+  s.x = Eigen::Map<const Eigen::VectorXd>(s.V0.data(), 3 * s.nv);
+  s.current = s.V0;
+  s.N = s.N0;
+  s.rotations.assign(s.nv, Eigen::Quaterniond::Identity());
+  s.rotations_warm = true;
+  s.has_previous = false;
+}
+
+Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const SolveOptions& options,
+                                            const ProgressCallback& progress,
+                                            std::stop_token stop) {
+  Impl& s = *impl_;
+  const auto start = Clock::now();
+  if (options.max_iterations < 0 || options.inner_iterations < 1 || !(options.tolerance >= 0) ||
+      !(options.pcg_tolerance > 0)) {
+    return Error(ErrorCode::InvalidArgument,
+                 "solve options out of range: max_iterations >= 0, inner_iterations >= 1, "
+                 "tolerance >= 0 and pcg_tolerance > 0 are required");
+  }
+  MD_RETURN_IF_ERROR(check_targets(targets, s.constrained, s.topology, s.bbox_diagonal, true));
+  if (options.lambda != s.settings.lambda) {
+    return Error(ErrorCode::InvalidArgument,
+                 "lambda is fixed when the solver is created (" + std::to_string(s.settings.lambda) +
+                     "); got " + std::to_string(options.lambda));
+  }
+
+  // Work on copies: a cancelled or failed solve leaves the solver as it was.
+  Eigen::VectorXd x = s.x;
+  RowPositions N = s.N;
+  std::vector<Eigen::Quaterniond> rotations = s.rotations;
+  bool rotations_warm = s.rotations_warm;
+
+  const bool from_laplacian =
+      options.start == StartFrom::Laplacian || (options.start == StartFrom::Auto && !s.has_previous);
+  if (from_laplacian) {
+    MD_ASSIGN_OR_RETURN(Positions guess, s.laplacian->solve(targets));
+    const RowPositions guess_rows = guess;
+    x = Eigen::Map<const Eigen::VectorXd>(guess_rows.data(), 3 * s.nv);
+    rotations_warm = false;  // the guess may be far from the previous rotations
+  }
+
+  const Eigen::VectorXd b = s.rhs(targets);
+  Eigen::VectorXd target_vec(3 * targets.rows());
+  for (Eigen::Index j = 0; j < targets.rows(); ++j) {
+    target_vec.segment<3>(3 * j) = targets.row(j).transpose();
+  }
+  const Measures rest =
+      options.track_metrics ? compute_measures(s.V0, s.F, s.topology) : Measures{};
+  auto record = [&](IterationInfo& info, const Eigen::VectorXd& pos) {
+    if (options.track_metrics) {
+      const Positions P = Eigen::Map<const RowPositions>(pos.data(), s.nv, 3);
+      const AngleErrors errors = angle_errors(rest, compute_measures(P, s.F, s.topology));
+      info.e_theta = errors.e_theta;
+      info.e_phi = errors.e_phi;
+    }
+    info.elapsed_seconds = seconds_since(start);
+  };
+
+  SolveReport report;
+  // Energies are compared relative to the squared size of the mesh: a mesh that fits exactly
+  // (identity or a similarity) reaches round-off, where relative changes mean nothing.
+  const double scale2 = s.bbox_diagonal * s.bbox_diagonal;
+  // The floor: an RMS corner residual of 1e-8 of the bounding box, where the solve's own
+  // round-off (pcg_tolerance) leaves the energy fluctuating.
+  const double energy_floor = 1e-16 * scale2 * 3.0 * s.nf;
+  {
+    IterationInfo info;
+    N = s.normals_of(x, N);
+    s.assemble(N);
+    info.energy = s.energy(x, target_vec);
+    record(info, x);
+    report.history.push_back(info);
+    if (progress) progress(info);
+  }
+
+  double previous_energy = report.history.back().energy;
+  double previous_change = 1.0;
+  for (int it = 1; it <= options.max_iterations; ++it) {
+    if (stop.stop_requested()) return Error(ErrorCode::Cancelled, "solve cancelled");
+    IterationInfo info;
+    info.iteration = it;
+
+    // Step one: normals from the current vertices, then local/global sweeps on the Gauss map.
+    N = s.normals_of(x, N);
+    info.normal_sweeps = update_normals(s.N0, s.F, s.topology, N, rotations, rotations_warm,
+                                        options.inner_iterations, 1e-9, s.threads);
+    rotations_warm = true;
+
+    // Step two: A(N) x = b by PCG with the cached factor, refactoring when that is cheaper.
+    s.assemble(N);
+    if (s.refactor_pending) {
+      MD_RETURN_IF_ERROR(s.cholesky.factorize(s.A));
+      s.refactor_pending = false;
+      info.refactored = true;
+      ++report.factorizations;
+    }
+    // Inexact alternating minimisation: while the energy still moves a lot, reducing the
+    // residual by a modest factor is enough; near convergence the reduction tightens.
+    const double reduction =
+        options.adaptive_pcg ? std::clamp(previous_change, 1e-8, 0.1) : 0.0;
+    const double tolerance = options.pcg_tolerance;
+    const int max_pcg = 200;
+    PcgOutcome outcome = s.pcg(b, x, reduction, tolerance, max_pcg, stop);
+    if (outcome.cancelled) return Error(ErrorCode::Cancelled, "solve cancelled");
+    info.pcg_iterations = outcome.iterations;
+    if (!outcome.converged) {
+      // The lagged factor no longer preconditions well: refactor now and finish the solve.
+      MD_RETURN_IF_ERROR(s.cholesky.factorize(s.A));
+      info.refactored = true;
+      ++report.factorizations;
+      outcome = s.pcg(b, x, reduction, tolerance, max_pcg, stop);
+      if (outcome.cancelled) return Error(ErrorCode::Cancelled, "solve cancelled");
+      info.pcg_iterations += outcome.iterations;
+      if (!outcome.converged) {
+        return Error(ErrorCode::NumericalFailure,
+                     "step two did not converge at iteration " + std::to_string(it));
+      }
+    }
+    report.pcg_iterations += info.pcg_iterations;
+    // Deterministic refactor rule, in flops: PCG that costs more than a fraction of a
+    // factorization means the lagged factor has drifted too far from A(N).
+    if (outcome.iterations * s.pcg_iteration_flops >
+        s.settings.refactor_cost_ratio * s.cholesky.factor_flops()) {
+      s.refactor_pending = true;
+    }
+    if (!x.allFinite()) {
+      return Error(ErrorCode::NumericalFailure,
+                   "step two produced non-finite positions at iteration " + std::to_string(it));
+    }
+
+    info.energy = s.energy(x, target_vec);
+    record(info, x);
+    report.history.push_back(info);
+    report.iterations = it;
+    if (progress) progress(info);
+
+    const double change =
+        std::abs(previous_energy - info.energy) / std::max(previous_energy, energy_floor);
+    previous_change = change;
+    previous_energy = info.energy;
+    if (info.energy <= energy_floor || change < options.tolerance) {
+      report.converged = true;
+      break;
+    }
+  }
+
+  // Commit.
+  s.x = x;
+  s.N = N;
+  s.rotations = std::move(rotations);
+  s.rotations_warm = rotations_warm;
+  s.has_previous = true;
+  report.V = Eigen::Map<const RowPositions>(x.data(), s.nv, 3);
+  s.current = report.V;
+  report.seconds = seconds_since(start);
+  return report;
+}
+
+Result<SolveReport> deform_scale_aware(const Positions& V0, const Triangles& F,
+                                       const Eigen::VectorXi& constrained, const Positions& targets,
+                                       const SolveOptions& options,
+                                       const ProgressCallback& progress) {
+  ScaleAwareSettings settings;
+  settings.lambda = options.lambda;
+  MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver,
+                      ScaleAwareSolver::create(V0, F, constrained, settings));
+  return solver.solve(targets, options, progress);
+}
+
+}  // namespace meshdeform::core

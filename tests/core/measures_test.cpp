@@ -1,0 +1,106 @@
+#include "core/measures.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+
+#include "core/topology.h"
+#include "tests/support/mesh_factories.h"
+
+namespace meshdeform::core {
+namespace {
+
+// Two right triangles sharing the edge (0,1)-(0,0)... folded along x = 0 by `fold` radians.
+MeshData hinge(double fold) {
+  MeshData m;
+  m.V.resize(4, 3);
+  m.V << 0, 0, 0,  //
+      0, 1, 0,     //
+      1, 0, 0,     //
+      -std::cos(fold), 0, std::sin(fold);
+  m.F.resize(2, 3);
+  m.F << 0, 2, 1,  //
+      0, 1, 3;
+  return m;
+}
+
+TEST(Measures, CornerAnglesAndRatiosOfARightTriangle) {
+  const MeshData t = test::make_triangle();
+  auto topo = build_topology(t.F, 3);
+  ASSERT_TRUE(topo.ok());
+  const Measures m = compute_measures(t.V, t.F, *topo);
+  EXPECT_NEAR(m.theta(0), M_PI / 2, 1e-15);
+  EXPECT_NEAR(m.theta(1), M_PI / 4, 1e-15);
+  EXPECT_NEAR(m.theta(2), M_PI / 4, 1e-15);
+  EXPECT_NEAR(m.theta.sum(), M_PI, 1e-14);
+  EXPECT_NEAR(m.ratio(0), 1.0, 1e-15);                 // |c-a| / |b-a|
+  EXPECT_NEAR(m.ratio(1), 1.0 / std::sqrt(2.0), 1e-15);  // |a-b| / |c-b|
+  EXPECT_NEAR(m.area(0), 0.5, 1e-15);
+  EXPECT_EQ(m.phi.size(), 0);
+}
+
+TEST(Measures, DihedralAngleOfAHinge) {
+  for (double fold : {0.0, 0.3, M_PI / 2, 2.5}) {
+    const MeshData h = hinge(fold);
+    auto topo = build_topology(h.F, 4);
+    ASSERT_TRUE(topo.ok());
+    ASSERT_EQ(topo->interior_edges.rows(), 1);
+    const Measures m = compute_measures(h.V, h.F, *topo);
+    EXPECT_NEAR(m.phi(0), fold, 1e-12) << "fold " << fold;
+  }
+}
+
+TEST(Measures, ErrorsOfHandComputedCases) {
+  const MeshData flat = hinge(0.0), bent = hinge(0.4);
+  auto topo = build_topology(flat.F, 4);
+  ASSERT_TRUE(topo.ok());
+  const Measures a = compute_measures(flat.V, flat.F, *topo);
+  const Measures b = compute_measures(bent.V, bent.F, *topo);
+  const AngleErrors e = angle_errors(a, b);
+  EXPECT_NEAR(e.e_phi, 0.4, 1e-12);   // one interior edge, off by 0.4
+  EXPECT_NEAR(e.e_theta, 0.0, 1e-12);  // folding keeps every corner
+  EXPECT_NEAR(e.area_log_rms, 0.0, 1e-12);
+
+  // Stretch x by 2 on a single triangle: corners become atan(1/2)... checked against atan2.
+  MeshData t = test::make_triangle();
+  MeshData s = t;
+  s.V.col(0) *= 2.0;
+  auto tt = build_topology(t.F, 3);
+  const Measures m0 = compute_measures(t.V, t.F, *tt), m1 = compute_measures(s.V, s.F, *tt);
+  const double d1 = M_PI / 4 - std::atan2(1.0, 2.0), d2 = M_PI / 4 - std::atan2(2.0, 1.0);
+  EXPECT_NEAR(angle_errors(m0, m1).e_theta, std::sqrt((d1 * d1 + d2 * d2) / 3.0), 1e-14);
+  EXPECT_NEAR(angle_errors(m0, m1).area_log_rms, std::log(2.0), 1e-14);
+}
+
+TEST(Measures, AreInvariantUnderSimilarity) {
+  const MeshData m = test::make_icosphere(2);
+  auto topo = build_topology(m.F, int(m.V.rows()));
+  ASSERT_TRUE(topo.ok());
+  const Eigen::Matrix3d R =
+      Eigen::AngleAxisd(1.1, Eigen::Vector3d(0.2, -1, 0.4).normalized()).toRotationMatrix();
+  const Positions W = ((3.5 * m.V * R.transpose()).rowwise() + Eigen::RowVector3d(1, 2, 3)).eval();
+  const Measures a = compute_measures(m.V, m.F, *topo), b = compute_measures(W, m.F, *topo);
+  EXPECT_LT((a.theta - b.theta).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT((a.ratio - b.ratio).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT((a.phi - b.phi).cwiseAbs().maxCoeff(), 1e-12);
+  const Distortion d = local_distortion(a, b, m.F, *topo);
+  EXPECT_LT(d.per_vertex.maxCoeff(), 1e-12);
+  EXPECT_LT(d.per_face.maxCoeff(), 1e-12);
+}
+
+TEST(Measures, LocalDistortionLocatesTheChange) {
+  MeshData m = test::make_grid(6);
+  auto topo = build_topology(m.F, int(m.V.rows()));
+  ASSERT_TRUE(topo.ok());
+  MeshData moved = m;
+  moved.V(24, 2) += 0.2;  // one interior vertex lifted
+  const Distortion d = local_distortion(compute_measures(m.V, m.F, *topo),
+                                        compute_measures(moved.V, m.F, *topo), m.F, *topo);
+  Eigen::Index worst = 0;
+  d.per_vertex.maxCoeff(&worst);
+  EXPECT_EQ(worst, 24);
+  EXPECT_EQ(d.per_vertex(0), 0.0);  // far corner untouched
+}
+
+}  // namespace
+}  // namespace meshdeform::core

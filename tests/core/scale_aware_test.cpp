@@ -1,0 +1,287 @@
+// Exact properties of the scale-aware solver (docs/algorithm.md section 4): the rest pose and any
+// similarity of it are exact zeros of the energy, so the solver must reproduce them.
+#include "core/scale_aware.h"
+
+#include <gtest/gtest.h>
+
+#include <stop_token>
+
+#include <Eigen/Geometry>
+
+#include "core/measures.h"
+#include "core/topology.h"
+#include "tests/support/mesh_factories.h"
+
+namespace meshdeform::core {
+namespace {
+
+using test::bbox_diagonal;
+
+struct NamedMesh {
+  const char* name;
+  MeshData mesh;
+  Eigen::VectorXi constrained;
+};
+
+// Every test mesh with a constrained set that pins a similarity, reflections included: the
+// angle measures are unsigned, so a mirror image is an exact zero of the energy as well, and a
+// constrained set inside one plane cannot tell the two apart.
+std::vector<NamedMesh> test_meshes() {
+  std::vector<NamedMesh> out;
+  {
+    MeshData m = test::make_grid(12, 0.08);
+    Eigen::VectorXi c(5);
+    c << 0, 12, 13 * 12, 13 * 13 - 1, 2 * 13 + 2;  // four corners and a bump top
+    out.push_back({"bumpy_grid", m, c});
+  }
+  {
+    MeshData m = test::make_icosphere(2);
+    Eigen::VectorXi c(6);
+    c << 0, 1, 2, 3, 4, 5;
+    out.push_back({"icosphere", m, c});
+  }
+  {
+    MeshData m = test::make_open_cone(16);
+    Eigen::VectorXi c(4);
+    c << 0, 1, 5, 9;
+    out.push_back({"open_cone", m, c});
+  }
+  return out;
+}
+
+Positions rows_of(const Positions& V, const Eigen::VectorXi& idx) {
+  Positions out(idx.size(), 3);
+  for (Eigen::Index j = 0; j < idx.size(); ++j) out.row(j) = V.row(idx(j));
+  return out;
+}
+
+Positions apply(const Eigen::Matrix3d& R, double scale, const Eigen::Vector3d& t, const Positions& V) {
+  return ((scale * V * R.transpose()).rowwise() + t.transpose()).eval();
+}
+
+TEST(ScaleAwareSolver, HandlesAtRestLeaveTheMeshUnchanged) {
+  for (const auto& [name, mesh, constrained] : test_meshes()) {
+    SCOPED_TRACE(name);
+    auto solver = ScaleAwareSolver::create(mesh.V, mesh.F, constrained);
+    ASSERT_TRUE(solver.ok()) << solver.status().to_string();
+    auto report = solver->solve(rows_of(mesh.V, constrained));
+    ASSERT_TRUE(report.ok()) << report.status().to_string();
+    const double diag = bbox_diagonal(mesh);
+    EXPECT_LT((report->V - mesh.V).cwiseAbs().maxCoeff(), test::kExactTol * diag);
+    EXPECT_LT(report->history.back().energy, 1e-20 * diag * diag);
+    EXPECT_LT(report->history.back().e_theta, 1e-9);
+    EXPECT_LT(report->history.back().e_phi, 1e-9);
+    EXPECT_TRUE(report->converged);
+  }
+}
+
+TEST(ScaleAwareSolver, SimilarityOfHandlesGivesThatSimilarityOfTheMesh) {
+  // A 120-degree rotation about a skew axis, scale 2 and a translation.
+  const Eigen::Matrix3d R =
+      Eigen::AngleAxisd(2.0 * M_PI / 3.0, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  const Eigen::Vector3d t(0.3, -1.2, 2.0);
+  for (const auto& [name, mesh, constrained] : test_meshes()) {
+    SCOPED_TRACE(name);
+    const Positions expected = apply(R, 2.0, t, mesh.V);
+    auto solver = ScaleAwareSolver::create(mesh.V, mesh.F, constrained);
+    ASSERT_TRUE(solver.ok()) << solver.status().to_string();
+    SolveOptions options;
+    options.max_iterations = 300;
+    options.inner_iterations = 30;
+    options.tolerance = 1e-12;  // run until the energy stops changing at round-off
+    auto report = solver->solve(rows_of(expected, constrained), options);
+    ASSERT_TRUE(report.ok()) << report.status().to_string();
+    const double diag = 2.0 * bbox_diagonal(mesh);
+    EXPECT_TRUE(report->converged) << "iterations " << report->iterations;
+    EXPECT_LT((report->V - expected).cwiseAbs().maxCoeff(), test::kConvergedTol * diag);
+    EXPECT_LT(report->history.back().e_theta, 1e-6);
+    EXPECT_LT(report->history.back().e_phi, 1e-6);
+  }
+}
+
+TEST(ScaleAwareSolver, SingleTriangleFollowsTheRightHandRule) {
+  // With the stored face order, R(N, +theta) must map the first edge onto the second: then the
+  // rest triangle is an exact zero of the energy from the first evaluation on. The opposite sense
+  // would leave a residual of |e2| |2 sin theta| per corner.
+  const MeshData tri = test::make_triangle();
+  Eigen::VectorXi constrained(2);
+  constrained << 0, 1;
+  SolveOptions options;
+  options.start = StartFrom::Previous;  // start at the rest pose itself
+  auto at_rest = deform_scale_aware(tri.V, tri.F, constrained, rows_of(tri.V, constrained), options);
+  ASSERT_TRUE(at_rest.ok()) << at_rest.status().to_string();
+  EXPECT_LT(at_rest->history.front().energy, 1e-28);
+  EXPECT_EQ(at_rest->pcg_iterations, 0);
+
+  // A 30-degree rotation with scale 3: the free corner follows onto the rotated side.
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(M_PI / 6, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  const Positions expected = apply(R, 3.0, Eigen::Vector3d(1, 1, 0), tri.V);
+  options.start = StartFrom::Laplacian;
+  options.max_iterations = 100;
+  options.tolerance = 1e-14;
+  auto moved = deform_scale_aware(tri.V, tri.F, constrained, rows_of(expected, constrained), options);
+  ASSERT_TRUE(moved.ok()) << moved.status().to_string();
+  EXPECT_LT((moved->V - expected).cwiseAbs().maxCoeff(), 1e-9);
+  // Rest (0,1,0), rotated by +30 degrees about z, scaled by 3 and translated.
+  EXPECT_NEAR(moved->V(2, 0), 1.0 - 1.5, 1e-9);
+  EXPECT_NEAR(moved->V(2, 1), 1.0 + 3.0 * std::cos(M_PI / 6), 1e-9);
+}
+
+TEST(ScaleAwareSolver, DeformationLowersAngleErrorBelowTheLaplacianStart) {
+  MeshData m = test::make_grid(16, 0.05);
+  // Left column fixed, right column lifted and rotated: a bend.
+  std::vector<int> idx;
+  for (int j = 0; j <= 16; ++j) {
+    idx.push_back(j * 17);
+    idx.push_back(j * 17 + 16);
+  }
+  Eigen::VectorXi constrained = Eigen::Map<Eigen::VectorXi>(idx.data(), int(idx.size()));
+  Positions targets = rows_of(m.V, constrained);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(M_PI / 3, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  for (Eigen::Index j = 1; j < targets.rows(); j += 2) {
+    const Eigen::Vector3d p = targets.row(j).transpose();
+    targets.row(j) = (R * (p - Eigen::Vector3d(0.5, 0, 0)) + Eigen::Vector3d(0.5, 0, 0.3)).transpose();
+  }
+  auto report = deform_scale_aware(m.V, m.F, constrained, targets);
+  ASSERT_TRUE(report.ok()) << report.status().to_string();
+  EXPECT_LT(report->history.back().e_theta, report->history.front().e_theta);
+  EXPECT_LT(report->history.back().e_phi, report->history.front().e_phi);
+}
+
+TEST(ScaleAwareSolver, WarmStartedRepeatOfTheSameTargetsIsAlreadyConverged) {
+  MeshData m = test::make_icosphere(2);
+  Eigen::VectorXi constrained(6);
+  constrained << 0, 1, 2, 3, 4, 5;
+  auto solver = ScaleAwareSolver::create(m.V, m.F, constrained);
+  ASSERT_TRUE(solver.ok());
+  Positions targets = rows_of(m.V, constrained);
+  targets.row(0) += Eigen::RowVector3d(0.3, 0.1, 0.0);
+  SolveOptions options;
+  options.max_iterations = 500;
+  options.tolerance = 1e-6;
+  auto first = solver->solve(targets, options);
+  ASSERT_TRUE(first.ok());
+  ASSERT_TRUE(first->converged);
+  auto second = solver->solve(targets, options);
+  ASSERT_TRUE(second.ok());
+  EXPECT_LE(second->iterations, 2);
+  // Linear convergence leaves a little motion after a 1e-6 relative-energy stop.
+  EXPECT_LT((second->V - first->V).cwiseAbs().maxCoeff(), 1e-4);
+  EXPECT_EQ(solver->positions(), second->V);
+}
+
+TEST(ScaleAwareSolver, ResultsAreDeterministic) {
+  MeshData m = test::make_grid(20, 0.1);
+  Eigen::VectorXi constrained(3);
+  constrained << 0, 20, 440;
+  Positions targets = rows_of(m.V, constrained);
+  targets.row(2) += Eigen::RowVector3d(0.2, 0.4, 0.5);
+  auto a = deform_scale_aware(m.V, m.F, constrained, targets);
+  auto b = deform_scale_aware(m.V, m.F, constrained, targets);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_EQ(a->V, b->V);  // bit for bit
+}
+
+TEST(ScaleAwareSolver, ProgressReportsEveryIteration) {
+  MeshData m = test::make_icosphere(1);
+  Eigen::VectorXi constrained(2);
+  constrained << 0, 3;
+  Positions targets = rows_of(m.V, constrained);
+  targets.row(0) *= 1.5;
+  std::vector<int> seen;
+  auto report = deform_scale_aware(m.V, m.F, constrained, targets, {},
+                                   [&](const IterationInfo& info) { seen.push_back(info.iteration); });
+  ASSERT_TRUE(report.ok());
+  ASSERT_EQ(seen.size(), report->history.size());
+  for (size_t i = 0; i < seen.size(); ++i) EXPECT_EQ(seen[i], int(i));
+}
+
+TEST(ScaleAwareSolver, CancellationStopsAndKeepsThePreviousState) {
+  MeshData m = test::make_icosphere(2);
+  Eigen::VectorXi constrained(3);
+  constrained << 0, 3, 7;
+  auto solver = ScaleAwareSolver::create(m.V, m.F, constrained);
+  ASSERT_TRUE(solver.ok());
+  std::stop_source source;
+  Positions targets = rows_of(m.V, constrained);
+  targets.row(1) += Eigen::RowVector3d(0, 0, 1);
+  int calls = 0;
+  auto report = solver->solve(targets, {}, [&](const IterationInfo& info) {
+    ++calls;
+    if (info.iteration == 1) source.request_stop();
+  }, source.get_token());
+  ASSERT_FALSE(report.ok());
+  EXPECT_EQ(report.status().code(), ErrorCode::Cancelled);
+  EXPECT_EQ(calls, 2);  // the guess and the first iteration, then nothing
+  EXPECT_EQ(solver->positions(), m.V);
+}
+
+TEST(ScaleAwareSolver, RejectsConfigurationsTheEnergyCannotPin) {
+  const MeshData m = test::make_icosphere(1);
+  Eigen::VectorXi one(1);
+  one << 0;
+  auto single = ScaleAwareSolver::create(m.V, m.F, one);
+  ASSERT_FALSE(single.ok());
+  EXPECT_EQ(single.status().code(), ErrorCode::InvalidArgument);
+  EXPECT_NE(single.status().message().find("component 0"), std::string::npos)
+      << single.status().message();
+
+  // Two components, the second one unconstrained.
+  MeshData two = m;
+  const MeshData other = test::make_icosphere(1);
+  two.V.conservativeResize(m.V.rows() * 2, 3);
+  two.V.bottomRows(m.V.rows()) = other.V.rowwise() + Eigen::RowVector3d(5, 0, 0);
+  two.F.conservativeResize(m.F.rows() * 2, 3);
+  two.F.bottomRows(m.F.rows()) = other.F.array() + int(m.V.rows());
+  Eigen::VectorXi c(2);
+  c << 0, 1;
+  auto unpinned = ScaleAwareSolver::create(two.V, two.F, c);
+  ASSERT_FALSE(unpinned.ok());
+  EXPECT_NE(unpinned.status().message().find("component 1"), std::string::npos)
+      << unpinned.status().message();
+
+  auto solver = ScaleAwareSolver::create(m.V, m.F, c);
+  ASSERT_TRUE(solver.ok());
+  Positions same(2, 3);
+  same << 1, 1, 1, 1, 1, 1;
+  auto collapsed = solver->solve(same);
+  ASSERT_FALSE(collapsed.ok());
+  EXPECT_EQ(collapsed.status().code(), ErrorCode::InvalidArgument);
+  EXPECT_NE(collapsed.status().message().find("coincide"), std::string::npos);
+}
+
+TEST(ScaleAwareSolver, RejectsBadIndicesAndTargets) {
+  const MeshData m = test::make_icosphere(1);
+  Eigen::VectorXi out_of_range(2);
+  out_of_range << 0, 42;
+  auto bad = ScaleAwareSolver::create(m.V, m.F, out_of_range);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().message().find("42 (#V=42)"), std::string::npos) << bad.status().message();
+
+  Eigen::VectorXi repeated(3);
+  repeated << 0, 5, 0;
+  auto rep = ScaleAwareSolver::create(m.V, m.F, repeated);
+  ASSERT_FALSE(rep.ok());
+  EXPECT_NE(rep.status().message().find("vertex 0 is constrained twice"), std::string::npos);
+
+  Eigen::VectorXi c(2);
+  c << 0, 5;
+  auto solver = ScaleAwareSolver::create(m.V, m.F, c);
+  ASSERT_TRUE(solver.ok());
+  Positions nan_targets = rows_of(m.V, c);
+  nan_targets(1, 2) = std::nan("");
+  auto nan_result = solver->solve(nan_targets);
+  ASSERT_FALSE(nan_result.ok());
+  EXPECT_NE(nan_result.status().message().find("target 1 (vertex 5) is not finite"),
+            std::string::npos);
+  auto wrong_rows = solver->solve(Positions::Zero(3, 3));
+  ASSERT_FALSE(wrong_rows.ok());
+  EXPECT_EQ(wrong_rows.status().code(), ErrorCode::InvalidArgument);
+  SolveOptions bad_options;
+  bad_options.inner_iterations = 0;
+  EXPECT_EQ(solver->solve(rows_of(m.V, c), bad_options).status().code(),
+            ErrorCode::InvalidArgument);
+}
+
+}  // namespace
+}  // namespace meshdeform::core
