@@ -42,6 +42,9 @@ struct IterationInfo {
   int pcg_iterations = 0;       ///< conjugate-gradient iterations of step two
   int normal_sweeps = 0;        ///< step-one local/global sweeps run
   bool refactored = false;      ///< step two refactored its matrix this iteration
+  double normals_seconds = 0;   ///< step one (normals on the Gauss map)
+  double assemble_seconds = 0;  ///< filling step two's matrix
+  double linear_seconds = 0;    ///< refactorization and PCG
 };
 
 /// Called after every outer iteration; runs on the solving thread.

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include <Eigen/SVD>
 
@@ -15,10 +16,11 @@ void refine_rotation(const Eigen::Matrix3d& B, Eigen::Quaterniond& q, int max_it
     const double denom =
         std::abs(R.col(0).dot(B.col(0)) + R.col(1).dot(B.col(1)) + R.col(2).dot(B.col(2))) + 1e-9;
     omega /= denom;
-    const double w = omega.norm();
-    if (w < 1e-13) break;
-    q = Eigen::Quaterniond(Eigen::AngleAxisd(w, omega / w)) * q;
-    q.normalize();
+    if (omega.squaredNorm() < 1e-26) break;
+    // Rotate by omega: the quaternion (1, omega / 2) normalised is that rotation to first order
+    // and never overshoots, so the iteration keeps Mueller's fixed point without trigonometry.
+    const Eigen::Quaterniond step(1.0, 0.5 * omega.x(), 0.5 * omega.y(), 0.5 * omega.z());
+    q = (step * q).normalized();
   }
 }
 
@@ -40,6 +42,7 @@ int update_normals(const RowPositions& N0, const Triangles& F, const MeshTopolog
   const int nf = topology.face_count;
   const bool parallel = nv > 2000 && threads > 1;
   int sweeps = 0;
+  std::vector<Eigen::Matrix3d> matrices(nv);
   for (; sweeps < max_sweeps;) {
     const bool use_svd = !warm && sweeps == 0;
     // Local: one rotation per vertex fan. B = sum_f N_f N0_f^T; R maximises trace(R^T B).
@@ -53,17 +56,19 @@ int update_normals(const RowPositions& N0, const Triangles& F, const MeshTopolog
       if (use_svd) {
         rotations[v] = kabsch_rotation(B);
       } else {
-        refine_rotation(B, rotations[v], 20);
+        refine_rotation(B, rotations[v], 3);  // the sweeps themselves warm-start it
       }
     }
+#pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
+    for (int v = 0; v < nv; ++v) matrices[v] = rotations[v].toRotationMatrix();
     // Global: each face normal is the normalised mean of its corners' rotated rest normal.
     double max_change = 0;
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel) \
     reduction(max : max_change)
     for (int f = 0; f < nf; ++f) {
       const Eigen::Vector3d n0 = N0.row(f).transpose();
-      const Eigen::Vector3d sum = rotations[F(f, 0)] * n0 + rotations[F(f, 1)] * n0 +
-                                  rotations[F(f, 2)] * n0;
+      const Eigen::Vector3d sum =
+          (matrices[F(f, 0)] + matrices[F(f, 1)] + matrices[F(f, 2)]) * n0;
       const double len = sum.norm();
       if (len < 1e-12) continue;  // opposite rotations cancel: keep the previous normal
       const Eigen::Vector3d next = sum / len;

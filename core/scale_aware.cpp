@@ -213,21 +213,61 @@ void ScaleAwareSolver::Impl::assemble(const RowPositions& normals) {
     for (int t = topology.vf_offsets[b]; t < topology.vf_offsets[b + 1]; ++t) {
       const int f = topology.vf_faces[t];
       const int q = F(f, 0) == b ? 0 : (F(f, 1) == b ? 1 : 2);
+      // Corner c: r = (M - I) v_c - M v_{c+1} + v_{c+2} with M = l R, so M^T M = l^2 I and
+      // every block K_p^T K_q is a combination of M, M^T and I: no 3x3 products needed.
+      // The mirror block (q, p) in another column comes out as the exact transpose, so A stays
+      // exactly symmetric.
+      Eigen::Matrix3d blocks[3];
+      for (auto& m : blocks) m.setZero();
       for (int c = 0; c < 3; ++c) {
-        // Corner c: r = (M - I) v_c - M v_{c+1} + v_{c+2}.
         const Eigen::Matrix3d& M = corner_map[3 * f + c];
-        auto coefficient = [&](int local) -> Eigen::Matrix3d {
-          if (local == c) return M - Eigen::Matrix3d::Identity();
-          if (local == (c + 1) % 3) return -M;
-          return Eigen::Matrix3d::Identity();
-        };
-        const Eigen::Matrix3d Kq = coefficient(q);
+        const double l2 = corner_ratio(3 * f + c) * corner_ratio(3 * f + c);
+        // Role of a local vertex in this corner: 0 = v (K = M - I), 1 = v_{c+1} (K = -M),
+        // 2 = v_{c+2} (K = I).
+        const int role_q = (q - c + 3) % 3;
         for (int p = 0; p < 3; ++p) {
-          const Eigen::Matrix3d block = coefficient(p).transpose() * Kq;
-          const int rank = face_rank[f][3 * p + q];
-          for (int d = 0; d < 3; ++d) {
-            for (int r = 0; r < 3; ++r) column[d * stride + 3 * rank + r] += block(r, d);
+          const int role_p = (p - c + 3) % 3;
+          Eigen::Matrix3d& out = blocks[p];
+          switch (3 * role_p + role_q) {
+            case 0:  // (M-I)^T (M-I) = (l^2 + 1) I - M - M^T
+              out -= M + M.transpose();
+              out.diagonal().array() += l2 + 1.0;
+              break;
+            case 1:  // (M-I)^T (-M) = M - l^2 I
+              out += M;
+              out.diagonal().array() -= l2;
+              break;
+            case 3:  // (-M)^T (M-I) = M^T - l^2 I
+              out += M.transpose();
+              out.diagonal().array() -= l2;
+              break;
+            case 2:  // (M-I)^T I = M^T - I
+              out += M.transpose();
+              out.diagonal().array() -= 1.0;
+              break;
+            case 6:  // I (M-I) = M - I
+              out += M;
+              out.diagonal().array() -= 1.0;
+              break;
+            case 4:  // (-M)^T (-M) = l^2 I
+              out.diagonal().array() += l2;
+              break;
+            case 5:  // (-M)^T I = -M^T
+              out -= M.transpose();
+              break;
+            case 7:  // I (-M) = -M
+              out -= M;
+              break;
+            default:  // case 8: I I
+              out.diagonal().array() += 1.0;
+              break;
           }
+        }
+      }
+      for (int p = 0; p < 3; ++p) {
+        const int rank = face_rank[f][3 * p + q];
+        for (int d = 0; d < 3; ++d) {
+          for (int r = 0; r < 3; ++r) column[d * stride + 3 * rank + r] += blocks[p](r, d);
         }
       }
     }
@@ -457,13 +497,18 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     info.iteration = it;
 
     // Step one: normals from the current vertices, then local/global sweeps on the Gauss map.
+    auto phase = Clock::now();
     N = s.normals_of(x, N);
     info.normal_sweeps = update_normals(s.N0, s.F, s.topology, N, rotations, rotations_warm,
                                         options.inner_iterations, 1e-9, s.threads);
     rotations_warm = true;
+    info.normals_seconds = seconds_since(phase);
 
     // Step two: A(N) x = b by PCG with the cached factor, refactoring when that is cheaper.
+    phase = Clock::now();
     s.assemble(N);
+    info.assemble_seconds = seconds_since(phase);
+    phase = Clock::now();
     if (s.refactor_pending) {
       MD_RETURN_IF_ERROR(s.cholesky.factorize(s.A));
       s.refactor_pending = false;
@@ -493,6 +538,7 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
       }
     }
     report.pcg_iterations += info.pcg_iterations;
+    info.linear_seconds = seconds_since(phase);
     // Deterministic refactor rule, in flops: PCG that costs more than a fraction of a
     // factorization means the lagged factor has drifted too far from A(N).
     if (outcome.iterations * s.pcg_iteration_flops >
