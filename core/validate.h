@@ -13,6 +13,20 @@ namespace meshdeform::core {
 /// no degenerate faces (repeated index, zero-length edge, zero area relative to the bounding box),
 /// no duplicate faces, manifold edges (at most two faces, consistently oriented) and manifold
 /// vertices (one fan per vertex), and no unreferenced vertices.
+/// Rules are checked in this order and the first failure is reported (faces in index order):
+///  1. at least one vertex and one face;
+///  2. finite coordinates ("vertex 5 has a non-finite y coordinate (nan)");
+///  3. indices in [0, #V) ("face 17 references vertex 902 (#V=900)");
+///  4. no repeated index in a face ("face 3 (4, 7, 7) repeats vertex 7");
+///  5. no zero-length edge (two corners at exactly the same position);
+///  6. no (near) zero area: area < 1e-14 * (bounding-box diagonal)^2;
+///  7. no duplicate faces (same vertex set, any order or orientation);
+///  8. manifold edges: at most two incident faces ("non-manifold edge (3, 9) is shared by 3 faces");
+///  9. consistent orientation: two faces never traverse an edge in the same direction;
+/// 10. manifold vertices: the faces around a vertex form one fan (edge-connected);
+/// 11. every vertex is referenced by a face.
+/// @param[in] V  #V x 3 vertex positions.
+/// @param[in] F  #F x 3 triangle indices into V.
 /// @return success, or InvalidArgument naming the first offending element, e.g.
 ///         "face 17 references vertex 902 (#V=900)".
 [[nodiscard]] Status validate_triangle_mesh(const Positions& V, const Triangles& F);
@@ -29,7 +43,11 @@ struct CleanReport {
 /// unreferenced vertices, then validates the result.
 /// @param[in,out] mesh  cleaned in place only when the result is ok.
 /// @param[in] weld      merge exactly coincident vertices (on for STL, optional elsewhere).
-/// @return the report, or the first validation error of the cleaned mesh (mesh untouched).
+/// A face that repeats a vertex after welding is not dropped: it is reported like any other
+/// validation error. Errors found after renumbering are prefixed with "after cleaning (...)"
+/// because they name indices of the cleaned mesh; indices out of range are reported on the input.
+/// @return the report, or InvalidArgument with the first validation error of the cleaned mesh
+///         (mesh untouched).
 [[nodiscard]] Result<CleanReport> clean_mesh(MeshData& mesh, bool weld);
 
 }  // namespace meshdeform::core
