@@ -9,6 +9,7 @@
 #include <Eigen/Geometry>
 
 #include "core/measures.h"
+#include "core/procedural.h"
 #include "core/topology.h"
 #include "tests/support/mesh_factories.h"
 
@@ -281,6 +282,26 @@ TEST(ScaleAwareSolver, RejectsBadIndicesAndTargets) {
   bad_options.inner_iterations = 0;
   EXPECT_EQ(solver->solve(rows_of(m.V, c), bad_options).status().code(),
             ErrorCode::InvalidArgument);
+}
+
+}  // namespace
+}  // namespace meshdeform::core
+
+namespace meshdeform::core {
+namespace {
+
+// Every edit of the (small) Table 1 suite: the iterations must improve on the Laplacian start.
+TEST(ScaleAwareSolver, EverySuiteEditEndsBelowTheLaplacianStartInETheta) {
+  for (const DeformationBenchmark& bench : make_suite(SuiteScale::Small)) {
+    SCOPED_TRACE(bench.name);
+    auto setup = constraints_from_selection(bench.mesh.V, bench.selection, bench.transform);
+    ASSERT_TRUE(setup.ok()) << setup.status().to_string();
+    auto report = deform_scale_aware(bench.mesh.V, bench.mesh.F, setup->constrained, setup->targets);
+    ASSERT_TRUE(report.ok()) << report.status().to_string();
+    ASSERT_GE(report->history.size(), 2u);
+    EXPECT_LT(report->history.back().e_theta, report->history.front().e_theta);
+    EXPECT_TRUE(report->V.allFinite());
+  }
 }
 
 }  // namespace
