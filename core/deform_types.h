@@ -21,7 +21,7 @@ enum class StartFrom {
 struct SolveOptions {
   int max_iterations = 15;      ///< outer (step one + step two) iterations, the budget
   double tolerance = 1e-4;      ///< stop when the relative energy change falls below this
-  int inner_iterations = 10;    ///< cap on step-one local/global sweeps per outer iteration
+  int inner_iterations = 5;     ///< cap on step-one local/global sweeps per outer iteration
   double lambda = 100.0;        ///< handle weight of Eq. 12 (fixed per solver; see precompute)
   StartFrom start = StartFrom::Auto;
   bool track_metrics = true;    ///< compute E_theta / E_phi after every outer iteration

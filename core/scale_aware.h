@@ -27,7 +27,10 @@ struct ScaleAwareSettings {
   /// Refactor step two's matrix when a PCG solve costs more (in flops) than this fraction of a
   /// numeric factorization. Deterministic: counted in flops, not measured in seconds.
   double refactor_cost_ratio = 0.5;
-  int threads = 0;         ///< 0: all hardware threads (OpenMP), else that many
+  /// OpenMP threads for the per-vertex and per-face loops; 0 means all hardware threads.
+  /// Default 1: a service solves many sessions side by side, and on a loaded 2-core machine
+  /// extra threads per solve only contend (measured 4x slower). Results do not depend on it.
+  int threads = 1;
 };
 
 /// The scale-aware deformation solver for one mesh and one handle set.

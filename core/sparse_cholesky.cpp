@@ -1,10 +1,27 @@
 #include "core/sparse_cholesky.h"
 
+#include <mutex>
 #include <string>
 
 #include <Eigen/CholmodSupport>
 
+// OpenBLAS's own thread pool, when CHOLMOD's BLAS is OpenBLAS (weak: absent with other BLAS).
+extern "C" void openblas_set_num_threads(int) __attribute__((weak));
+
 namespace meshdeform::core {
+namespace {
+
+// Every solve here is a sequence of small triangular solves (one PCG step each), where BLAS
+// threads only contend with the caller's threads: on a 2-core machine they made step two 4x
+// slower. Parallelism belongs to the caller (OpenMP loops, or many sessions on a worker pool).
+void use_single_threaded_blas() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    if (openblas_set_num_threads != nullptr) openblas_set_num_threads(1);
+  });
+}
+
+}  // namespace
 
 struct SparseCholesky::Impl {
   Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
@@ -14,7 +31,7 @@ struct SparseCholesky::Impl {
   double lnz = 0;
 };
 
-SparseCholesky::SparseCholesky() : impl_(std::make_unique<Impl>()) {}
+SparseCholesky::SparseCholesky() : impl_(std::make_unique<Impl>()) { use_single_threaded_blas(); }
 SparseCholesky::SparseCholesky(SparseCholesky&&) noexcept = default;
 SparseCholesky& SparseCholesky::operator=(SparseCholesky&&) noexcept = default;
 SparseCholesky::~SparseCholesky() = default;

@@ -5,7 +5,7 @@ set -euo pipefail
 
 packages=(
   cmake g++ make pkg-config
-  libeigen3-dev libopenmesh-dev libtinygltf-dev nlohmann-json3-dev
+  libeigen3-dev libtinygltf-dev nlohmann-json3-dev
   libsuitesparse-dev libopenblas-dev libopenblas0-pthread
   libgtest-dev libgmock-dev libbenchmark-dev
   libcgal-dev
