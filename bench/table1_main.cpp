@@ -25,6 +25,7 @@
 #include "bench/cgal_arap.h"
 #include "bench/machine_info.h"
 #include "core/deform_types.h"
+#include "core/io/report_json.h"
 #include "core/measures.h"
 #include "core/procedural.h"
 #include "core/scale_aware.h"
@@ -500,17 +501,6 @@ nlohmann::json to_json(const MachineInfo& machine, const std::string& load_at_en
                             {"fixed_vertices", row.fixed},
                             {"handle_vertices", row.handles},
                             {"move_transform_fallback", row.move_used_fallback}};
-    nlohmann::json history = nlohmann::json::array();
-    for (const core::IterationInfo& info : o.history) {
-      history.push_back({{"iteration", info.iteration},
-                         {"energy", info.energy},
-                         {"e_theta", info.e_theta},
-                         {"e_phi", info.e_phi},
-                         {"elapsed_seconds", info.elapsed_seconds},
-                         {"pcg_iterations", info.pcg_iterations},
-                         {"normal_sweeps", info.normal_sweeps},
-                         {"refactored", info.refactored}});
-    }
     model["ours"] = {{"precompute_seconds", o.precompute_seconds},
                      {"solve_seconds", o.solve_seconds},
                      {"init_seconds", o.init_seconds},
@@ -523,7 +513,7 @@ nlohmann::json to_json(const MachineInfo& machine, const std::string& load_at_en
                      // The Laplacian guess's positions are not returned: angles only, from history.
                      {"init_errors",
                       {{"e_theta", o.init_errors.e_theta}, {"e_phi", o.init_errors.e_phi}}},
-                     {"history", history},
+                     {"history", io::history_to_json(o.history)},
                      {"move",
                       {{"seconds", o.move_seconds},
                        {"outer_iterations", o.move_iterations},

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "core/io/mesh_io.h"
+#include "core/io/report_json.h"
 #include "core/topology.h"
 #include "core/validate.h"
 
@@ -199,18 +200,7 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
                   {"pcg_tolerance", run.options.pcg_tolerance},
                   {"adaptive_pcg", run.options.adaptive_pcg},
                   {"threads", run.settings.threads}};
-  json history = json::array();
-  for (const core::IterationInfo& info : report.history) {
-    history.push_back({{"iteration", info.iteration},
-                       {"energy", info.energy},
-                       {"e_theta", info.e_theta},
-                       {"e_phi", info.e_phi},
-                       {"elapsed_seconds", info.elapsed_seconds},
-                       {"pcg_iterations", info.pcg_iterations},
-                       {"normal_sweeps", info.normal_sweeps},
-                       {"refactored", info.refactored}});
-  }
-  j["history"] = std::move(history);
+  j["history"] = io::history_to_json(report.history);
   j["iterations"] = report.iterations;
   j["converged"] = report.converged;
   j["factorizations"] = report.factorizations;
