@@ -6,6 +6,8 @@
 #include <functional>
 #include <vector>
 
+#include <Eigen/Core>
+
 #include "core/mesh_data.h"
 
 namespace meshdeform::core {
@@ -30,6 +32,13 @@ struct SolveOptions {
   /// (inexact alternating minimisation), and tighten as the energy settles.
   double pcg_tolerance = 1e-10;
   bool adaptive_pcg = true;
+  /// Optimal rigidity approximation (paper Section 5.3): after the solve, rescale every triangle
+  /// to its rest area and stitch (scale-aware method only).
+  bool ora = false;
+  /// Region magnification (Figs. 12-13): #F linear target scales (k on a region, 1 elsewhere;
+  /// see face_scales_from_regions in core/ora.h). Non-empty implies the ORA stitch with areas
+  /// k^2 x rest area. Scale handle targets inside a region yourself (about its centre, by k).
+  Eigen::VectorXd face_scale;
 };
 
 /// What one outer iteration did (iteration 0 is the starting guess).
@@ -50,6 +59,14 @@ struct IterationInfo {
 /// Called after every outer iteration; runs on the solving thread.
 using ProgressCallback = std::function<void(const IterationInfo&)>;
 
+/// Errors before and after the ORA / magnification stitch.
+struct StitchReport {
+  bool applied = false;
+  double e_theta_before = 0, e_phi_before = 0, area_before = 0;  ///< the solver's own result
+  double e_theta_after = 0, e_phi_after = 0, area_after = 0;     ///< after rescaling and stitching
+  double seconds = 0;
+};
+
 /// The outcome of a solve.
 struct SolveReport {
   Positions V;                          ///< #V x 3 deformed positions
@@ -59,6 +76,7 @@ struct SolveReport {
   int factorizations = 0;               ///< numeric factorizations during this solve
   int pcg_iterations = 0;               ///< total PCG iterations during this solve
   double seconds = 0;                   ///< wall time of the solve
+  StitchReport stitch;                  ///< ORA / magnification, when requested
 };
 
 }  // namespace meshdeform::core

@@ -16,6 +16,7 @@
 #include "core/laplacian.h"
 #include "core/measures.h"
 #include "core/normals_step.h"
+#include "core/ora.h"
 #include "core/sparse_cholesky.h"
 #include "core/topology.h"
 #include "core/validate.h"
@@ -62,6 +63,7 @@ struct ScaleAwareSolver::Impl {
   ScaleAwareSettings settings;
   int threads = 1;
   std::optional<LaplacianEditor> laplacian;
+  std::optional<RigidityStitcher> stitcher;  // built on the first ORA / magnification request
 
   // Step two: A(N) = G^T G + lambda C^T C in a fixed 3x3-block pattern (full symmetric storage,
   // columns 3b..3b+2 hold the blocks of b's sorted closed neighbourhood).
@@ -434,6 +436,19 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
                  "tolerance >= 0 and pcg_tolerance > 0 are required");
   }
   MD_RETURN_IF_ERROR(check_targets(targets, s.constrained, s.topology, s.bbox_diagonal, true));
+  if (options.face_scale.size() != 0) {
+    if (options.face_scale.size() != s.nf) {
+      return Error(ErrorCode::InvalidArgument,
+                   "face_scale has " + std::to_string(options.face_scale.size()) +
+                       " entries for " + std::to_string(s.nf) + " faces");
+    }
+    for (Eigen::Index f = 0; f < s.nf; ++f) {
+      if (!(options.face_scale(f) > 0) || !std::isfinite(options.face_scale(f))) {
+        return Error(ErrorCode::InvalidArgument, "face_scale of face " + std::to_string(f) +
+                                                     " must be positive and finite");
+      }
+    }
+  }
   if (options.lambda != s.settings.lambda) {
     return Error(ErrorCode::InvalidArgument,
                  "lambda is fixed when the solver is created (" + std::to_string(s.settings.lambda) +
@@ -566,13 +581,35 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     }
   }
 
+  report.V = Eigen::Map<const RowPositions>(x.data(), s.nv, 3);
+  if (options.ora || options.face_scale.size() != 0) {
+    // ORA / magnification (Section 5.3): the stitched mesh is what the caller gets; the solver
+    // keeps its own iterate for warm starts, since the stitch is not a fixed point of it.
+    const auto stitch_start = Clock::now();
+    if (!s.stitcher) {
+      MD_ASSIGN_OR_RETURN(RigidityStitcher built,
+                          RigidityStitcher::create(s.V0, s.F, s.constrained, s.settings.lambda));
+      s.stitcher.emplace(std::move(built));
+    }
+    MD_ASSIGN_OR_RETURN(Positions stitched,
+                        s.stitcher->stitch(report.V, targets, options.face_scale));
+    const Measures rest_measures = compute_measures(s.V0, s.F, s.topology);
+    const AngleErrors before =
+        angle_errors(rest_measures, compute_measures(report.V, s.F, s.topology));
+    const AngleErrors after =
+        angle_errors(rest_measures, compute_measures(stitched, s.F, s.topology));
+    report.stitch = {true,           before.e_theta, before.e_phi, before.area_log_rms,
+                     after.e_theta,  after.e_phi,    after.area_log_rms,
+                     seconds_since(stitch_start)};
+    report.V = std::move(stitched);
+  }
+
   // Commit.
   s.x = x;
   s.N = N;
   s.rotations = std::move(rotations);
   s.rotations_warm = rotations_warm;
   s.has_previous = true;
-  report.V = Eigen::Map<const RowPositions>(x.data(), s.nv, 3);
   s.current = report.V;
   report.seconds = seconds_since(start);
   return report;
