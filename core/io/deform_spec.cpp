@@ -251,7 +251,7 @@ Result<HandleGroup> parse_group(const json& value, const std::string& where) {
 
 Result<EditSpec> parse_spec_json(const json& root) {
   if (!root.is_object()) return invalid("edit spec: expected a JSON object at the top level");
-  MD_RETURN_IF_ERROR(check_keys(root, {"fixed", "handles", "options"}, "edit spec"));
+  MD_RETURN_IF_ERROR(check_keys(root, {"fixed", "handles", "magnify", "options"}, "edit spec"));
   EditSpec spec;
   if (root.contains("fixed")) {
     MD_ASSIGN_OR_RETURN(spec.fixed, to_indices(root["fixed"], "fixed"));
@@ -265,11 +265,40 @@ Result<EditSpec> parse_spec_json(const json& root) {
       spec.handles.push_back(std::move(group));
     }
   }
+  if (root.contains("magnify")) {
+    const json& magnify = root["magnify"];
+    if (!magnify.is_array()) return invalid("magnify: expected an array of regions");
+    for (std::size_t k = 0; k < magnify.size(); ++k) {
+      const std::string where = "magnify[" + std::to_string(k) + "]";
+      const json& region = magnify[k];
+      if (!region.is_object()) return invalid(where + ": expected an object");
+      MD_RETURN_IF_ERROR(check_keys(region, {"vertices", "scale"}, where));
+      if (!region.contains("vertices") || !region.contains("scale")) {
+        return invalid(where + ": needs 'vertices' and 'scale'");
+      }
+      MagnifySpec m;
+      MD_ASSIGN_OR_RETURN(m.vertices, to_indices(region["vertices"], where + ".vertices"));
+      if (m.vertices.empty()) return invalid(where + ".vertices: must not be empty");
+      MD_ASSIGN_OR_RETURN(m.scale, to_number(region["scale"], where + ".scale"));
+      if (!(m.scale > 0.0)) {
+        return invalid(where + ".scale: must be > 0, got " + number_text(m.scale));
+      }
+      spec.magnify.push_back(std::move(m));
+    }
+  }
   if (root.contains("options")) {
     const json& options = root["options"];
     if (!options.is_object()) return invalid("options: expected an object");
-    MD_RETURN_IF_ERROR(
-        check_keys(options, {"iterations", "tolerance", "inner_iterations"}, "options"));
+    MD_RETURN_IF_ERROR(check_keys(
+        options, {"iterations", "tolerance", "inner_iterations", "method", "ora"}, "options"));
+    if (options.contains("method")) {
+      if (!options["method"].is_string()) return invalid("options.method: expected a string");
+      spec.options.method = options["method"].get<std::string>();
+    }
+    if (options.contains("ora")) {
+      if (!options["ora"].is_boolean()) return invalid("options.ora: expected true or false");
+      spec.options.ora = options["ora"].get<bool>();
+    }
     if (options.contains("iterations")) {
       MD_ASSIGN_OR_RETURN(const int n, to_int(options["iterations"], "options.iterations"));
       if (n < 1) return invalid("options.iterations: must be >= 1, got " + std::to_string(n));
@@ -601,7 +630,19 @@ Result<std::string> format_edit_spec(const EditSpec& spec) {
       options["tolerance"] = *spec.options.tolerance;
     }
     if (spec.options.inner_iterations) options["inner_iterations"] = *spec.options.inner_iterations;
+    if (spec.options.method) options["method"] = *spec.options.method;
+    if (spec.options.ora) options["ora"] = *spec.options.ora;
     if (!options.empty()) root["options"] = options;
+    if (!spec.magnify.empty()) {
+      json magnify = json::array();
+      for (const MagnifySpec& m : spec.magnify) {
+        if (!(m.scale > 0.0) || !std::isfinite(m.scale)) {
+          return invalid("magnify: scale must be positive and finite");
+        }
+        magnify.push_back({{"vertices", m.vertices}, {"scale", m.scale}});
+      }
+      root["magnify"] = magnify;
+    }
     return root.dump(2) + "\n";
   });
 }

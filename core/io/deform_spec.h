@@ -18,7 +18,9 @@
 ///     { "vertices": [20], "matrix": [16 numbers, row-major affine, last row 0 0 0 1] },
 ///     { "vertices": [30, 31], "targets": [[x, y, z], [x, y, z]] }   // one per vertex
 ///   ],
-///   "options": { "iterations": 10, "tolerance": 1e-6, "inner_iterations": 5 }
+///   "magnify": [ { "vertices": [40, 41, 42], "scale": 2.0 } ],   // regions grown by k
+///   "options": { "iterations": 10, "tolerance": 1e-6, "inner_iterations": 5,
+///                "method": "scale_aware" | "arap" | "laplacian", "ora": true }
 /// }
 /// @endcode
 /// A handle group uses exactly one of the three forms; the rigid form is chosen by any of
@@ -117,12 +119,21 @@ struct EditOptions {
   std::optional<int> iterations;        ///< >= 1
   std::optional<double> tolerance;      ///< > 0
   std::optional<int> inner_iterations;  ///< >= 1
+  std::optional<std::string> method;    ///< "scale_aware", "arap" or "laplacian" (checked by caller)
+  std::optional<bool> ora;              ///< optimal rigidity approximation after the solve
+};
+
+/// A region to magnify by `scale` (paper Figs. 12-13): the faces whose three corners are listed.
+struct MagnifySpec {
+  std::vector<int> vertices;  ///< non-empty
+  double scale = 1.0;         ///< > 0
 };
 
 /// A parsed JSON edit spec.
 struct EditSpec {
   std::vector<int> fixed;            ///< vertices held at their rest position
   std::vector<HandleGroup> handles;  ///< moved groups
+  std::vector<MagnifySpec> magnify;  ///< regions to magnify (empty: none)
   EditOptions options;
 };
 

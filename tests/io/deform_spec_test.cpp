@@ -367,3 +367,39 @@ TEST(EditSpecParseTest, MissingFileIsNotFound) {
 
 }  // namespace
 }  // namespace meshdeform::io
+
+namespace meshdeform::io {
+namespace {
+
+TEST(EditSpecMagnify, ParsesRoundTripsAndRejectsBadRegions) {
+  auto spec = parse_edit_spec(R"({"fixed": [0, 1], "magnify": [{"vertices": [2, 3, 4], "scale": 2.5}],
+                                  "options": {"method": "arap", "ora": true}})");
+  ASSERT_TRUE(spec.ok()) << spec.status().to_string();
+  ASSERT_EQ(spec->magnify.size(), 1u);
+  EXPECT_EQ(spec->magnify[0].vertices, (std::vector<int>{2, 3, 4}));
+  EXPECT_EQ(spec->magnify[0].scale, 2.5);
+  EXPECT_EQ(spec->options.method, std::optional<std::string>("arap"));
+  EXPECT_EQ(spec->options.ora, std::optional<bool>(true));
+  auto text = format_edit_spec(*spec);
+  ASSERT_TRUE(text.ok());
+  auto again = parse_edit_spec(*text);
+  ASSERT_TRUE(again.ok()) << again.status().to_string();
+  EXPECT_EQ(again->magnify[0].vertices, spec->magnify[0].vertices);
+  EXPECT_EQ(again->options.ora, spec->options.ora);
+
+  auto zero = parse_edit_spec(R"({"magnify": [{"vertices": [1], "scale": 0}]})");
+  ASSERT_FALSE(zero.ok());
+  EXPECT_NE(zero.status().message().find("magnify[0].scale: must be > 0"), std::string::npos);
+  auto empty = parse_edit_spec(R"({"magnify": [{"vertices": [], "scale": 2}]})");
+  ASSERT_FALSE(empty.ok());
+  EXPECT_NE(empty.status().message().find("magnify[0].vertices: must not be empty"),
+            std::string::npos);
+  auto missing = parse_edit_spec(R"({"magnify": [{"vertices": [1]}]})");
+  ASSERT_FALSE(missing.ok());
+  EXPECT_NE(missing.status().message().find("needs 'vertices' and 'scale'"), std::string::npos);
+  auto bad_ora = parse_edit_spec(R"({"options": {"ora": 1}})");
+  EXPECT_FALSE(bad_ora.ok());
+}
+
+}  // namespace
+}  // namespace meshdeform::io
