@@ -1,0 +1,181 @@
+#include "core/deformer.h"
+
+#include <chrono>
+#include <cmath>
+#include <optional>
+#include <string>
+#include <utility>
+
+#include "core/arap.h"
+#include "core/constraints.h"
+#include "core/measures.h"
+#include "core/scale_aware.h"
+#include "core/topology.h"
+#include "core/validate.h"
+
+namespace meshdeform::core {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// The iterative solvers already have the Deformer shape: the adapters only forward.
+class ScaleAwareDeformer final : public Deformer {
+ public:
+  explicit ScaleAwareDeformer(ScaleAwareSolver solver) : solver_(std::move(solver)) {}
+  Method method() const override { return Method::ScaleAware; }
+  Result<SolveReport> solve(const Positions& targets, const SolveOptions& options,
+                            const ProgressCallback& progress, std::stop_token stop) override {
+    // Options go through unchanged: options.lambda must equal DeformerSettings::lambda.
+    return solver_.solve(targets, options, progress, std::move(stop));
+  }
+  const Positions& positions() const override { return solver_.positions(); }
+  const Eigen::VectorXi& constrained() const override { return solver_.constrained(); }
+  void reset() override { solver_.reset(); }
+
+ private:
+  ScaleAwareSolver solver_;
+};
+
+class ArapDeformer final : public Deformer {
+ public:
+  explicit ArapDeformer(ArapSolver solver) : solver_(std::move(solver)) {}
+  Method method() const override { return Method::Arap; }
+  Result<SolveReport> solve(const Positions& targets, const SolveOptions& options,
+                            const ProgressCallback& progress, std::stop_token stop) override {
+    return solver_.solve(targets, options, progress, std::move(stop));
+  }
+  const Positions& positions() const override { return solver_.positions(); }
+  const Eigen::VectorXi& constrained() const override { return solver_.constrained(); }
+  void reset() override { solver_.reset(); }
+
+ private:
+  ArapSolver solver_;
+};
+
+// Laplacian editing is one direct solve: no iterations, no start, nothing to warm.
+class LaplacianDeformer final : public Deformer {
+ public:
+  LaplacianDeformer(LaplacianEditor editor, const Positions& V0, const Triangles& F,
+                    MeshTopology topology, const Eigen::VectorXi& constrained, double lambda)
+      : editor_(std::move(editor)),
+        V0_(V0),
+        F_(F),
+        topology_(std::move(topology)),
+        constrained_(constrained),
+        lambda_(lambda),
+        bbox_diagonal_((V0.colwise().maxCoeff() - V0.colwise().minCoeff()).norm()),
+        current_(V0) {}
+
+  Method method() const override { return Method::Laplacian; }
+
+  Result<SolveReport> solve(const Positions& targets, const SolveOptions& options,
+                            const ProgressCallback& progress, std::stop_token stop) override {
+    const auto start = Clock::now();
+    if (options.ora || options.face_scale.size() != 0) {
+      return Error(ErrorCode::InvalidArgument,
+                   std::string("ORA and magnification belong to the scale-aware method, not "
+                               "Laplacian editing (") +
+                       (options.ora ? "ora is set" : "face_scale is not empty") + ")");
+    }
+    MD_RETURN_IF_ERROR(check_targets(targets, constrained_, topology_, bbox_diagonal_, false));
+    if (options.lambda != lambda_) {
+      return Error(ErrorCode::InvalidArgument, "lambda is fixed when the deformer is created (" +
+                                                   std::to_string(lambda_) + "); got " +
+                                                   std::to_string(options.lambda));
+    }
+    if (stop.stop_requested()) return Error(ErrorCode::Cancelled, "solve cancelled");
+    MD_ASSIGN_OR_RETURN(Positions V, editor_.solve(targets));
+
+    IterationInfo info;
+    info.linear_seconds = std::chrono::duration<double>(Clock::now() - start).count();
+    if (options.track_metrics) {
+      if (!rest_) rest_ = compute_measures(V0_, F_, topology_);
+      const AngleErrors errors = angle_errors(*rest_, compute_measures(V, F_, topology_));
+      info.e_theta = errors.e_theta;
+      info.e_phi = errors.e_phi;
+    }
+    info.elapsed_seconds = std::chrono::duration<double>(Clock::now() - start).count();
+    SolveReport report;
+    report.history.push_back(info);
+    report.converged = true;  // a direct solve is exact
+    if (progress) progress(info);
+
+    current_ = V;
+    report.V = std::move(V);
+    report.seconds = std::chrono::duration<double>(Clock::now() - start).count();
+    return report;
+  }
+
+  const Positions& positions() const override { return current_; }
+  const Eigen::VectorXi& constrained() const override { return constrained_; }
+  void reset() override { current_ = V0_; }
+
+ private:
+  LaplacianEditor editor_;
+  Positions V0_;
+  Triangles F_;
+  MeshTopology topology_;
+  Eigen::VectorXi constrained_;
+  double lambda_ = 0;
+  double bbox_diagonal_ = 1;
+  std::optional<Measures> rest_;  // computed on the first solve that tracks metrics
+  Positions current_;
+};
+
+}  // namespace
+
+const char* method_name(Method method) {
+  switch (method) {
+    case Method::ScaleAware:
+      return "scale_aware";
+    case Method::Arap:
+      return "arap";
+    case Method::Laplacian:
+      return "laplacian";
+  }
+  return "unknown";
+}
+
+Result<Method> parse_method(std::string_view name) {
+  if (name == "scale_aware" || name == "scale-aware") return Method::ScaleAware;
+  if (name == "arap") return Method::Arap;
+  if (name == "laplacian") return Method::Laplacian;
+  return Error(ErrorCode::InvalidArgument,
+               "unknown method \"" + std::string(name) +
+                   "\" (expected \"scale_aware\", \"arap\" or \"laplacian\")");
+}
+
+Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& V0,
+                                                const Triangles& F,
+                                                const Eigen::VectorXi& constrained,
+                                                const DeformerSettings& settings) {
+  switch (method) {
+    case Method::ScaleAware: {
+      ScaleAwareSettings s;
+      s.lambda = settings.lambda;
+      s.threads = settings.threads;
+      s.refactor_cost_ratio = settings.refactor_cost_ratio;
+      MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(V0, F, constrained, s));
+      return std::unique_ptr<Deformer>(std::make_unique<ScaleAwareDeformer>(std::move(solver)));
+    }
+    case Method::Arap: {
+      ArapSettings s;
+      s.threads = settings.threads;
+      MD_ASSIGN_OR_RETURN(ArapSolver solver, ArapSolver::create(V0, F, constrained, s));
+      return std::unique_ptr<Deformer>(std::make_unique<ArapDeformer>(std::move(solver)));
+    }
+    case Method::Laplacian: {
+      MD_RETURN_IF_ERROR(validate_triangle_mesh(V0, F));
+      MD_ASSIGN_OR_RETURN(MeshTopology topology, build_topology(F, static_cast<int>(V0.rows())));
+      MD_ASSIGN_OR_RETURN(LaplacianEditor editor,
+                          LaplacianEditor::create(V0, F, topology, constrained,
+                                                  settings.laplacian_weights, settings.lambda));
+      return std::unique_ptr<Deformer>(std::make_unique<LaplacianDeformer>(
+          std::move(editor), V0, F, std::move(topology), constrained, settings.lambda));
+    }
+  }
+  return Error(ErrorCode::InvalidArgument,
+               "unknown method " + std::to_string(static_cast<int>(method)));
+}
+
+}  // namespace meshdeform::core

@@ -1,0 +1,97 @@
+#pragma once
+/// @file deformer.h
+/// One interface over every deformation method, so that callers (CLI, bench, service) switch
+/// methods without changing code: the scale-aware solver (Liu et al.), as-rigid-as-possible
+/// (Sorkine & Alexa 2007) and Laplacian editing (Sorkine et al. 2004). Each is prefactored per
+/// handle set by make_deformer() and solved per target set, with the same options, progress and
+/// cancellation.
+
+#include <memory>
+#include <stop_token>
+#include <string_view>
+
+#include <Eigen/Core>
+
+#include "core/deform_types.h"
+#include "core/laplacian.h"
+#include "core/mesh_data.h"
+#include "core/status.h"
+
+namespace meshdeform::core {
+
+enum class Method {
+  ScaleAware,  ///< Liu et al., the default
+  Arap,        ///< as-rigid-as-possible, cotangent weights, cached factorization
+  Laplacian,   ///< Laplacian editing, one linear solve
+};
+
+/// "scale_aware", "arap", "laplacian".
+const char* method_name(Method method);
+/// Inverse of method_name (also accepts "scale-aware"); InvalidArgument names the bad value.
+[[nodiscard]] Result<Method> parse_method(std::string_view name);
+
+/// Settings fixed per handle set (they define the cached matrices).
+struct DeformerSettings {
+  double lambda = 100.0;  ///< soft handle weight (scale-aware, Laplacian); ARAP pins handles exactly
+  int threads = 1;        ///< OpenMP threads for per-element loops
+  LaplacianWeights laplacian_weights = LaplacianWeights::Cotangent;  ///< Laplacian method/guess
+  double refactor_cost_ratio = 0.5;  ///< scale-aware lagged-factor rule
+};
+
+/// A prefactored deformation method for one mesh and one handle set.
+class Deformer {
+ public:
+  virtual ~Deformer() = default;
+  virtual Method method() const = 0;
+  /// Deforms toward #C x 3 targets (row j for constrained()(j)); warm-starts from the previous
+  /// result when options.start allows. Per method:
+  ///  - ScaleAware: ScaleAwareSolver::solve with the options unchanged, so options.lambda must
+  ///    equal DeformerSettings::lambda (InvalidArgument otherwise).
+  ///  - Arap: ArapSolver::solve; handles land exactly on their targets; options.lambda,
+  ///    inner_iterations, pcg_tolerance and adaptive_pcg are ignored, ora and face_scale
+  ///    rejected.
+  ///  - Laplacian: one direct solve. options.lambda must equal DeformerSettings::lambda; start,
+  ///    max_iterations and tolerance are ignored (nothing iterates), ora and face_scale
+  ///    rejected. The history holds a single entry, iteration 0 = the result (energy 0: the
+  ///    editor's objective is not evaluated; e_theta / e_phi when options.track_metrics),
+  ///    iterations = 0, converged = true, and progress is called once.
+  /// @param[in] targets   #C x 3 target positions.
+  /// @param[in] options   see SolveOptions and the per-method notes above.
+  /// @param[in] progress  called after every iteration (iteration 0 included), on this thread.
+  /// @param[in] stop      cancellation.
+  /// @return the report; InvalidArgument for out-of-range options, a lambda that differs from
+  ///         the settings (ScaleAware, Laplacian), ora or face_scale given to Arap or Laplacian,
+  ///         a wrong number of target rows or a non-finite target (naming it), or (ScaleAware
+  ///         only) coinciding targets of a component; Cancelled when `stop` is requested
+  ///         (positions() keeps the previous result); NumericalFailure if the solve breaks down.
+  [[nodiscard]] virtual Result<SolveReport> solve(const Positions& targets,
+                                                  const SolveOptions& options = {},
+                                                  const ProgressCallback& progress = {},
+                                                  std::stop_token stop = {}) = 0;
+  /// The current positions (rest before the first solve).
+  virtual const Positions& positions() const = 0;
+  /// The constrained vertex indices given to make_deformer().
+  virtual const Eigen::VectorXi& constrained() const = 0;
+  /// Forgets the previous result: positions() is the rest mesh again.
+  virtual void reset() = 0;
+};
+
+/// Builds a deformer: validates the mesh and the constrained set and factors the method's
+/// matrices (ScaleAware: ScaleAwareSettings from lambda, threads and refactor_cost_ratio; Arap:
+/// threads only; Laplacian: laplacian_weights and lambda).
+/// @param[in] method       which method.
+/// @param[in] V0           #V x 3 rest positions.
+/// @param[in] F            #F x 3 triangles.
+/// @param[in] constrained  #C distinct vertex indices (fixed and handle vertices alike).
+/// @param[in] settings     see DeformerSettings.
+/// @return InvalidArgument for a bad mesh, bad or repeated indices, or a component the method
+///         cannot pin (scale-aware: fewer than two constrained vertices; ARAP and Laplacian:
+///         none), or settings out of range (lambda not positive and finite, or
+///         refactor_cost_ratio not positive, for the methods that use them); NumericalFailure if
+///         a factorization fails.
+[[nodiscard]] Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& V0,
+                                                              const Triangles& F,
+                                                              const Eigen::VectorXi& constrained,
+                                                              const DeformerSettings& settings = {});
+
+}  // namespace meshdeform::core
