@@ -91,6 +91,16 @@ Result<DeformInput> load_with(const std::filesystem::path& mesh_path, MakeSetup 
     input.setup = std::move(raw_setup);
   } else {
     MD_ASSIGN_OR_RETURN(input.setup, remap_setup(raw_setup, cleaned->old_to_new));
+    for (core::MagnifyRegion& region : input.magnify) {
+      std::vector<int> kept;
+      for (Eigen::Index k = 0; k < region.vertices.size(); ++k) {
+        const int v = region.vertices(k);
+        if (v >= 0 && v < cleaned->old_to_new.size() && cleaned->old_to_new(v) >= 0) {
+          kept.push_back(cleaned->old_to_new(v));
+        }
+      }
+      region.vertices = Eigen::Map<Eigen::VectorXi>(kept.data(), static_cast<int>(kept.size()));
+    }
   }
   count_roles(input);
   input.sources["mesh"] = mesh_path.string();
@@ -138,7 +148,34 @@ Result<DeformInput> load_edit_input(const std::filesystem::path& mesh_path,
   auto input = load_with(
       mesh_path, [&](const Positions& raw_V, DeformInput& out) -> Result<core::HandleSetup> {
         out.edit_options = spec.options;
-        return io::resolve_edit(spec, raw_V);
+        MD_ASSIGN_OR_RETURN(core::HandleSetup setup, io::resolve_edit(spec, raw_V));
+        // Magnification (Figs. 12-13): handles inside a region grow with it, about its centre.
+        for (size_t r = 0; r < spec.magnify.size(); ++r) {
+          const io::MagnifySpec& m = spec.magnify[r];
+          core::MagnifyRegion region;
+          region.vertices = Eigen::Map<const Eigen::VectorXi>(m.vertices.data(),
+                                                              static_cast<int>(m.vertices.size()));
+          region.scale = m.scale;
+          Eigen::RowVector3d centre = Eigen::RowVector3d::Zero();
+          std::vector<char> inside(raw_V.rows(), 0);
+          for (int v : m.vertices) {
+            if (v < 0 || v >= raw_V.rows()) {
+              return Error(ErrorCode::InvalidArgument,
+                           "magnify[" + std::to_string(r) + "]: vertex " + std::to_string(v) +
+                               " out of range (#V=" + std::to_string(raw_V.rows()) + ")");
+            }
+            centre += raw_V.row(v);
+            inside[v] = 1;
+          }
+          centre /= static_cast<double>(m.vertices.size());
+          for (Eigen::Index j = 0; j < setup.constrained.size(); ++j) {
+            if (inside[setup.constrained(j)]) {
+              setup.targets.row(j) = centre + m.scale * (setup.targets.row(j) - centre);
+            }
+          }
+          out.magnify.push_back(std::move(region));
+        }
+        return setup;
       });
   if (!input.ok()) return input.status();
   input->sources["edit"] = edit_path.string();
@@ -158,13 +195,24 @@ Result<DeformInput> benchmark_input(const core::DeformationBenchmark& bench) {
 Result<DeformOutcome> run_deformation(const DeformInput& input, const RunSettings& run) {
   DeformOutcome outcome;
   const auto t0 = std::chrono::steady_clock::now();
-  MD_ASSIGN_OR_RETURN(core::ScaleAwareSolver solver,
-                      core::ScaleAwareSolver::create(input.mesh.V, input.mesh.F,
-                                                     input.setup.constrained, run.settings));
+  core::SolveOptions options = run.options;
+  if (!input.magnify.empty()) {
+    MD_ASSIGN_OR_RETURN(options.face_scale,
+                        core::face_scales_from_regions(input.magnify, input.mesh.F,
+                                                       static_cast<int>(input.mesh.V.rows())));
+  }
+  if (run.method != core::Method::ScaleAware && (options.ora || options.face_scale.size() != 0)) {
+    return Error(ErrorCode::InvalidArgument,
+                 std::string("ORA and magnification belong to the scale-aware method, not ") +
+                     core::method_name(run.method));
+  }
+  MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
+                      core::make_deformer(run.method, input.mesh.V, input.mesh.F,
+                                          input.setup.constrained, run.settings));
   outcome.precompute_seconds = seconds_between(t0, std::chrono::steady_clock::now());
 
   ProgressPrinter printer(run.progress, run.options.max_iterations, run.label);
-  auto solved = solver.solve(input.setup.targets, run.options, printer.callback());
+  auto solved = deformer->solve(input.setup.targets, options, printer.callback());
   printer.finish();
   if (!solved.ok()) return solved.status();
   outcome.report = std::move(solved).value();
@@ -183,7 +231,7 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
   const core::SolveReport& report = outcome.report;
   json j;
   j["tool"] = "meshdeform-cli";
-  j["method"] = "scale_aware";
+  j["method"] = core::method_name(run.method);
   j["input"] = {{"sources", input.sources},
                 {"vertices", input.mesh.V.rows()},
                 {"faces", input.mesh.F.rows()},
@@ -199,7 +247,24 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
                   {"start", start_name(run.options.start)},
                   {"pcg_tolerance", run.options.pcg_tolerance},
                   {"adaptive_pcg", run.options.adaptive_pcg},
+                  {"ora", run.options.ora},
                   {"threads", run.settings.threads}};
+  if (!input.magnify.empty()) {
+    json regions = json::array();
+    for (const core::MagnifyRegion& region : input.magnify) {
+      regions.push_back({{"vertices", region.vertices.size()}, {"scale", region.scale}});
+    }
+    j["magnify"] = regions;
+  }
+  if (report.stitch.applied) {
+    j["stitch"] = {{"before", {{"e_theta", report.stitch.e_theta_before},
+                               {"e_phi", report.stitch.e_phi_before},
+                               {"area_log_rms", report.stitch.area_before}}},
+                   {"after", {{"e_theta", report.stitch.e_theta_after},
+                              {"e_phi", report.stitch.e_phi_after},
+                              {"area_log_rms", report.stitch.area_after}}},
+                   {"seconds", report.stitch.seconds}};
+  }
   j["history"] = io::history_to_json(report.history);
   j["iterations"] = report.iterations;
   j["converged"] = report.converged;

@@ -14,6 +14,8 @@
 #include "core/measures.h"
 #include "core/mesh_data.h"
 #include "core/procedural.h"
+#include "core/deformer.h"
+#include "core/ora.h"
 #include "core/scale_aware.h"
 #include "core/status.h"
 
@@ -29,6 +31,9 @@ struct DeformInput {
   int dropped_unreferenced = 0;
   nlohmann::json sources;        ///< paths or a description of the inputs
   io::EditOptions edit_options;  ///< options carried by a JSON edit spec (empty otherwise)
+  /// Regions to magnify (vertex form, numbering of `mesh`); handle targets inside a region are
+  /// already scaled by its k about the region's rest centroid.
+  std::vector<core::MagnifyRegion> magnify;
 };
 
 /// Loads a mesh file and a Botsch & Sorkine .sel/.def pair.
@@ -48,8 +53,9 @@ struct DeformInput {
 
 /// Solver configuration of one run.
 struct RunSettings {
+  core::Method method = core::Method::ScaleAware;
   core::SolveOptions options;
-  core::ScaleAwareSettings settings;
+  core::DeformerSettings settings;
   ProgressStyle progress = ProgressStyle::None;
   std::string label = "deform";  ///< progress label
 };
@@ -61,8 +67,10 @@ struct DeformOutcome {
   core::AngleErrors final_errors;  ///< E_theta, E_phi and area distortion of the result
 };
 
-/// Precomputes the solver and solves once.
-/// @return the outcome; the errors of ScaleAwareSolver::create / solve and core::build_topology.
+/// Precomputes the chosen method and solves once (with ORA / magnification when asked).
+/// @return the outcome; the errors of core::make_deformer / solve, core::face_scales_from_regions
+///         and core::build_topology; InvalidArgument for ORA or magnification with a method
+///         other than scale-aware.
 [[nodiscard]] Result<DeformOutcome> run_deformation(const DeformInput& input,
                                                     const RunSettings& run);
 
