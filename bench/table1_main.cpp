@@ -25,6 +25,7 @@
 #include "bench/cgal_arap.h"
 #include "bench/machine_info.h"
 #include "core/deform_types.h"
+#include "core/deformer.h"
 #include "core/io/report_json.h"
 #include "core/measures.h"
 #include "core/procedural.h"
@@ -210,8 +211,18 @@ struct CgalRun {
   }
 };
 
+// One method of the comparison table (paper Section 6 / issue 3): precompute + solve time and
+// the errors of its result, all through core::make_deformer on the same mesh and edit.
+struct MethodRun {
+  std::string name;
+  double seconds = 0;
+  int iterations = 0;
+  AngleErrors errors;
+};
+
 struct ModelRow {
   std::string name;
+  std::vector<MethodRun> methods;
   int vertices = 0;
   int faces = 0;
   int fixed = 0;
@@ -287,6 +298,31 @@ Result<ModelRow> run_model(const core::DeformationBenchmark& model, const Option
   row.ours.move_factorizations = move.factorizations;
   row.ours.move_pcg_iterations = move.pcg_iterations;
   row.ours.move_errors = errors_of(rest, move.V, F, topology);
+
+  // The method comparison: Laplacian editing, ARAP (ours), scale-aware, scale-aware + ORA.
+  struct Variant {
+    const char* name;
+    core::Method method;
+    bool ora;
+  };
+  for (const Variant& variant : {Variant{"laplacian", core::Method::Laplacian, false},
+                                 Variant{"arap", core::Method::Arap, false},
+                                 Variant{"scale_aware", core::Method::ScaleAware, false},
+                                 Variant{"scale_aware+ora", core::Method::ScaleAware, true}}) {
+    std::cerr << "[" << row.name << "] method " << variant.name << "\n";
+    core::DeformerSettings deformer_settings;
+    deformer_settings.threads = options.threads;
+    const auto method_start = std::chrono::steady_clock::now();
+    MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
+                        core::make_deformer(variant.method, V0, F, setup.constrained,
+                                            deformer_settings));
+    core::SolveOptions method_options = solve_options;
+    method_options.ora = variant.ora;
+    MD_ASSIGN_OR_RETURN(const core::SolveReport result,
+                        deformer->solve(setup.targets, method_options));
+    row.methods.push_back({variant.name, seconds_since(method_start), result.iterations,
+                           errors_of(rest, result.V, F, topology)});
+  }
 
   if (options.run_cgal) {
     std::cerr << "[" << row.name << "] CGAL ARAP (" << cgal_arap_variant_name(options.cgal_variant)
@@ -451,6 +487,19 @@ std::string markdown(const MachineInfo& machine, const std::string& load_at_end,
         << options.iterations << ".\n";
   }
 
+  out << "\n## Methods on the same edit\n\n";
+  out << "Each through core::make_deformer: precompute + solve from the Laplacian guess, budget "
+      << options.iterations << " iterations (Laplacian: one solve). Area = RMS log(area'/area).\n\n";
+  out << "| model | method | time (s) | its | E_theta | E_phi | area |\n";
+  out << "|---|---|---:|---:|---:|---:|---:|\n";
+  for (const ModelRow& row : rows) {
+    for (const MethodRun& m : row.methods) {
+      out << "| " << row.name << " | " << m.name << " | " << sec(m.seconds) << " | " << m.iterations
+          << " | " << err(m.errors.e_theta) << " | " << err(m.errors.e_phi) << " | "
+          << err(m.errors.area_log_rms) << " |\n";
+    }
+  }
+
   out << "\n## Targets\n\n";
   if (checks.empty()) {
     out << "No target applies to the models run (the size targets are for the paper-size suite).\n";
@@ -501,6 +550,14 @@ nlohmann::json to_json(const MachineInfo& machine, const std::string& load_at_en
                             {"fixed_vertices", row.fixed},
                             {"handle_vertices", row.handles},
                             {"move_transform_fallback", row.move_used_fallback}};
+    nlohmann::json methods = nlohmann::json::array();
+    for (const MethodRun& m : row.methods) {
+      methods.push_back({{"method", m.name},
+                         {"seconds", m.seconds},
+                         {"iterations", m.iterations},
+                         {"errors", errors_json(m.errors)}});
+    }
+    model["methods"] = methods;
     model["ours"] = {{"precompute_seconds", o.precompute_seconds},
                      {"solve_seconds", o.solve_seconds},
                      {"init_seconds", o.init_seconds},
