@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "cli/args.h"
+#include "cli/curve_command.h"
 #include "cli/deform_run.h"
 #include "core/io/deform_spec.h"
 #include "core/io/mesh_io.h"
@@ -28,12 +29,14 @@ Usage:
   meshdeform-cli deform   --mesh IN (--sel S.sel --def D.def | --edit EDIT.json) --out OUT [options]
   meshdeform-cli generate --model NAME|all [--small] --out-dir DIR
   meshdeform-cli demo     [--out-dir DIR]
+  meshdeform-cli curve    --koch LEVEL [--pull DY] --svg OUT.svg [--report OUT.json]
   meshdeform-cli COMMAND --help
 
 Commands:
   deform    deform a mesh file toward handle targets and write the result and a JSON report
   generate  write the paper's Table 1 models (bumpy_plane, cylinder, bar, cactus) as .off/.sel/.def
   demo      bend the built-in cylinder; writes demo_result.glb/.obj and demo_report.json
+  curve     2D Koch-curve edit with Laplacian, ARAP and scale-aware side by side (paper Fig. 9)
 
 Exit codes: 0 success, 1 runtime error, 2 usage error.
 )";
@@ -41,23 +44,27 @@ Exit codes: 0 success, 1 runtime error, 2 usage error.
 constexpr const char* kDeformHelp =
     R"(Usage: meshdeform-cli deform --mesh IN --out OUT (--sel S.sel --def D.def | --edit EDIT.json) [options]
 
-Deforms IN with the scale-aware solver and writes the result to OUT.
+Deforms IN (scale-aware by default) and writes the result to OUT.
 
 Inputs:
   --mesh PATH               mesh to deform (.obj .off .ply .stl .glb .gltf)
   --sel PATH                Botsch & Sorkine selection: one role per vertex (0 fixed, 1 free, 2 handle)
   --def PATH                4x4 row-major transform applied to the handle vertices (with --sel)
-  --edit PATH               JSON edit spec (fixed vertices and handle groups), instead of --sel/--def
+  --edit PATH               JSON edit spec (fixed vertices, handle groups, magnify regions,
+                            options), instead of --sel/--def
 Outputs:
   --out PATH                deformed mesh (.obj .off .ply .stl .glb .gltf)
   --report PATH             JSON report: inputs, options, per-iteration history, timings, errors
+Method:
+  --method NAME             scale_aware (default), arap or laplacian (an edit spec may set it)
+  --ora                     optimal rigidity approximation after the solve (scale-aware only)
 Solver:
   --iterations N            outer iterations, the budget (default 15; an edit spec may set it)
   --tolerance T             stop when the relative energy change is below T (default 1e-4)
   --inner-iterations K      step-one sweeps per outer iteration (default 5)
   --start laplacian|previous  starting guess (default: laplacian, the paper's initialisation)
   --lambda L                handle weight (default 100)
-  --threads N               solver threads, 0 = all (default 0)
+  --threads N               solver threads, 0 = all (default 1)
 Output control:
   --verbose                 one progress line per iteration on stderr (a bar is shown on terminals)
   --help                    this text
@@ -158,6 +165,12 @@ std::optional<std::string> apply_solver_flags(const ParsedArgs& parsed, RunSetti
     run.options.lambda = *value;
     run.settings.lambda = *value;
   }
+  if (auto text = parsed.get("method")) {
+    auto method = core::parse_method(*text);
+    if (!method.ok()) return "--method: " + method.status().message();
+    run.method = *method;
+  }
+  if (parsed.has("ora")) run.options.ora = true;
   if (auto text = parsed.get("threads")) {
     const auto value = parse_integer(*text);
     if (!value || *value < 0 || *value > 4096) {
@@ -193,7 +206,8 @@ int run_deform(const std::vector<std::string>& args) {
                                          {"edit"},           {"out"},        {"report"},
                                          {"iterations"},     {"tolerance"},  {"inner-iterations"},
                                          {"start"},          {"lambda"},     {"threads"},
-                                         {"verbose", false}, {"help", false}};
+                                         {"method"},         {"ora", false}, {"verbose", false},
+                                         {"help", false}};
   if (auto error = parse_args(args, specs, parsed)) return usage_error(command, error->message);
   if (parsed.has("help")) {
     std::fputs(kDeformHelp, stdout);
@@ -237,6 +251,12 @@ int run_deform(const std::vector<std::string>& args) {
   if (spec_options.iterations) run.options.max_iterations = *spec_options.iterations;
   if (spec_options.tolerance) run.options.tolerance = *spec_options.tolerance;
   if (spec_options.inner_iterations) run.options.inner_iterations = *spec_options.inner_iterations;
+  if (spec_options.ora) run.options.ora = *spec_options.ora;
+  if (spec_options.method) {
+    auto method = core::parse_method(*spec_options.method);
+    if (!method.ok()) return runtime_error(command, method.status());
+    run.method = *method;
+  }
   if (auto error = apply_solver_flags(parsed, run)) return usage_error(command, *error);
 
   auto outcome = run_deformation(*input, run);
@@ -374,8 +394,9 @@ int run_cli(const std::vector<std::string>& args) {
   if (command == "deform") return run_deform(rest);
   if (command == "generate") return run_generate(rest);
   if (command == "demo") return run_demo(rest);
+  if (command == "curve") return run_curve(rest);
   std::fprintf(stderr,
-               "%s: unknown command '%s' (expected deform, generate or demo)\nTry '%s --help'.\n",
+               "%s: unknown command '%s' (expected deform, generate, demo or curve)\nTry '%s --help'.\n",
                kProgram, command.c_str(), kProgram);
   return kExitUsage;
 }

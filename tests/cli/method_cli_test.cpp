@@ -1,0 +1,135 @@
+// The method switch, ORA and magnification through the real meshdeform-cli binary.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "core/io/mesh_io.h"
+#include "core/procedural.h"
+#include "tests/support/mesh_factories.h"
+
+namespace meshdeform {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct CliRun {
+  int exit_code = -1;
+  std::string err;
+};
+
+class MethodCliTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("meshdeform_method_cli_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    // A 13 x 13 bumpy grid: left column fixed, right column lifted.
+    const MeshData grid = test::make_grid(12, 0.05);
+    ASSERT_TRUE(io::write_mesh(dir_ / "grid.obj", grid).ok());
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  CliRun run(const std::string& arguments) const {
+    const std::string command = "cd '" + dir_.string() + "' && '" MESHDEFORM_CLI_PATH "' " +
+                                arguments + " >/dev/null 2>stderr.txt";
+    const int status = std::system(command.c_str());
+    CliRun r;
+    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    std::ifstream in(dir_ / "stderr.txt");
+    std::stringstream text;
+    text << in.rdbuf();
+    r.err = text.str();
+    return r;
+  }
+
+  void write(const std::string& name, const std::string& text) const {
+    std::ofstream(dir_ / name) << text;
+  }
+
+  nlohmann::json report() const {
+    std::ifstream in(dir_ / "report.json");
+    return nlohmann::json::parse(in);
+  }
+
+  static std::string column(int i) {
+    std::string out;
+    for (int j = 0; j <= 12; ++j) out += (j ? ", " : "") + std::to_string(j * 13 + i);
+    return out;
+  }
+
+  fs::path dir_;
+};
+
+TEST_F(MethodCliTest, EveryMethodRunsAndIsReported) {
+  write("edit.json", R"({"fixed": [)" + column(0) + R"(], "handles": [{"vertices": [)" +
+                         column(12) + R"(], "translation": [0, 0, 0.3]}]})");
+  for (const char* method : {"scale_aware", "arap", "laplacian"}) {
+    SCOPED_TRACE(method);
+    const CliRun r = run(std::string("deform --mesh grid.obj --edit edit.json --out out.obj "
+                                  "--report report.json --method ") + method);
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const auto j = report();
+    EXPECT_EQ(j["method"], method);
+    EXPECT_FALSE(j.contains("stitch"));
+    auto out = io::load_mesh(dir_ / "out.obj");
+    ASSERT_TRUE(out.ok());
+    EXPECT_NEAR(out->mesh.V(12, 2), 0.3, 0.01);  // a handle reached its target
+  }
+}
+
+TEST_F(MethodCliTest, OraAndMagnifyComeFromFlagsOrTheSpec) {
+  write("edit.json", R"({"fixed": [)" + column(0) + R"(], "handles": [{"vertices": [)" +
+                         column(12) + R"(], "translation": [0.4, 0, 0]}]})");
+  CliRun r = run("deform --mesh grid.obj --edit edit.json --out out.obj --report report.json --ora");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  auto j = report();
+  ASSERT_TRUE(j.contains("stitch"));
+  EXPECT_LT(static_cast<double>(j["stitch"]["after"]["area_log_rms"]),
+            static_cast<double>(j["stitch"]["before"]["area_log_rms"]));
+
+  // Magnify the right half by 1.5 from the spec, with the method and ORA set there too.
+  std::string right;
+  for (int j2 = 0; j2 <= 12; ++j2) {
+    for (int i = 6; i <= 12; ++i) right += (right.empty() ? "" : ", ") + std::to_string(j2 * 13 + i);
+  }
+  write("magnify.json", R"({"fixed": [)" + column(0) + R"(], "magnify": [{"vertices": [)" + right +
+                            R"(], "scale": 1.5}], "options": {"method": "scale_aware"}})");
+  r = run("deform --mesh grid.obj --edit magnify.json --out big.obj --report report.json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  j = report();
+  ASSERT_TRUE(j.contains("magnify"));
+  EXPECT_EQ(j["magnify"][0]["scale"], 1.5);
+  ASSERT_TRUE(j.contains("stitch"));
+  auto big = io::load_mesh(dir_ / "big.obj");
+  ASSERT_TRUE(big.ok());
+  // The magnified half is wider than it was (0.5 at rest).
+  EXPECT_GT(big->mesh.V.col(0).maxCoeff() - big->mesh.V(6 * 13 + 6, 0), 0.6);
+}
+
+TEST_F(MethodCliTest, BadMethodAndOraWithABaselineAreErrors) {
+  write("edit.json", R"({"fixed": [0, 1], "handles": [{"vertices": [168], "translation": [0, 0, 1]}]})");
+  CliRun r = run("deform --mesh grid.obj --edit edit.json --out out.obj --method rigid");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("rigid"), std::string::npos) << r.err;
+  r = run("deform --mesh grid.obj --edit edit.json --out out.obj --method arap --ora");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("ORA and magnification belong to the scale-aware method"), std::string::npos)
+      << r.err;
+  write("bad.json", R"({"fixed": [0, 1], "options": {"method": "fem"}})");
+  r = run("deform --mesh grid.obj --edit bad.json --out out.obj");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("fem"), std::string::npos) << r.err;
+}
+
+}  // namespace
+}  // namespace meshdeform
