@@ -155,6 +155,7 @@ Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& 
       s.lambda = settings.lambda;
       s.threads = settings.threads;
       s.refactor_cost_ratio = settings.refactor_cost_ratio;
+      s.preconditioner = settings.preconditioner;
       MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(V0, F, constrained, s));
       return std::unique_ptr<Deformer>(std::make_unique<ScaleAwareDeformer>(std::move(solver)));
     }

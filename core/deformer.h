@@ -15,6 +15,7 @@
 #include "core/deform_types.h"
 #include "core/laplacian.h"
 #include "core/mesh_data.h"
+#include "core/scale_aware.h"
 #include "core/status.h"
 
 namespace meshdeform::core {
@@ -36,6 +37,8 @@ struct DeformerSettings {
   int threads = 1;        ///< OpenMP threads for per-element loops
   LaplacianWeights laplacian_weights = LaplacianWeights::Cotangent;  ///< Laplacian method/guess
   double refactor_cost_ratio = 0.5;  ///< scale-aware lagged-factor rule
+  /// Scale-aware step two's PCG preconditioner (see core/scale_aware.h).
+  StepTwoPreconditioner preconditioner = StepTwoPreconditioner::BlockTrace;
 };
 
 /// A prefactored deformation method for one mesh and one handle set.

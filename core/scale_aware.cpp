@@ -73,6 +73,7 @@ struct ScaleAwareSolver::Impl {
   std::vector<std::array<int, 9>> face_rank;  // rank of F(f,p) within F(f,q)'s neighbourhood
   std::vector<Eigen::Matrix3d> corner_map;    // 3#F: l R(N_f, theta) per corner
   SparseCholesky cholesky;
+  SparseCholesky trace_cholesky;  // BlockTrace preconditioner: n x n, constant
   bool refactor_pending = true;
   double pcg_iteration_flops = 0;
 
@@ -88,6 +89,8 @@ struct ScaleAwareSolver::Impl {
                const ScaleAwareSettings& settings_in);
   void build_pattern();
   void assemble(const RowPositions& normals);
+  SparseMatrix block_trace_matrix() const;
+  Eigen::VectorXd precondition(const Eigen::VectorXd& r) const;
   double energy(const Eigen::VectorXd& pos, const Eigen::VectorXd& target_vec) const;
   Eigen::VectorXd rhs(const Positions& targets) const;
   void multiply(const Eigen::VectorXd& in, Eigen::VectorXd& out) const;
@@ -134,9 +137,16 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   build_pattern();
   // The rest normals give the first numeric factor; later systems reuse it as a preconditioner.
   assemble(N0);
-  MD_RETURN_IF_ERROR(cholesky.analyze(A));
-  MD_RETURN_IF_ERROR(cholesky.factorize(A));
-  refactor_pending = false;
+  if (settings.preconditioner == StepTwoPreconditioner::BlockTrace) {
+    const SparseMatrix T = block_trace_matrix();
+    MD_RETURN_IF_ERROR(trace_cholesky.analyze(T));
+    MD_RETURN_IF_ERROR(trace_cholesky.factorize(T));
+    refactor_pending = false;
+  } else {
+    MD_RETURN_IF_ERROR(cholesky.analyze(A));
+    MD_RETURN_IF_ERROR(cholesky.factorize(A));
+    refactor_pending = false;
+  }
   // Triangular solves are memory-bound and a supernodal factorization runs BLAS-3: measured on
   // this project's 2-core machine, a solve flop costs 2-6x a factorization flop (a factorization
   // took the time of 13 solves on 40k vertices, 19 on 5k, against flop ratios of 77 and 34).
@@ -144,7 +154,9 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   // (measured on the Table 1 suite: 2x faster than weight 1 on the ~5k models, same errors).
   constexpr double kSolveFlopWeight = 5.0;
   pcg_iteration_flops =
-      kSolveFlopWeight * (cholesky.solve_flops() + 2.0 * static_cast<double>(A.nonZeros()));
+      settings.preconditioner == StepTwoPreconditioner::BlockTrace
+          ? 0.0
+          : kSolveFlopWeight * (cholesky.solve_flops() + 2.0 * static_cast<double>(A.nonZeros()));
 
   x = Eigen::Map<const Eigen::VectorXd>(V0.data(), 3 * nv);
   current = V0_in;
@@ -290,6 +302,49 @@ void ScaleAwareSolver::Impl::assemble(const RowPositions& normals) {
   }
 }
 
+SparseMatrix ScaleAwareSolver::Impl::block_trace_matrix() const {
+  // tr/3 of each block of G^T G with the case table of assemble(): tr M = l (1 + 2 cos theta),
+  // whatever the normal, so this matrix is fixed by the rest measures alone.
+  std::vector<Eigen::Triplet<double>> entries;
+  entries.reserve(27 * static_cast<size_t>(nf) + constrained.size());
+  for (int f = 0; f < nf; ++f) {
+    for (int c = 0; c < 3; ++c) {
+      const int k = 3 * f + c;
+      const double l = corner_ratio(k), l2 = l * l;
+      const double tr = l * (1.0 + 2.0 * corner_cos(k));
+      for (int p = 0; p < 3; ++p) {
+        for (int q = 0; q < 3; ++q) {
+          const int role_p = (p - c + 3) % 3, role_q = (q - c + 3) % 3;
+          double value = 0;
+          switch (3 * role_p + role_q) {
+            case 0: value = l2 + 1.0 - 2.0 * tr / 3.0; break;
+            case 1: case 3: value = tr / 3.0 - l2; break;
+            case 2: case 6: value = tr / 3.0 - 1.0; break;
+            case 4: value = l2; break;
+            case 5: case 7: value = -tr / 3.0; break;
+            default: value = 1.0; break;
+          }
+          entries.emplace_back(F(f, p), F(f, q), value);
+        }
+      }
+    }
+  }
+  for (Eigen::Index j = 0; j < constrained.size(); ++j) {
+    entries.emplace_back(constrained(j), constrained(j), settings.lambda);
+  }
+  SparseMatrix T(nv, nv);
+  T.setFromTriplets(entries.begin(), entries.end());
+  return T;
+}
+
+Eigen::VectorXd ScaleAwareSolver::Impl::precondition(const Eigen::VectorXd& r) const {
+  if (settings.preconditioner == StepTwoPreconditioner::LaggedCholesky) return cholesky.solve(r);
+  // (T (x) I3)^-1 r: the interleaved xyz vector is an #V x 3 row-major matrix.
+  const Eigen::MatrixXd R = Eigen::Map<const RowPositions>(r.data(), nv, 3);
+  const RowPositions Z = trace_cholesky.solve(R);
+  return Eigen::Map<const Eigen::VectorXd>(Z.data(), 3 * static_cast<Eigen::Index>(nv));
+}
+
 Eigen::VectorXd ScaleAwareSolver::Impl::rhs(const Positions& targets) const {
   Eigen::VectorXd b = Eigen::VectorXd::Zero(3 * nv);
   for (Eigen::Index j = 0; j < constrained.size(); ++j) {
@@ -359,7 +414,7 @@ PcgOutcome ScaleAwareSolver::Impl::pcg(const Eigen::VectorXd& b, Eigen::VectorXd
     out.converged = true;
     return out;
   }
-  Eigen::VectorXd z = cholesky.solve(r);
+  Eigen::VectorXd z = precondition(r);
   Eigen::VectorXd p = z;
   double rz = r.dot(z);
   for (int it = 0; it < max_iterations; ++it) {
@@ -378,7 +433,7 @@ PcgOutcome ScaleAwareSolver::Impl::pcg(const Eigen::VectorXd& b, Eigen::VectorXd
       out.converged = true;
       return out;
     }
-    z = cholesky.solve(r);
+    z = precondition(r);
     const double rz_next = r.dot(z);
     p = z + (rz_next / rz) * p;
     rz = rz_next;
@@ -531,7 +586,8 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     s.assemble(N);
     info.assemble_seconds = seconds_since(phase);
     phase = Clock::now();
-    if (s.refactor_pending) {
+    const bool lagged = s.settings.preconditioner == StepTwoPreconditioner::LaggedCholesky;
+    if (lagged && s.refactor_pending) {
       MD_RETURN_IF_ERROR(s.cholesky.factorize(s.A));
       s.refactor_pending = false;
       info.refactored = true;
@@ -544,13 +600,18 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     const double tolerance = options.pcg_tolerance;
     // Past this many steps a fresh factorization is cheaper than more lagged PCG: stop there,
     // refactor and finish (bounded waste instead of a fixed cap).
-    const int max_pcg = std::clamp(
-        static_cast<int>(s.settings.refactor_cost_ratio * s.cholesky.factor_flops() /
-                         s.pcg_iteration_flops),
-        4, 200);
+    const int max_pcg =
+        lagged ? std::clamp(static_cast<int>(s.settings.refactor_cost_ratio *
+                                             s.cholesky.factor_flops() / s.pcg_iteration_flops),
+                            4, 200)
+               : 500;
     PcgOutcome outcome = s.pcg(b, x, reduction, tolerance, max_pcg, stop);
     if (outcome.cancelled) return Error(ErrorCode::Cancelled, "solve cancelled");
     info.pcg_iterations = outcome.iterations;
+    if (!outcome.converged && !lagged) {
+      return Error(ErrorCode::NumericalFailure,
+                   "step two did not converge at iteration " + std::to_string(it));
+    }
     if (!outcome.converged) {
       // The lagged factor no longer preconditions well: refactor now and finish the solve.
       MD_RETURN_IF_ERROR(s.cholesky.factorize(s.A));
@@ -568,8 +629,8 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     info.linear_seconds = seconds_since(phase);
     // Deterministic refactor rule, in flops: PCG that costs more than a fraction of a
     // factorization means the lagged factor has drifted too far from A(N).
-    if (outcome.iterations * s.pcg_iteration_flops >
-        s.settings.refactor_cost_ratio * s.cholesky.factor_flops()) {
+    if (lagged && outcome.iterations * s.pcg_iteration_flops >
+                      s.settings.refactor_cost_ratio * s.cholesky.factor_flops()) {
       s.refactor_pending = true;
     }
     if (!x.allFinite()) {

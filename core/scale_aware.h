@@ -21,12 +21,24 @@
 
 namespace meshdeform::core {
 
+/// How step two's conjugate gradients are preconditioned.
+enum class StepTwoPreconditioner {
+  /// The exact 3n x 3n Cholesky factor of A(N), kept while it pays (lagged) and refreshed by the
+  /// flop-count rule: few PCG steps, but each back-solve streams a large factor.
+  LaggedCholesky,
+  /// The n x n block-trace matrix (tr of every 3x3 block / 3, a partial trace, so PSD): it only
+  /// depends on the rest angles and length ratios (tr(l R(N, theta)) = l (1 + 2 cos theta)), so it
+  /// is factored once per handle set and never refreshed; 9x smaller factor, 3 right-hand sides.
+  BlockTrace,
+};
+
 /// Settings fixed for the lifetime of a solver (they define its matrices).
 struct ScaleAwareSettings {
   double lambda = 100.0;   ///< handle weight of Eq. 12 and of the Laplacian initialisation
   /// Refactor step two's matrix when a PCG solve costs more (in flops) than this fraction of a
   /// numeric factorization. Deterministic: counted in flops, not measured in seconds.
   double refactor_cost_ratio = 0.5;
+  StepTwoPreconditioner preconditioner = StepTwoPreconditioner::BlockTrace;
   /// OpenMP threads for the per-vertex and per-face loops; 0 means all hardware threads.
   /// Default 1: a service solves many sessions side by side, and on a loaded 2-core machine
   /// extra threads per solve only contend (measured 4x slower). Results do not depend on it.
