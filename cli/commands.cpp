@@ -11,6 +11,7 @@
 #include "cli/args.h"
 #include "cli/curve_command.h"
 #include "cli/deform_run.h"
+#include "cli/paths.h"
 #include "core/io/deform_spec.h"
 #include "core/io/mesh_io.h"
 #include "core/procedural.h"
@@ -118,16 +119,6 @@ Status ensure_directory(const fs::path& dir) {
   return Status::success();
 }
 
-/// The parent directory of an output file must exist (checked before a long solve).
-Status check_output_parent(const fs::path& path) {
-  const fs::path parent = path.parent_path();
-  std::error_code ec;
-  if (!parent.empty() && !fs::is_directory(parent, ec)) {
-    return Error(ErrorCode::NotFound, "output directory '" + parent.string() + "' of '" +
-                                          path.string() + "' does not exist");
-  }
-  return Status::success();
-}
 
 /// Parses the solver flags into `run` (flags override what an edit spec set).
 std::optional<std::string> apply_solver_flags(const ParsedArgs& parsed, RunSettings& run) {

@@ -11,6 +11,7 @@
 
 #include "cli/args.h"
 #include "cli/commands.h"
+#include "cli/paths.h"
 #include "core/curve2d.h"
 #include "core/status.h"
 
@@ -53,15 +54,6 @@ int runtime_error(const Status& status) {
   return kExitRuntimeError;
 }
 
-Status check_output_parent(const fs::path& path) {
-  const fs::path parent = path.parent_path();
-  std::error_code ec;
-  if (!parent.empty() && !fs::is_directory(parent, ec)) {
-    return Error(ErrorCode::NotFound, "output directory '" + parent.string() + "' of '" +
-                                          path.string() + "' does not exist");
-  }
-  return Status::success();
-}
 
 Status write_text(const fs::path& path, const std::string& text) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);

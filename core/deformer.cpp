@@ -18,28 +18,13 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// The iterative solvers already have the Deformer shape: the adapters only forward.
-class ScaleAwareDeformer final : public Deformer {
+// The iterative solvers already have the Deformer shape: the adapter only forwards.
+// For scale-aware, options go through unchanged: options.lambda must equal DeformerSettings::lambda.
+template <typename Solver, Method kMethod>
+class SolverDeformer final : public Deformer {
  public:
-  explicit ScaleAwareDeformer(ScaleAwareSolver solver) : solver_(std::move(solver)) {}
-  Method method() const override { return Method::ScaleAware; }
-  Result<SolveReport> solve(const Positions& targets, const SolveOptions& options,
-                            const ProgressCallback& progress, std::stop_token stop) override {
-    // Options go through unchanged: options.lambda must equal DeformerSettings::lambda.
-    return solver_.solve(targets, options, progress, std::move(stop));
-  }
-  const Positions& positions() const override { return solver_.positions(); }
-  const Eigen::VectorXi& constrained() const override { return solver_.constrained(); }
-  void reset() override { solver_.reset(); }
-
- private:
-  ScaleAwareSolver solver_;
-};
-
-class ArapDeformer final : public Deformer {
- public:
-  explicit ArapDeformer(ArapSolver solver) : solver_(std::move(solver)) {}
-  Method method() const override { return Method::Arap; }
+  explicit SolverDeformer(Solver solver) : solver_(std::move(solver)) {}
+  Method method() const override { return kMethod; }
   Result<SolveReport> solve(const Positions& targets, const SolveOptions& options,
                             const ProgressCallback& progress, std::stop_token stop) override {
     return solver_.solve(targets, options, progress, std::move(stop));
@@ -49,8 +34,10 @@ class ArapDeformer final : public Deformer {
   void reset() override { solver_.reset(); }
 
  private:
-  ArapSolver solver_;
+  Solver solver_;
 };
+using ScaleAwareDeformer = SolverDeformer<ScaleAwareSolver, Method::ScaleAware>;
+using ArapDeformer = SolverDeformer<ArapSolver, Method::Arap>;
 
 // Laplacian editing is one direct solve: no iterations, no start, nothing to warm.
 class LaplacianDeformer final : public Deformer {

@@ -16,76 +16,19 @@ namespace meshdeform::core {
 namespace {
 
 using test::bbox_diagonal;
-
-struct NamedMesh {
-  const char* name;
-  MeshData mesh;
-  Eigen::VectorXi constrained;
-};
-
-// Every test mesh with a constrained set that is not coplanar, so that it pins a rigid motion
-// (a coplanar set would also admit its mirror image as a local minimum from a bad start).
-std::vector<NamedMesh> test_meshes() {
-  std::vector<NamedMesh> out;
-  {
-    MeshData m = test::make_grid(12, 0.08);
-    Eigen::VectorXi c(5);
-    c << 0, 12, 13 * 12, 13 * 13 - 1, 2 * 13 + 2;  // four corners and a bump top
-    out.push_back({"bumpy_grid", m, c});
-  }
-  {
-    MeshData m = test::make_icosphere(2);
-    Eigen::VectorXi c(6);
-    c << 0, 1, 2, 3, 4, 5;
-    out.push_back({"icosphere", m, c});
-  }
-  {
-    MeshData m = test::make_open_cone(16);
-    Eigen::VectorXi c(4);
-    c << 0, 1, 5, 9;
-    out.push_back({"open_cone", m, c});
-  }
-  return out;
-}
-
-Positions rows_of(const Positions& V, const Eigen::VectorXi& idx) {
-  Positions out(idx.size(), 3);
-  for (Eigen::Index j = 0; j < idx.size(); ++j) out.row(j) = V.row(idx(j));
-  return out;
-}
+using test::pinned_test_meshes;
+const auto& rows_of = test::gather_rows;
 
 Positions apply(const Eigen::Matrix3d& R, const Eigen::Vector3d& t, const Positions& V) {
   return ((V * R.transpose()).rowwise() + t.transpose()).eval();
 }
 
 // A bend: left column fixed, right column rotated by 60 degrees about y and lifted.
-struct Bend {
-  MeshData mesh;
-  Eigen::VectorXi constrained;
-  Positions targets;
-};
-
-Bend make_bend(int n) {
-  Bend b{test::make_grid(n, 0.05), {}, {}};
-  std::vector<int> idx;
-  for (int j = 0; j <= n; ++j) {
-    idx.push_back(j * (n + 1));
-    idx.push_back(j * (n + 1) + n);
-  }
-  b.constrained = Eigen::Map<Eigen::VectorXi>(idx.data(), static_cast<int>(idx.size()));
-  b.targets = rows_of(b.mesh.V, b.constrained);
-  const Eigen::Matrix3d R =
-      Eigen::AngleAxisd(M_PI / 3, Eigen::Vector3d::UnitY()).toRotationMatrix();
-  for (Eigen::Index j = 1; j < b.targets.rows(); j += 2) {
-    const Eigen::Vector3d p = b.targets.row(j).transpose();
-    b.targets.row(j) =
-        (R * (p - Eigen::Vector3d(0.5, 0, 0)) + Eigen::Vector3d(0.5, 0, 0.3)).transpose();
-  }
-  return b;
-}
+using test::make_bend;
+using Bend = test::BendEdit;
 
 TEST(ArapSolver, HandlesAtRestLeaveTheMeshUnchanged) {
-  for (const auto& [name, mesh, constrained] : test_meshes()) {
+  for (const auto& [name, mesh, constrained] : pinned_test_meshes()) {
     SCOPED_TRACE(name);
     auto solver = ArapSolver::create(mesh.V, mesh.F, constrained);
     ASSERT_TRUE(solver.ok()) << solver.status().to_string();
@@ -110,7 +53,7 @@ TEST(ArapSolver, RigidMotionOfHandlesGivesThatMotionOfTheMesh) {
   const Eigen::Matrix3d R =
       Eigen::AngleAxisd(2.0 * M_PI / 3.0, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
   const Eigen::Vector3d t(0.3, -1.2, 2.0);
-  for (const auto& [name, mesh, constrained] : test_meshes()) {
+  for (const auto& [name, mesh, constrained] : pinned_test_meshes()) {
     SCOPED_TRACE(name);
     const Positions expected = apply(R, t, mesh.V);
     auto solver = ArapSolver::create(mesh.V, mesh.F, constrained);

@@ -18,37 +18,11 @@ using test::bbox_diagonal;
 
 constexpr Method kMethods[] = {Method::ScaleAware, Method::Arap, Method::Laplacian};
 
-Positions rows_of(const Positions& V, const Eigen::VectorXi& idx) {
-  Positions out(idx.size(), 3);
-  for (Eigen::Index j = 0; j < idx.size(); ++j) out.row(j) = V.row(idx(j));
-  return out;
-}
+const auto& rows_of = test::gather_rows;
 
 // Left column fixed, right column rotated by 60 degrees about y and lifted.
-struct Bend {
-  MeshData mesh;
-  Eigen::VectorXi constrained;
-  Positions targets;
-};
-
-Bend make_bend(int n) {
-  Bend b{test::make_grid(n, 0.05), {}, {}};
-  std::vector<int> idx;
-  for (int j = 0; j <= n; ++j) {
-    idx.push_back(j * (n + 1));
-    idx.push_back(j * (n + 1) + n);
-  }
-  b.constrained = Eigen::Map<Eigen::VectorXi>(idx.data(), static_cast<int>(idx.size()));
-  b.targets = rows_of(b.mesh.V, b.constrained);
-  const Eigen::Matrix3d R =
-      Eigen::AngleAxisd(M_PI / 3, Eigen::Vector3d::UnitY()).toRotationMatrix();
-  for (Eigen::Index j = 1; j < b.targets.rows(); j += 2) {
-    const Eigen::Vector3d p = b.targets.row(j).transpose();
-    b.targets.row(j) =
-        (R * (p - Eigen::Vector3d(0.5, 0, 0)) + Eigen::Vector3d(0.5, 0, 0.3)).transpose();
-  }
-  return b;
-}
+using test::make_bend;
+using Bend = test::BendEdit;
 
 TEST(Deformer, MethodNamesRoundTrip) {
   for (Method method : kMethods) {

@@ -13,11 +13,7 @@
 namespace meshdeform::core {
 namespace {
 
-Positions rows_of(const Positions& V, const Eigen::VectorXi& idx) {
-  Positions out(idx.size(), 3);
-  for (Eigen::Index j = 0; j < idx.size(); ++j) out.row(j) = V.row(idx(j));
-  return out;
-}
+const auto& rows_of = test::gather_rows;
 
 double edge_length(const Positions& V, int a, int b) { return (V.row(a) - V.row(b)).norm(); }
 

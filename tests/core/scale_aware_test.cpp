@@ -17,51 +17,15 @@ namespace meshdeform::core {
 namespace {
 
 using test::bbox_diagonal;
-
-struct NamedMesh {
-  const char* name;
-  MeshData mesh;
-  Eigen::VectorXi constrained;
-};
-
-// Every test mesh with a constrained set that pins a similarity, reflections included: the
-// angle measures are unsigned, so a mirror image is an exact zero of the energy as well, and a
-// constrained set inside one plane cannot tell the two apart.
-std::vector<NamedMesh> test_meshes() {
-  std::vector<NamedMesh> out;
-  {
-    MeshData m = test::make_grid(12, 0.08);
-    Eigen::VectorXi c(5);
-    c << 0, 12, 13 * 12, 13 * 13 - 1, 2 * 13 + 2;  // four corners and a bump top
-    out.push_back({"bumpy_grid", m, c});
-  }
-  {
-    MeshData m = test::make_icosphere(2);
-    Eigen::VectorXi c(6);
-    c << 0, 1, 2, 3, 4, 5;
-    out.push_back({"icosphere", m, c});
-  }
-  {
-    MeshData m = test::make_open_cone(16);
-    Eigen::VectorXi c(4);
-    c << 0, 1, 5, 9;
-    out.push_back({"open_cone", m, c});
-  }
-  return out;
-}
-
-Positions rows_of(const Positions& V, const Eigen::VectorXi& idx) {
-  Positions out(idx.size(), 3);
-  for (Eigen::Index j = 0; j < idx.size(); ++j) out.row(j) = V.row(idx(j));
-  return out;
-}
+using test::pinned_test_meshes;
+const auto& rows_of = test::gather_rows;
 
 Positions apply(const Eigen::Matrix3d& R, double scale, const Eigen::Vector3d& t, const Positions& V) {
   return ((scale * V * R.transpose()).rowwise() + t.transpose()).eval();
 }
 
 TEST(ScaleAwareSolver, HandlesAtRestLeaveTheMeshUnchanged) {
-  for (const auto& [name, mesh, constrained] : test_meshes()) {
+  for (const auto& [name, mesh, constrained] : pinned_test_meshes()) {
     SCOPED_TRACE(name);
     auto solver = ScaleAwareSolver::create(mesh.V, mesh.F, constrained);
     ASSERT_TRUE(solver.ok()) << solver.status().to_string();
@@ -81,7 +45,7 @@ TEST(ScaleAwareSolver, SimilarityOfHandlesGivesThatSimilarityOfTheMesh) {
   const Eigen::Matrix3d R =
       Eigen::AngleAxisd(2.0 * M_PI / 3.0, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
   const Eigen::Vector3d t(0.3, -1.2, 2.0);
-  for (const auto& [name, mesh, constrained] : test_meshes()) {
+  for (const auto& [name, mesh, constrained] : pinned_test_meshes()) {
     SCOPED_TRACE(name);
     const Positions expected = apply(R, 2.0, t, mesh.V);
     auto solver = ScaleAwareSolver::create(mesh.V, mesh.F, constrained);

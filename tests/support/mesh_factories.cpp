@@ -5,6 +5,8 @@
 #include <utility>
 #include <vector>
 
+#include <Eigen/Geometry>
+
 namespace meshdeform::test {
 
 MeshData make_grid(int n, double bump) {
@@ -92,6 +94,51 @@ MeshData make_triangle() {
 
 double bbox_diagonal(const MeshData& mesh) {
   return (mesh.V.colwise().maxCoeff() - mesh.V.colwise().minCoeff()).norm();
+}
+
+Positions gather_rows(const Positions& V, const Eigen::VectorXi& idx) {
+  Positions out(idx.size(), 3);
+  for (Eigen::Index j = 0; j < idx.size(); ++j) out.row(j) = V.row(idx(j));
+  return out;
+}
+
+std::vector<PinnedMesh> pinned_test_meshes() {
+  std::vector<PinnedMesh> out;
+  {
+    Eigen::VectorXi c(5);
+    c << 0, 12, 13 * 12, 13 * 13 - 1, 2 * 13 + 2;  // four corners and a bump top
+    out.push_back({"bumpy_grid", make_grid(12, 0.08), c});
+  }
+  {
+    Eigen::VectorXi c(6);
+    c << 0, 1, 2, 3, 4, 5;
+    out.push_back({"icosphere", make_icosphere(2), c});
+  }
+  {
+    Eigen::VectorXi c(4);
+    c << 0, 1, 5, 9;
+    out.push_back({"open_cone", make_open_cone(16), c});
+  }
+  return out;
+}
+
+BendEdit make_bend(int n) {
+  BendEdit b{make_grid(n, 0.05), {}, {}};
+  std::vector<int> idx;
+  for (int j = 0; j <= n; ++j) {
+    idx.push_back(j * (n + 1));
+    idx.push_back(j * (n + 1) + n);
+  }
+  b.constrained = Eigen::Map<Eigen::VectorXi>(idx.data(), static_cast<int>(idx.size()));
+  b.targets = gather_rows(b.mesh.V, b.constrained);
+  const Eigen::Matrix3d R =
+      Eigen::AngleAxisd(M_PI / 3, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  for (Eigen::Index j = 1; j < b.targets.rows(); j += 2) {
+    const Eigen::Vector3d p = b.targets.row(j).transpose();
+    b.targets.row(j) =
+        (R * (p - Eigen::Vector3d(0.5, 0, 0)) + Eigen::Vector3d(0.5, 0, 0.3)).transpose();
+  }
+  return b;
 }
 
 }  // namespace meshdeform::test

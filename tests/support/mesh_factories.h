@@ -2,6 +2,10 @@
 /// @file mesh_factories.h
 /// Small procedural meshes and named tolerances for tests.
 
+#include <vector>
+
+#include <Eigen/Core>
+
 #include "core/mesh_data.h"
 
 namespace meshdeform::test {
@@ -20,5 +24,29 @@ MeshData make_icosphere(int subdivisions);
 MeshData make_triangle();
 /// Axis-aligned bounding-box diagonal length.
 double bbox_diagonal(const MeshData& mesh);
+
+/// Rows idx(0), idx(1), ... of V (e.g. the rest positions of constrained vertices).
+Positions gather_rows(const Positions& V, const Eigen::VectorXi& idx);
+
+/// A test mesh with a constrained set that pins a similarity, reflections included: the angle
+/// measures are unsigned, so a mirror image is an exact zero of the scale-aware energy as well,
+/// and a constrained set inside one plane cannot tell the two apart.
+struct PinnedMesh {
+  const char* name;
+  MeshData mesh;
+  Eigen::VectorXi constrained;
+};
+
+/// A bumpy grid (corners and a bump top), an icosphere (6 vertices) and an open cone (4).
+std::vector<PinnedMesh> pinned_test_meshes();
+
+/// A bend edit: an n x n bumpy grid with its left column fixed and its right column rotated by
+/// 60 degrees about y and lifted (targets alternate left, right per row).
+struct BendEdit {
+  MeshData mesh;
+  Eigen::VectorXi constrained;
+  Positions targets;
+};
+BendEdit make_bend(int n);
 
 }  // namespace meshdeform::test
