@@ -10,6 +10,7 @@ const char* error_code_name(ErrorCode code) {
     case ErrorCode::Ok: return "Ok";
     case ErrorCode::InvalidArgument: return "InvalidArgument";
     case ErrorCode::NotFound: return "NotFound";
+    case ErrorCode::PermissionDenied: return "PermissionDenied";
     case ErrorCode::FailedPrecondition: return "FailedPrecondition";
     case ErrorCode::ResourceExhausted: return "ResourceExhausted";
     case ErrorCode::Cancelled: return "Cancelled";

@@ -15,6 +15,7 @@ enum class ErrorCode {
   Ok,
   InvalidArgument,
   NotFound,
+  PermissionDenied,
   FailedPrecondition,
   ResourceExhausted,
   Cancelled,

@@ -1,0 +1,335 @@
+#include "server/service/deformation_service.h"
+
+#include <cmath>
+#include <exception>
+#include <future>
+#include <new>
+#include <utility>
+
+#include "core/procedural.h"
+#include "core/validate.h"
+#include "server/service/tokens.h"
+
+namespace meshdeform::service {
+namespace {
+
+constexpr std::size_t kSessionIdBytes = 16;
+constexpr std::size_t kTokenBytes = 32;
+
+/// Runs `fn`, turning escaped exceptions into statuses (no exception leaves the service).
+template <typename Fn>
+auto run_guarded(Fn&& fn) -> decltype(fn()) {
+  try {
+    return fn();
+  } catch (const std::bad_alloc&) {
+    return Error(ErrorCode::ResourceExhausted, "out of memory");
+  } catch (const std::exception& e) {
+    return Error(ErrorCode::Internal, std::string("unexpected exception: ") + e.what());
+  } catch (...) {
+    return Error(ErrorCode::Internal, "unexpected non-standard exception");
+  }
+}
+
+/// Ids come from clients: keep error messages short.
+std::string short_id(const SessionId& id) {
+  return id.value.size() <= 64 ? id.value : id.value.substr(0, 64) + "...";
+}
+
+struct Sample {
+  MeshData mesh;
+  std::vector<HandleGroup> groups;
+};
+
+std::vector<HandleGroup> groups_from_selection(const Eigen::VectorXi& selection) {
+  HandleGroup fixed{HandleRole::Fixed, {}}, handle{HandleRole::Handle, {}};
+  for (Eigen::Index v = 0; v < selection.size(); ++v) {
+    if (selection(v) == static_cast<int>(core::VertexRole::Fixed)) {
+      fixed.vertices.push_back(static_cast<int>(v));
+    } else if (selection(v) == static_cast<int>(core::VertexRole::Handle)) {
+      handle.vertices.push_back(static_cast<int>(v));
+    }
+  }
+  std::vector<HandleGroup> groups;
+  if (!fixed.vertices.empty()) groups.push_back(std::move(fixed));
+  if (!handle.vertices.empty()) groups.push_back(std::move(handle));
+  return groups;
+}
+
+Result<Sample> make_sample(const std::string& name) {
+  const std::string kSmall = "_small";
+  std::optional<core::DeformationBenchmark> bench;
+  if (name.size() > kSmall.size() && name.ends_with(kSmall)) {
+    const std::string base = name.substr(0, name.size() - kSmall.size());
+    for (core::DeformationBenchmark& b : core::make_suite(core::SuiteScale::Small)) {
+      if (b.name == base) bench = std::move(b);
+    }
+  } else if (name == "bumpy_plane") {
+    bench = core::make_bumpy_plane();
+  } else if (name == "cylinder") {
+    bench = core::make_cylinder();
+  } else if (name == "bar") {
+    bench = core::make_bar();
+  } else if (name == "cactus") {
+    bench = core::make_cactus();
+  }
+  if (!bench) {
+    std::string known;
+    for (const std::string& n : DeformationService::sample_names()) {
+      known += (known.empty() ? "" : ", ") + n;
+    }
+    return Error(ErrorCode::InvalidArgument,
+                 "unknown sample '" + name.substr(0, 64) + "' (known: " + known + ")");
+  }
+  return Sample{std::move(bench->mesh), groups_from_selection(bench->selection)};
+}
+
+/// Ties a task's stop token to the request's token and the service shutdown.
+class CombinedStop {
+ public:
+  CombinedStop(std::stop_token a, std::stop_token b)
+      : a_(std::move(a), Forward{&source_}), b_(std::move(b), Forward{&source_}) {}
+  std::stop_token token() const { return source_.get_token(); }
+
+ private:
+  struct Forward {
+    std::stop_source* source;
+    void operator()() const { source->request_stop(); }
+  };
+  std::stop_source source_;
+  std::stop_callback<Forward> a_, b_;
+};
+
+}  // namespace
+
+DeformationService::DeformationService(ServiceOptions options)
+    : options_([&] {
+        if (!options.clock) options.clock = [] { return std::chrono::steady_clock::now(); };
+        return options;
+      }()),
+      counters_(std::make_shared<ServiceCounters>()),
+      store_(options_),
+      pool_(options_.workers) {}
+
+DeformationService::~DeformationService() {
+  shutdown_.request_stop();
+  // pool_ is destroyed after this body (drains with the stop requested), then store_.
+  store_.clear();
+}
+
+std::vector<std::string> DeformationService::sample_names() {
+  return {"bumpy_plane",       "cylinder",       "bar",       "cactus",
+          "bumpy_plane_small", "cylinder_small", "bar_small", "cactus_small"};
+}
+
+Result<CreatedSession> DeformationService::create_session(const CreateSessionRequest& request) {
+  return run_guarded([&]() -> Result<CreatedSession> {
+    const bool has_bytes = !request.mesh_bytes.empty(), has_sample = !request.sample.empty();
+    if (has_bytes == has_sample) {
+      return Error(ErrorCode::InvalidArgument,
+                   "give exactly one of mesh bytes and a sample name (got " +
+                       std::string(has_bytes ? "both" : "neither") + ")");
+    }
+    const double lambda = request.settings.lambda;
+    if (!std::isfinite(lambda) || lambda <= 0) {
+      return Error(ErrorCode::InvalidArgument,
+                   "lambda " + std::to_string(lambda) + " is not positive and finite");
+    }
+    CreatedSession created;
+    MeshData mesh;
+    if (has_sample) {
+      MD_ASSIGN_OR_RETURN(Sample sample, make_sample(request.sample));
+      MD_RETURN_IF_ERROR(core::validate_triangle_mesh(sample.mesh.V, sample.mesh.F));
+      mesh = std::move(sample.mesh);
+      created.suggested_groups = std::move(sample.groups);
+    } else {
+      io::LoadOptions load;
+      load.weld = request.weld;
+      MD_ASSIGN_OR_RETURN(io::LoadedMesh loaded,
+                          io::load_mesh_from_memory(request.mesh_bytes, request.format, load));
+      mesh = std::move(loaded.mesh);
+      created.welded_vertices = loaded.report.welded_vertices;
+      created.dropped_unreferenced = loaded.report.dropped_unreferenced;
+    }
+    if (mesh.V.rows() > options_.max_vertices) {
+      return Error(ErrorCode::ResourceExhausted,
+                   "mesh has " + std::to_string(mesh.V.rows()) + " vertices, the limit is " +
+                       std::to_string(options_.max_vertices));
+    }
+    created.id = SessionId{random_hex(kSessionIdBytes)};
+    created.edit_token = Token{random_hex(kTokenBytes)};
+    created.view_token = Token{random_hex(kTokenBytes)};
+    SessionStore* store = &store_;
+    MD_ASSIGN_OR_RETURN(
+        std::shared_ptr<Session> session,
+        Session::create(created.id, created.edit_token, created.view_token, std::move(mesh),
+                        request.settings, options_, counters_,
+                        [store](std::size_t bytes, const Session& requester) {
+                          return store->reserve(bytes, requester);
+                        }));
+    MD_RETURN_IF_ERROR(store_.insert(session));
+    created.info = session->info();
+    return created;
+  });
+}
+
+Result<std::shared_ptr<Session>> DeformationService::find_for_view(const SessionId& id,
+                                                                   const Token& token) {
+  std::shared_ptr<Session> session = store_.find(id);
+  if (!session) {
+    return Error(ErrorCode::NotFound,
+                 "session '" + short_id(id) + "' not found (unknown, closed or expired)");
+  }
+  if (!session->can_view(token)) {
+    return Error(ErrorCode::PermissionDenied, "wrong token for session '" + short_id(id) + "'");
+  }
+  return session;
+}
+
+Result<std::shared_ptr<Session>> DeformationService::find_for_edit(const SessionId& id,
+                                                                   const Token& token) {
+  MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, find_for_view(id, token));
+  if (!session->can_edit(token)) {
+    return Error(ErrorCode::PermissionDenied,
+                 "the view token cannot edit session '" + short_id(id) + "'");
+  }
+  return session;
+}
+
+void DeformationService::post(const std::shared_ptr<Session>& session, std::function<void()> task) {
+  session->inflight().fetch_add(1);
+  SessionStore* store = &store_;
+  auto wrapped = [session, store, task = std::move(task)] {
+    struct Done {  // the edit is over even if `task` throws
+      Session* session;
+      SessionStore* store;
+      ~Done() {
+        session->touch(store->now());
+        session->inflight().fetch_sub(1);
+      }
+    } done{session.get(), store};
+    task();
+  };
+  if (!session->enqueue(std::move(wrapped))) return;  // the strand is already scheduled
+  // One pool task per step of the strand: other sessions' edits interleave between steps.
+  struct Drain {
+    std::shared_ptr<Session> session;
+    WorkerPool* pool;
+    void operator()() const {
+      if (session->run_next()) pool->submit(Drain{session, pool});
+    }
+  };
+  pool_.submit(Drain{session, &pool_});
+}
+
+void DeformationService::set_handles_async(const SessionId& id, const Token& edit_token,
+                                           SetHandlesRequest request, std::stop_token stop,
+                                           std::function<void(Result<SessionInfo>)> done) {
+  Result<std::shared_ptr<Session>> found = find_for_edit(id, edit_token);
+  if (!found.ok()) {
+    done(found.status());
+    return;
+  }
+  std::shared_ptr<Session> session = std::move(found).value();
+  post(session, [this, session, request = std::move(request), stop = std::move(stop),
+                 done = std::move(done)] {
+    Result<SessionInfo> result = run_guarded([&]() -> Result<SessionInfo> {
+      if (stop.stop_requested() || shutdown_.stop_requested()) {
+        return Error(ErrorCode::Cancelled, "set_handles cancelled before it started");
+      }
+      return session->set_handles(request);
+    });
+    done(std::move(result));
+  });
+}
+
+Result<SessionInfo> DeformationService::set_handles(const SessionId& id, const Token& edit_token,
+                                                    SetHandlesRequest request,
+                                                    std::stop_token stop) {
+  std::promise<Result<SessionInfo>> promise;
+  std::future<Result<SessionInfo>> future = promise.get_future();
+  set_handles_async(id, edit_token, std::move(request), std::move(stop),
+                    [&promise](Result<SessionInfo> r) { promise.set_value(std::move(r)); });
+  return future.get();
+}
+
+void DeformationService::move_handles_async(const SessionId& id, const Token& edit_token,
+                                            MoveRequest request, std::stop_token stop,
+                                            std::function<void(Result<DeformResult>)> done) {
+  Result<std::shared_ptr<Session>> found = find_for_edit(id, edit_token);
+  if (!found.ok()) {
+    done(found.status());
+    return;
+  }
+  std::shared_ptr<Session> session = std::move(found).value();
+  post(session, [this, session, request = std::move(request), stop = std::move(stop),
+                 done = std::move(done)] {
+    Result<DeformResult> result = run_guarded([&]() -> Result<DeformResult> {
+      const CombinedStop combined(stop, shutdown_.get_token());
+      return session->move(request, combined.token());
+    });
+    done(std::move(result));
+  });
+}
+
+Result<DeformResult> DeformationService::move_handles(const SessionId& id, const Token& edit_token,
+                                                      MoveRequest request, std::stop_token stop) {
+  std::promise<Result<DeformResult>> promise;
+  std::future<Result<DeformResult>> future = promise.get_future();
+  move_handles_async(id, edit_token, std::move(request), std::move(stop),
+                     [&promise](Result<DeformResult> r) { promise.set_value(std::move(r)); });
+  return future.get();
+}
+
+Result<std::string> DeformationService::get_mesh(const SessionId& id, const Token& token,
+                                                 io::MeshFormat format,
+                                                 std::optional<std::uint64_t> revision) {
+  return run_guarded([&]() -> Result<std::string> {
+    MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, find_for_view(id, token));
+    MD_ASSIGN_OR_RETURN(std::shared_ptr<const Positions> positions, session->positions_at(revision));
+    const MeshData mesh{*positions, session->rest().F};
+    return io::write_mesh_to_memory(mesh, format);
+  });
+}
+
+Result<SessionInfo> DeformationService::session_info(const SessionId& id, const Token& token) {
+  return run_guarded([&]() -> Result<SessionInfo> {
+    MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, find_for_view(id, token));
+    return session->info();
+  });
+}
+
+Status DeformationService::close_session(const SessionId& id, const Token& edit_token) {
+  Result<std::shared_ptr<Session>> found = find_for_edit(id, edit_token);
+  if (!found.ok()) return found.status();
+  store_.erase(id);
+  return Status::success();
+}
+
+Result<Subscription> DeformationService::watch(const SessionId& id, const Token& view_token) {
+  return run_guarded([&]() -> Result<Subscription> {
+    MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, find_for_view(id, view_token));
+    std::shared_ptr<Watcher> watcher = session->add_watcher();
+    return Subscription(session, std::move(watcher));
+  });
+}
+
+std::size_t DeformationService::evict_expired() { return store_.evict_expired(options_.clock()); }
+
+std::size_t DeformationService::evict_expired(std::chrono::steady_clock::time_point now) {
+  return store_.evict_expired(now);
+}
+
+ServiceStats DeformationService::stats() const {
+  ServiceStats stats;
+  stats.deformer_constructions = counters_->deformer_constructions.load();
+  stats.moves_committed = counters_->moves_committed.load();
+  stats.moves_cancelled = counters_->moves_cancelled.load();
+  stats.evicted_lru = store_.evicted_lru();
+  stats.evicted_idle = store_.evicted_idle();
+  stats.sessions = store_.size();
+  stats.estimated_bytes = store_.total_bytes();
+  stats.workers = pool_.size();
+  return stats;
+}
+
+}  // namespace meshdeform::service

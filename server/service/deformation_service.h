@@ -1,0 +1,118 @@
+#pragma once
+/// @file deformation_service.h
+/// The transport-free deformation service of issue 4 ("Scale-aware shape manipulation", Liu et
+/// al.): sessions created from mesh bytes or built-in samples, handle groups, handle moves solved
+/// on a worker pool with cached factorizations, meshes at a revision, watchers, limits.
+///
+/// Threading: every call may come from any thread. Solves and factorizations run on the
+/// service's own WorkerPool (never on the caller's thread): the *_async calls return at once and
+/// call `done` on a worker. Edits to one session run one at a time in submission order; different
+/// sessions run in parallel. create_session, get_mesh, session_info, watch and close_session run
+/// on the caller's thread (parsing / serialising only, no solves).
+///
+/// Access: create_session returns an edit token and a view token. Edits (set_handles,
+/// move_handles, close_session) need the edit token; reads and watches accept either token.
+/// Every call checks the session first (NotFound), then the token (PermissionDenied).
+
+#include <chrono>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <stop_token>
+#include <string>
+#include <vector>
+
+#include "core/io/mesh_io.h"
+#include "core/status.h"
+#include "server/service/session.h"
+#include "server/service/session_store.h"
+#include "server/service/types.h"
+#include "server/service/watcher.h"
+#include "server/service/worker_pool.h"
+
+namespace meshdeform::service {
+
+class DeformationService {
+ public:
+  explicit DeformationService(ServiceOptions options = {});
+  /// Cancels running solves (their `done` receives Cancelled), runs the queued ones (which see
+  /// the stop at once), joins the workers and closes every session.
+  ~DeformationService();
+  DeformationService(const DeformationService&) = delete;
+  DeformationService& operator=(const DeformationService&) = delete;
+
+  /// Built-in samples: "bumpy_plane", "cylinder", "bar", "cactus" (the paper's Table 1 sizes,
+  /// procedural) and the same with "_small" (< 1,000 vertices). Meshes from data files ("spot")
+  /// are not available at run time.
+  static std::vector<std::string> sample_names();
+
+  /// Creates a session from mesh bytes (cleaned and validated by io::load_mesh_from_memory) or a
+  /// sample. Also sweeps expired sessions.
+  /// @return ids, tokens and the summary; InvalidArgument for both or neither of bytes and sample,
+  ///         an unknown sample (listing the known ones) or a bad mesh (naming the element);
+  ///         ResourceExhausted for a mesh over max_vertices (naming both counts), max_sessions
+  ///         open sessions, or a memory budget that eviction of idle sessions cannot meet.
+  [[nodiscard]] Result<CreatedSession> create_session(const CreateSessionRequest& request);
+
+  /// Sets the handle groups on the worker pool; see Session::set_handles for the errors, plus
+  /// NotFound (unknown/expired/closed session), PermissionDenied (not the edit token) and
+  /// Cancelled if `stop` is requested before it starts. `done` runs on a worker thread.
+  void set_handles_async(const SessionId& id, const Token& edit_token, SetHandlesRequest request,
+                         std::stop_token stop, std::function<void(Result<SessionInfo>)> done);
+  /// Blocking set_handles_async.
+  [[nodiscard]] Result<SessionInfo> set_handles(const SessionId& id, const Token& edit_token,
+                                                SetHandlesRequest request,
+                                                std::stop_token stop = {});
+
+  /// Moves handles and solves on the worker pool; see Session::move for the errors, plus
+  /// NotFound and PermissionDenied. `stop` (tied by the transport to client cancellation) stops
+  /// the solve mid-iteration with Cancelled; request.deadline gives DeadlineExceeded. Nothing is
+  /// committed on error. `done` runs on a worker thread and must not block for long.
+  void move_handles_async(const SessionId& id, const Token& edit_token, MoveRequest request,
+                          std::stop_token stop, std::function<void(Result<DeformResult>)> done);
+  /// Blocking move_handles_async.
+  [[nodiscard]] Result<DeformResult> move_handles(const SessionId& id, const Token& edit_token,
+                                                  MoveRequest request, std::stop_token stop = {});
+
+  /// Serialises the mesh at `revision` (default: current). Only the newest
+  /// ServiceOptions::kept_revisions revisions are kept.
+  /// @return the bytes (GLB/glTF float32, OBJ/OFF/PLY full precision, STL float32); NotFound
+  ///         for an unknown session or a revision not kept (naming the kept range);
+  ///         PermissionDenied for a wrong token; InvalidArgument if the format cannot hold it.
+  [[nodiscard]] Result<std::string> get_mesh(const SessionId& id, const Token& token,
+                                             io::MeshFormat format,
+                                             std::optional<std::uint64_t> revision = {});
+
+  /// @return the summary; NotFound; PermissionDenied.
+  [[nodiscard]] Result<SessionInfo> session_info(const SessionId& id, const Token& token);
+
+  /// Closes a session: queued edits end with NotFound, watchers are closed.
+  /// @return NotFound; PermissionDenied (the view token cannot close).
+  [[nodiscard]] Status close_session(const SessionId& id, const Token& edit_token);
+
+  /// Subscribes to every committed revision. The mailbox starts with a full snapshot of the
+  /// current revision; a watcher that does not keep up skips to the newest (see Watcher).
+  /// @return the subscription (unsubscribes when destroyed); NotFound; PermissionDenied.
+  [[nodiscard]] Result<Subscription> watch(const SessionId& id, const Token& view_token);
+
+  /// Removes sessions idle for longer than the TTL (call from a timer; create_session also does).
+  /// @return how many were removed.
+  std::size_t evict_expired();
+  std::size_t evict_expired(std::chrono::steady_clock::time_point now);
+
+  ServiceStats stats() const;
+
+ private:
+  Result<std::shared_ptr<Session>> find_for_edit(const SessionId& id, const Token& token);
+  Result<std::shared_ptr<Session>> find_for_view(const SessionId& id, const Token& token);
+  /// Queues `task` on the session's strand and the strand on the pool.
+  void post(const std::shared_ptr<Session>& session, std::function<void()> task);
+
+  ServiceOptions options_;
+  std::shared_ptr<ServiceCounters> counters_;
+  std::stop_source shutdown_;
+  SessionStore store_;
+  WorkerPool pool_;  // declared last: destroyed (drained, joined) before the store
+};
+
+}  // namespace meshdeform::service

@@ -1,0 +1,517 @@
+#include "server/service/session.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <string>
+#include <unordered_map>
+
+#include "server/service/tokens.h"
+
+namespace meshdeform::service {
+namespace {
+
+/// Closed loops of boundary edges. On a validated mesh (manifold, consistently oriented, manifold
+/// vertices) every boundary vertex has exactly one outgoing boundary half-edge.
+int count_boundary_loops(const Triangles& F, int vertex_count) {
+  std::unordered_map<long long, int> undirected;
+  auto key = [vertex_count](int a, int b) {
+    return static_cast<long long>(std::min(a, b)) * vertex_count + std::max(a, b);
+  };
+  for (int f = 0; f < F.rows(); ++f)
+    for (int k = 0; k < 3; ++k) ++undirected[key(F(f, k), F(f, (k + 1) % 3))];
+  std::vector<int> next(static_cast<std::size_t>(vertex_count), -1);
+  for (int f = 0; f < F.rows(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const int a = F(f, k), b = F(f, (k + 1) % 3);
+      if (undirected[key(a, b)] == 1) next[static_cast<std::size_t>(a)] = b;
+    }
+  }
+  int loops = 0;
+  std::vector<char> seen(next.size(), 0);
+  for (std::size_t start = 0; start < next.size(); ++start) {
+    if (next[start] < 0 || seen[start]) continue;
+    ++loops;
+    for (int v = static_cast<int>(start); v >= 0 && !seen[static_cast<std::size_t>(v)];
+         v = next[static_cast<std::size_t>(v)]) {
+      seen[static_cast<std::size_t>(v)] = 1;
+    }
+  }
+  return loops;
+}
+
+bool finite3(const Eigen::Vector3d& v) { return v.allFinite(); }
+
+std::string vec_str(const Eigen::Vector3d& v) {
+  std::string out = "(";
+  out += std::to_string(v.x());
+  out += ", ";
+  out += std::to_string(v.y());
+  out += ", ";
+  out += std::to_string(v.z());
+  out += ")";
+  return out;
+}
+
+}  // namespace
+
+std::size_t estimate_session_bytes(int vertices, int faces, int cached_deformers,
+                                   int kept_revisions) {
+  const auto v = static_cast<std::size_t>(std::max(vertices, 0));
+  const auto f = static_cast<std::size_t>(std::max(faces, 0));
+  // Rest + current + kept revisions + anchors/targets (24 B per vertex each), topology CSR arrays
+  // (~64 B per vertex), faces (12 B) and measures (theta, ratio, phi, area: ~100 B per face).
+  const std::size_t base =
+      v * (24 * (3 + static_cast<std::size_t>(std::max(kept_revisions, 0))) + 64) + f * 112 + 4096;
+  // A deformer holds up to three sparse factorizations (Laplacian guess, step two, ORA stitch):
+  // supernodal Cholesky factors of mesh Laplacians run to a few hundred bytes per vertex each.
+  const std::size_t per_deformer = v * 1200 + f * 200;
+  return base + per_deformer * static_cast<std::size_t>(std::max(cached_deformers, 0));
+}
+
+Result<std::shared_ptr<Session>> Session::create(SessionId id, Token edit_token, Token view_token,
+                                                 MeshData mesh,
+                                                 const core::DeformerSettings& settings,
+                                                 const ServiceOptions& options,
+                                                 std::shared_ptr<ServiceCounters> counters,
+                                                 ReserveFn reserve) {
+  MD_ASSIGN_OR_RETURN(core::MeshTopology topology,
+                      core::build_topology(mesh.F, static_cast<int>(mesh.V.rows())));
+  std::shared_ptr<Session> session(new Session());
+  session->id_ = std::move(id);
+  session->edit_token_ = std::move(edit_token);
+  session->view_token_ = std::move(view_token);
+  session->rest_measures_ = core::compute_measures(mesh.V, mesh.F, topology);
+  session->boundary_loops_ = count_boundary_loops(mesh.F, static_cast<int>(mesh.V.rows()));
+  session->topology_ = std::move(topology);
+  session->rest_ = std::move(mesh);
+  session->settings_ = settings;
+  session->settings_.threads = std::max(1, options.solver_threads);
+  session->options_ = options;
+  session->options_.kept_revisions = std::max(1, options.kept_revisions);
+  session->options_.max_cached_deformers = std::max(1, options.max_cached_deformers);
+  session->counters_ = std::move(counters);
+  session->reserve_ = std::move(reserve);
+  session->vertex_group_.assign(static_cast<std::size_t>(session->rest_.V.rows()), -1);
+
+  auto rest = std::make_shared<DeformResult>();
+  rest->revision = 0;
+  rest->positions = std::make_shared<const Positions>(session->rest_.V);
+  rest->changed_positions.resize(0, 3);
+  session->history_.push_back(std::move(rest));
+  session->update_estimate();
+  return session;
+}
+
+bool Session::can_edit(const Token& token) const {
+  return constant_time_equal(token.value, edit_token_.value);
+}
+
+bool Session::can_view(const Token& token) const {
+  // Evaluate both so the time does not tell which token matched.
+  const bool view = constant_time_equal(token.value, view_token_.value);
+  const bool edit = constant_time_equal(token.value, edit_token_.value);
+  return view || edit;
+}
+
+Status Session::check_pinnable(core::Method method, const std::vector<int>& constrained) const {
+  const int needed = method == core::Method::ScaleAware ? 2 : 1;
+  std::vector<int> count(static_cast<std::size_t>(topology_.component_count), 0);
+  for (int v : constrained) ++count[static_cast<std::size_t>(topology_.component(v))];
+  for (std::size_t c = 0; c < count.size(); ++c) {
+    if (count[c] < needed) {
+      return Error(ErrorCode::FailedPrecondition,
+                   std::string("method ") + core::method_name(method) + " needs at least " +
+                       std::to_string(needed) + " constrained vertices in every connected " +
+                       "component; component " + std::to_string(c) + " has " +
+                       std::to_string(count[c]));
+    }
+  }
+  return Status::success();
+}
+
+void Session::update_estimate() {
+  cached_deformers_.store(static_cast<int>(deformers_.size()));
+  estimated_bytes_.store(estimate_session_bytes(static_cast<int>(rest_.V.rows()),
+                                                static_cast<int>(rest_.F.rows()),
+                                                static_cast<int>(deformers_.size()),
+                                                options_.kept_revisions));
+}
+
+Result<Session::CachedDeformer*> Session::get_or_build(core::Method method,
+                                                       const std::vector<int>& constrained,
+                                                       bool* built) {
+  *built = false;
+  for (CachedDeformer& entry : deformers_) {
+    if (entry.method == method && entry.constrained == constrained) {
+      entry.last_used = ++deformer_tick_;
+      return &entry;
+    }
+  }
+  // Evict this session's least recently used deformer first, so the budget sees the net growth.
+  if (static_cast<int>(deformers_.size()) >= options_.max_cached_deformers) {
+    auto oldest = std::min_element(deformers_.begin(), deformers_.end(),
+                                   [](const CachedDeformer& a, const CachedDeformer& b) {
+                                     return a.last_used < b.last_used;
+                                   });
+    deformers_.erase(oldest);
+    update_estimate();
+  }
+  const int v = static_cast<int>(rest_.V.rows()), f = static_cast<int>(rest_.F.rows());
+  const std::size_t extra = estimate_session_bytes(v, f, 1, 0) - estimate_session_bytes(v, f, 0, 0);
+  if (reserve_) MD_RETURN_IF_ERROR(reserve_(extra, *this));
+
+  const Eigen::VectorXi idx =
+      Eigen::Map<const Eigen::VectorXi>(constrained.data(), static_cast<Eigen::Index>(constrained.size()));
+  MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
+                      core::make_deformer(method, rest_.V, rest_.F, idx, settings_));
+  counters_->deformer_constructions.fetch_add(1);
+  *built = true;
+  // A fresh deformer sits at the rest pose, i.e. revision 0's positions only.
+  deformers_.push_back(CachedDeformer{method, constrained, std::move(deformer), 0, ++deformer_tick_});
+  update_estimate();
+  return &deformers_.back();
+}
+
+Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request) {
+  if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
+  const int nv = static_cast<int>(rest_.V.rows());
+  if (request.groups.empty()) {
+    return Error(ErrorCode::InvalidArgument, "set_handles needs at least one handle group");
+  }
+  std::vector<int> group_of(static_cast<std::size_t>(nv), -1);
+  std::vector<int> constrained;
+  for (std::size_t g = 0; g < request.groups.size(); ++g) {
+    const HandleGroup& group = request.groups[g];
+    if (group.vertices.empty()) {
+      return Error(ErrorCode::InvalidArgument, "handle group " + std::to_string(g) + " is empty");
+    }
+    for (int v : group.vertices) {
+      if (v < 0 || v >= nv) {
+        return Error(ErrorCode::InvalidArgument, "handle group " + std::to_string(g) +
+                                                     " references vertex " + std::to_string(v) +
+                                                     " (#V=" + std::to_string(nv) + ")");
+      }
+      int& owner = group_of[static_cast<std::size_t>(v)];
+      if (owner >= 0) {
+        return Error(ErrorCode::InvalidArgument,
+                     "vertex " + std::to_string(v) + " is in handle group " +
+                         std::to_string(owner) + " and in handle group " + std::to_string(g));
+      }
+      owner = static_cast<int>(g);
+      constrained.push_back(v);
+    }
+  }
+  std::sort(constrained.begin(), constrained.end());
+  MD_RETURN_IF_ERROR(check_pinnable(request.prepare, constrained));
+  bool built = false;
+  MD_ASSIGN_OR_RETURN(CachedDeformer * entry, get_or_build(request.prepare, constrained, &built));
+  (void)entry;
+
+  {
+    std::lock_guard lock(state_mutex_);
+    const Positions& current = *history_.back()->positions;
+    Positions anchors(static_cast<Eigen::Index>(constrained.size()), 3);
+    for (std::size_t j = 0; j < constrained.size(); ++j)
+      anchors.row(static_cast<Eigen::Index>(j)) = current.row(constrained[j]);
+    groups_ = request.groups;
+    constrained_ = std::move(constrained);
+    anchors_ = anchors;
+    targets_ = std::move(anchors);
+    vertex_group_ = std::move(group_of);
+  }
+  return info();
+}
+
+Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token stop) {
+  if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
+  std::vector<HandleGroup> groups;
+  std::vector<int> constrained;
+  Positions anchors, targets;
+  std::vector<int> vertex_group;
+  std::uint64_t base_revision = 0;
+  std::shared_ptr<const Positions> base_positions;
+  {
+    std::lock_guard lock(state_mutex_);
+    groups = groups_;
+    constrained = constrained_;
+    anchors = anchors_;
+    targets = targets_;
+    vertex_group = vertex_group_;
+    base_revision = revision_;
+    base_positions = history_.back()->positions;
+  }
+  if (groups.empty()) {
+    return Error(ErrorCode::FailedPrecondition,
+                 "no handle groups: call set_handles before moving handles");
+  }
+  if (request.max_iterations < 1 || request.max_iterations > 1000) {
+    return Error(ErrorCode::InvalidArgument, "max_iterations " +
+                                                 std::to_string(request.max_iterations) +
+                                                 " is outside [1, 1000]");
+  }
+  if (!std::isfinite(request.tolerance) || request.tolerance < 0) {
+    return Error(ErrorCode::InvalidArgument,
+                 "tolerance " + std::to_string(request.tolerance) + " is not finite and >= 0");
+  }
+  // Row of each constrained vertex in anchors/targets.
+  auto row_of = [&constrained](int v) {
+    return static_cast<Eigen::Index>(std::lower_bound(constrained.begin(), constrained.end(), v) -
+                                     constrained.begin());
+  };
+  for (std::size_t m = 0; m < request.moves.size(); ++m) {
+    const GroupMove& move = request.moves[m];
+    const std::string where = "move " + std::to_string(m) + ": ";
+    if (move.group < 0 || move.group >= static_cast<int>(groups.size())) {
+      return Error(ErrorCode::InvalidArgument, where + "group " + std::to_string(move.group) +
+                                                   " does not exist (" +
+                                                   std::to_string(groups.size()) + " groups)");
+    }
+    const HandleGroup& group = groups[static_cast<std::size_t>(move.group)];
+    if (group.role != HandleRole::Handle) {
+      return Error(ErrorCode::InvalidArgument,
+                   where + "group " + std::to_string(move.group) + " is fixed and cannot move");
+    }
+    if (!finite3(move.translation) || !move.rotation.coeffs().allFinite() ||
+        !std::isfinite(move.scale) || (move.pivot && !finite3(*move.pivot))) {
+      return Error(ErrorCode::InvalidArgument, where + "non-finite transform for group " +
+                                                   std::to_string(move.group));
+    }
+    if (move.scale <= 0) {
+      return Error(ErrorCode::InvalidArgument,
+                   where + "scale " + std::to_string(move.scale) + " is not positive");
+    }
+    const double qnorm = move.rotation.norm();
+    if (qnorm < 1e-12) {
+      return Error(ErrorCode::InvalidArgument, where + "rotation quaternion has zero length");
+    }
+    const Eigen::Matrix3d R = Eigen::Quaterniond(move.rotation.coeffs() / qnorm).toRotationMatrix();
+    Eigen::Vector3d pivot = Eigen::Vector3d::Zero();
+    if (move.pivot) {
+      pivot = *move.pivot;
+    } else {
+      for (int v : group.vertices) pivot += anchors.row(row_of(v)).transpose();
+      pivot /= static_cast<double>(group.vertices.size());
+    }
+    for (int v : group.vertices) {
+      const Eigen::Index r = row_of(v);
+      const Eigen::Vector3d a = anchors.row(r).transpose();
+      targets.row(r) = (pivot + move.scale * (R * (a - pivot)) + move.translation).transpose();
+    }
+  }
+  const int nv = static_cast<int>(rest_.V.rows());
+  for (std::size_t t = 0; t < request.targets.size(); ++t) {
+    const VertexTarget& target = request.targets[t];
+    const std::string where = "target " + std::to_string(t) + ": ";
+    if (target.vertex < 0 || target.vertex >= nv) {
+      return Error(ErrorCode::InvalidArgument, where + "vertex " + std::to_string(target.vertex) +
+                                                   " is out of range (#V=" + std::to_string(nv) +
+                                                   ")");
+    }
+    const int g = vertex_group[static_cast<std::size_t>(target.vertex)];
+    if (g < 0) {
+      return Error(ErrorCode::InvalidArgument,
+                   where + "vertex " + std::to_string(target.vertex) + " is not constrained");
+    }
+    if (groups[static_cast<std::size_t>(g)].role != HandleRole::Handle) {
+      return Error(ErrorCode::InvalidArgument, where + "vertex " + std::to_string(target.vertex) +
+                                                   " is in fixed group " + std::to_string(g));
+    }
+    if (!finite3(target.position)) {
+      return Error(ErrorCode::InvalidArgument, where + "vertex " + std::to_string(target.vertex) +
+                                                   " has a non-finite target " +
+                                                   vec_str(target.position));
+    }
+    targets.row(row_of(target.vertex)) = target.position.transpose();
+  }
+  MD_RETURN_IF_ERROR(check_pinnable(request.method, constrained));
+
+  // One stop source for the client's token and the deadline: the solver sees a single token.
+  std::stop_source local;
+  std::stop_callback forward(stop, [&local] { local.request_stop(); });
+  auto deadline_passed = [&request] {
+    return request.deadline && std::chrono::steady_clock::now() >= *request.deadline;
+  };
+  auto stopped_status = [&]() -> Status {
+    counters_->moves_cancelled.fetch_add(1);
+    if (deadline_passed()) {
+      return Error(ErrorCode::DeadlineExceeded, "deadline exceeded; revision " +
+                                                    std::to_string(base_revision) + " unchanged");
+    }
+    return Error(ErrorCode::Cancelled,
+                 "move cancelled; revision " + std::to_string(base_revision) + " unchanged");
+  };
+  if (local.stop_requested() || deadline_passed()) return stopped_status();
+
+  bool built = false;
+  MD_ASSIGN_OR_RETURN(CachedDeformer * entry, get_or_build(request.method, constrained, &built));
+  if (entry->state_revision != base_revision) entry->deformer->reset();
+
+  core::SolveOptions options;
+  options.max_iterations = request.max_iterations;
+  options.tolerance = request.tolerance;
+  options.lambda = settings_.lambda;
+  options.ora = request.ora;
+  // Deadlines are checked after every outer iteration; the solver itself polls the token.
+  auto progress = [&](const core::IterationInfo&) {
+    if (deadline_passed()) local.request_stop();
+  };
+  Result<core::SolveReport> report =
+      entry->deformer->solve(targets, options, progress, local.get_token());
+  if (!report.ok()) {
+    if (report.status().code() == ErrorCode::Cancelled) return stopped_status();
+    // The deformer may have moved; make sure it restarts cleanly next time.
+    entry->state_revision = ~std::uint64_t{0};
+    return report.status();
+  }
+  if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " was closed");
+
+  auto result = std::make_shared<DeformResult>();
+  result->method = request.method;
+  result->positions = std::make_shared<const Positions>(std::move(report->V));
+  const Positions& V = *result->positions;
+  for (int v = 0; v < nv; ++v) {
+    if (V.row(v) != base_positions->row(v)) result->changed.push_back(v);
+  }
+  result->changed_positions.resize(static_cast<Eigen::Index>(result->changed.size()), 3);
+  for (std::size_t j = 0; j < result->changed.size(); ++j)
+    result->changed_positions.row(static_cast<Eigen::Index>(j)) = V.row(result->changed[j]);
+  const core::Measures measures = core::compute_measures(V, rest_.F, topology_);
+  const core::AngleErrors errors = core::angle_errors(rest_measures_, measures);
+  result->e_theta = errors.e_theta;
+  result->e_phi = errors.e_phi;
+  result->area_log_rms = errors.area_log_rms;
+  result->iterations = report->iterations;
+  result->converged = report->converged;
+  result->solve_seconds = report->seconds;
+  result->built_deformer = built;
+  result->editor = request.editor;
+
+  std::vector<std::shared_ptr<Watcher>> watchers;
+  {
+    std::lock_guard lock(state_mutex_);
+    result->revision = ++revision_;
+    history_.push_back(result);
+    while (static_cast<int>(history_.size()) > options_.kept_revisions) history_.pop_front();
+    targets_ = targets;
+    last_method_ = request.method;
+    watchers = watchers_;
+  }
+  entry->state_revision = result->revision;
+  counters_->moves_committed.fetch_add(1);
+  // Revisions are committed by one strand task at a time, so publishing outside the lock keeps
+  // them in order; a watcher joining in between drops the older one (see Watcher::offer).
+  for (const std::shared_ptr<Watcher>& watcher : watchers) watcher->publish(result);
+  return DeformResult(*result);
+}
+
+SessionInfo Session::info() const {
+  SessionInfo info;
+  info.id = id_;
+  info.vertices = static_cast<int>(rest_.V.rows());
+  info.faces = static_cast<int>(rest_.F.rows());
+  info.boundary_loops = boundary_loops_;
+  info.components = topology_.component_count;
+  info.bbox_min = rest_.V.colwise().minCoeff().transpose();
+  info.bbox_max = rest_.V.colwise().maxCoeff().transpose();
+  info.estimated_bytes = estimated_bytes();
+  std::lock_guard lock(state_mutex_);
+  info.revision = revision_;
+  info.groups = groups_;
+  info.last_method = last_method_;
+  info.watchers = static_cast<int>(watchers_.size());
+  info.cached_deformers = cached_deformers_.load();
+  return info;
+}
+
+std::uint64_t Session::revision() const {
+  std::lock_guard lock(state_mutex_);
+  return revision_;
+}
+
+Result<std::shared_ptr<const Positions>> Session::positions_at(
+    std::optional<std::uint64_t> revision) const {
+  std::lock_guard lock(state_mutex_);
+  if (!revision) return history_.back()->positions;
+  for (const auto& entry : history_) {
+    if (entry->revision == *revision) return entry->positions;
+  }
+  return Error(ErrorCode::NotFound, "revision " + std::to_string(*revision) +
+                                        " is not kept (kept: " +
+                                        std::to_string(history_.front()->revision) + ".." +
+                                        std::to_string(history_.back()->revision) + ")");
+}
+
+std::shared_ptr<const DeformResult> Session::snapshot_locked() const { return history_.back(); }
+
+std::shared_ptr<Watcher> Session::add_watcher() {
+  auto watcher = std::make_shared<Watcher>();
+  std::lock_guard lock(state_mutex_);
+  watcher->publish_snapshot(snapshot_locked());
+  if (closed_.load()) {
+    watcher->close();
+  } else {
+    watchers_.push_back(watcher);
+  }
+  return watcher;
+}
+
+void Session::remove_watcher(const Watcher* watcher) {
+  std::lock_guard lock(state_mutex_);
+  std::erase_if(watchers_, [watcher](const auto& w) { return w.get() == watcher; });
+}
+
+int Session::watcher_count() const {
+  std::lock_guard lock(state_mutex_);
+  return static_cast<int>(watchers_.size());
+}
+
+void Session::close() {
+  std::vector<std::shared_ptr<Watcher>> watchers;
+  {
+    std::lock_guard lock(state_mutex_);
+    closed_.store(true);
+    watchers.swap(watchers_);
+  }
+  for (const auto& watcher : watchers) watcher->close();
+}
+
+std::chrono::steady_clock::time_point Session::last_used() const {
+  std::lock_guard lock(state_mutex_);
+  return last_used_;
+}
+
+void Session::touch(std::chrono::steady_clock::time_point now) {
+  std::lock_guard lock(state_mutex_);
+  last_used_ = std::max(last_used_, now);
+}
+
+bool Session::enqueue(std::function<void()> task) {
+  std::lock_guard lock(strand_mutex_);
+  strand_.push_back(std::move(task));
+  if (strand_running_) return false;
+  strand_running_ = true;
+  return true;
+}
+
+bool Session::run_next() {
+  std::function<void()> task;
+  {
+    std::lock_guard lock(strand_mutex_);
+    if (strand_.empty()) {
+      strand_running_ = false;
+      return false;
+    }
+    task = std::move(strand_.front());
+    strand_.pop_front();
+  }
+  task();
+  std::lock_guard lock(strand_mutex_);
+  if (strand_.empty()) {
+    strand_running_ = false;
+    return false;
+  }
+  return true;
+}
+
+}  // namespace meshdeform::service

@@ -1,0 +1,158 @@
+#pragma once
+/// @file session.h
+/// One editing session: the rest mesh and its measures, the current positions and the newest
+/// revisions, the handle groups and targets, the cached prefactored deformers, and the watchers.
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <stop_token>
+#include <vector>
+
+#include "core/deformer.h"
+#include "core/measures.h"
+#include "core/topology.h"
+#include "server/service/types.h"
+#include "server/service/watcher.h"
+
+namespace meshdeform::service {
+
+/// Counters shared by every session of a service.
+struct ServiceCounters {
+  std::atomic<std::uint64_t> deformer_constructions{0};
+  std::atomic<std::uint64_t> moves_committed{0};
+  std::atomic<std::uint64_t> moves_cancelled{0};
+};
+
+/// A session. Reads (info, positions_at, add_watcher) are safe from any thread. Edits
+/// (set_handles, move) must be serialised by the caller: DeformationService runs them one at a
+/// time per session on its worker pool (a strand), so different sessions solve in parallel.
+class Session : public std::enable_shared_from_this<Session> {
+ public:
+  /// Asks the store for `bytes` more budget (evicting idle sessions); ResourceExhausted if not.
+  using ReserveFn = std::function<Status(std::size_t bytes, const Session& requester)>;
+
+  /// @pre core::validate_triangle_mesh(mesh.V, mesh.F) is ok.
+  /// @return the session; InvalidArgument if the topology cannot be built.
+  [[nodiscard]] static Result<std::shared_ptr<Session>> create(
+      SessionId id, Token edit_token, Token view_token, MeshData mesh,
+      const core::DeformerSettings& settings, const ServiceOptions& options,
+      std::shared_ptr<ServiceCounters> counters, ReserveFn reserve);
+
+  const SessionId& id() const { return id_; }
+  const MeshData& rest() const { return rest_; }
+  /// True for the edit token.
+  bool can_edit(const Token& token) const;
+  /// True for the view token or the edit token.
+  bool can_view(const Token& token) const;
+
+  /// Sets the handle groups, anchors them at the current positions (targets = anchors) and builds
+  /// (or reuses) the factorization of `request.prepare` for the constrained set.
+  /// @return the new info; InvalidArgument for no groups, an empty group, an index out of range or
+  ///         a vertex in two groups (naming it); FailedPrecondition if the method cannot pin a
+  ///         connected component (scale-aware needs two constrained vertices per component, ARAP
+  ///         and Laplacian one); ResourceExhausted over the memory budget; NotFound once closed;
+  ///         NumericalFailure if the factorization fails.
+  [[nodiscard]] Result<SessionInfo> set_handles(const SetHandlesRequest& request);
+
+  /// Applies a move and solves, warm-starting the cached deformer of (method, constrained set)
+  /// from its last result (a deformer whose last result is not the current revision, e.g. after
+  /// a method switch, restarts from the Laplacian guess: core's Deformer cannot be seeded). Only
+  /// changing targets never refactors. Commits a revision and publishes it to the watchers.
+  /// @return the result; FailedPrecondition before set_handles or for a component the method
+  ///         cannot pin; InvalidArgument for a bad group/vertex index, a move of a Fixed group, a
+  ///         non-finite or out-of-range value, or options the method rejects (ORA on ARAP or
+  ///         Laplacian); Cancelled when `stop` is requested, DeadlineExceeded past the deadline
+  ///         (nothing committed either way); NotFound once closed; ResourceExhausted when a new
+  ///         factorization does not fit the budget; NumericalFailure if the solve breaks down.
+  [[nodiscard]] Result<DeformResult> move(const MoveRequest& request, std::stop_token stop);
+
+  SessionInfo info() const;
+  /// Positions at `revision` (default: the current one).
+  /// @return NotFound naming the kept range for a revision that is not (or no longer) kept.
+  [[nodiscard]] Result<std::shared_ptr<const Positions>> positions_at(
+      std::optional<std::uint64_t> revision) const;
+  std::uint64_t revision() const;
+
+  /// Adds a watcher whose mailbox already holds a full snapshot of the current revision.
+  std::shared_ptr<Watcher> add_watcher();
+  void remove_watcher(const Watcher* watcher);
+  int watcher_count() const;
+
+  /// Closes the session: later edits fail with NotFound and watchers are closed.
+  void close();
+  bool is_closed() const { return closed_.load(); }
+
+  std::size_t estimated_bytes() const { return estimated_bytes_.load(); }
+  std::chrono::steady_clock::time_point last_used() const;
+  void touch(std::chrono::steady_clock::time_point now);
+  /// Edits queued or running (the store only evicts sessions with none).
+  std::atomic<int>& inflight() { return inflight_; }
+  int inflight_count() const { return inflight_.load(); }
+
+  /// Strand: the service queues edits here; `run_next` pops one (false when empty).
+  /// @return true if the caller must schedule a drain (the strand was idle).
+  bool enqueue(std::function<void()> task);
+  /// Runs the oldest queued edit; @return true if more remain.
+  bool run_next();
+
+ private:
+  struct CachedDeformer {
+    core::Method method;
+    std::vector<int> constrained;
+    std::unique_ptr<core::Deformer> deformer;
+    std::uint64_t state_revision = 0;  ///< the revision the deformer's positions() equal
+    std::uint64_t last_used = 0;
+  };
+
+  Session() = default;
+  Status check_pinnable(core::Method method, const std::vector<int>& constrained) const;
+  Result<CachedDeformer*> get_or_build(core::Method method, const std::vector<int>& constrained,
+                                       bool* built);
+  void update_estimate();
+  std::shared_ptr<const DeformResult> snapshot_locked() const;
+
+  SessionId id_;
+  Token edit_token_, view_token_;
+  MeshData rest_;
+  core::MeshTopology topology_;
+  core::Measures rest_measures_;
+  int boundary_loops_ = 0;
+  core::DeformerSettings settings_;
+  ServiceOptions options_;
+  std::shared_ptr<ServiceCounters> counters_;
+  ReserveFn reserve_;
+
+  // Touched only by the strand (edits).
+  std::vector<CachedDeformer> deformers_;
+  std::uint64_t deformer_tick_ = 0;
+
+  // Guarded by state_mutex_.
+  mutable std::mutex state_mutex_;
+  std::uint64_t revision_ = 0;
+  std::deque<std::shared_ptr<const DeformResult>> history_;  ///< newest last, <= kept_revisions
+  std::vector<HandleGroup> groups_;
+  std::vector<int> constrained_;  ///< ascending union of the groups
+  Positions anchors_;             ///< #C x 3, positions when the handles were set
+  Positions targets_;             ///< #C x 3, current targets
+  std::vector<int> vertex_group_; ///< #V group of each vertex or -1
+  std::optional<core::Method> last_method_;
+  std::vector<std::shared_ptr<Watcher>> watchers_;
+  std::chrono::steady_clock::time_point last_used_{};
+
+  std::mutex strand_mutex_;
+  std::deque<std::function<void()>> strand_;
+  bool strand_running_ = false;
+
+  std::atomic<bool> closed_{false};
+  std::atomic<std::size_t> estimated_bytes_{0};
+  std::atomic<int> inflight_{0};
+  std::atomic<int> cached_deformers_{0};
+};
+
+}  // namespace meshdeform::service

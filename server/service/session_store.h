@@ -1,0 +1,62 @@
+#pragma once
+/// @file session_store.h
+/// Owns the sessions and enforces the session-count limit, the memory budget (least recently used
+/// idle sessions are evicted first) and the idle TTL.
+
+#include <chrono>
+#include <map>
+#include <memory>
+#include <mutex>
+
+#include "server/service/session.h"
+#include "server/service/types.h"
+
+namespace meshdeform::service {
+
+/// Thread-safe map SessionId -> Session. `find` hands out a shared_ptr that the caller holds for
+/// one request only (TF Serving's ServableHandle rule): eviction removes a session from the map
+/// and closes it, and an in-flight request on it then ends with NotFound.
+class SessionStore {
+ public:
+  explicit SessionStore(const ServiceOptions& options);
+
+  /// Adds a session charged `estimated_bytes()`; first drops expired sessions, then evicts least
+  /// recently used idle sessions while the budget is exceeded.
+  /// @return ResourceExhausted naming the limit when max_sessions are open, or when the budget
+  ///         cannot be met by eviction.
+  [[nodiscard]] Status insert(std::shared_ptr<Session> session);
+  /// The session, touched (last used = now); nullptr if unknown, closed or expired.
+  std::shared_ptr<Session> find(const SessionId& id);
+  /// Removes and closes a session; false if unknown.
+  bool erase(const SessionId& id);
+  /// Makes room for `bytes` more on behalf of `requester` (never evicted here).
+  /// @return ResourceExhausted with the estimate and the budget when eviction is not enough.
+  [[nodiscard]] Status reserve(std::size_t bytes, const Session& requester);
+  /// Removes sessions idle (no edit in flight, no watcher) for longer than the TTL at `now`.
+  /// @return how many were removed.
+  std::size_t evict_expired(std::chrono::steady_clock::time_point now);
+
+  std::size_t size() const;
+  std::size_t total_bytes() const;
+  std::uint64_t evicted_lru() const;
+  std::uint64_t evicted_idle() const;
+  std::chrono::steady_clock::time_point now() const { return clock_(); }
+  /// Closes every session (service shutdown).
+  void clear();
+
+ private:
+  std::size_t total_bytes_locked() const;
+  bool is_expired_locked(const Session& session, std::chrono::steady_clock::time_point now) const;
+  std::size_t evict_expired_locked(std::chrono::steady_clock::time_point now);
+  /// Evicts LRU idle sessions (not `keep`) until `bytes` more fit; false if impossible.
+  bool make_room_locked(std::size_t bytes, const Session* keep);
+
+  ServiceOptions options_;
+  Clock clock_;
+  mutable std::mutex mutex_;
+  std::map<SessionId, std::shared_ptr<Session>> sessions_;
+  std::uint64_t evicted_lru_ = 0;
+  std::uint64_t evicted_idle_ = 0;
+};
+
+}  // namespace meshdeform::service

@@ -1,0 +1,188 @@
+#pragma once
+/// @file types.h
+/// Domain types of the transport-free deformation service (issue 4): sessions, tokens, handle
+/// groups, move requests, results, watch updates, limits. Eigen and core types only: no gRPC, no
+/// protobuf, so every front end (gRPC, browser gateway, tests) shares them.
+
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "core/deformer.h"
+#include "core/io/mesh_io.h"
+#include "core/mesh_data.h"
+
+namespace meshdeform::service {
+
+/// Opaque session identifier (32 lower-case hex digits, random).
+struct SessionId {
+  std::string value;
+  auto operator<=>(const SessionId&) const = default;
+};
+
+/// A bearer secret: 64 lower-case hex digits (32 random bytes). Compared in constant time.
+struct Token {
+  std::string value;
+};
+
+/// The clock used for idle-TTL bookkeeping; injectable for tests.
+using Clock = std::function<std::chrono::steady_clock::time_point()>;
+
+/// Role of a handle group.
+enum class HandleRole {
+  Fixed,   ///< stays where it was when the handles were set; cannot be moved
+  Handle,  ///< moved by GroupMove / VertexTarget
+};
+
+/// A set of constrained vertices with one role.
+struct HandleGroup {
+  HandleRole role = HandleRole::Handle;
+  std::vector<int> vertices;  ///< indices into the session's (cleaned) mesh, distinct
+};
+
+/// Everything SetHandles takes.
+struct SetHandlesRequest {
+  std::vector<HandleGroup> groups;  ///< no vertex may be in two groups
+  /// The method whose factorization to build now (others are built on their first move).
+  core::Method prepare = core::Method::ScaleAware;
+};
+
+/// A similarity transform of one handle group, relative to the group's anchor positions (its
+/// positions when set_handles was called: the rest pose on an undeformed session). Transforms are
+/// absolute, not incremental: sending the same move twice gives the same targets.
+/// target = pivot + scale * rotation * (anchor - pivot) + translation.
+struct GroupMove {
+  int group = 0;  ///< index into the groups given to set_handles; must be a Handle group
+  Eigen::Vector3d translation = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond rotation = Eigen::Quaterniond::Identity();  ///< normalised by the service
+  double scale = 1.0;                                             ///< > 0
+  std::optional<Eigen::Vector3d> pivot;  ///< default: the centroid of the group's anchors
+};
+
+/// An explicit target for one constrained vertex of a Handle group (applied after the moves).
+struct VertexTarget {
+  int vertex = 0;
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();
+};
+
+/// One edit: new handle targets (vertices not mentioned keep their previous targets) and how to
+/// solve for them.
+struct MoveRequest {
+  std::vector<GroupMove> moves;
+  std::vector<VertexTarget> targets;
+  core::Method method = core::Method::ScaleAware;
+  bool ora = false;        ///< optimal rigidity approximation (scale-aware only)
+  int max_iterations = 2;  ///< outer-iteration budget; small for interactive drags, 1..1000
+  double tolerance = 1e-4; ///< relative energy change that stops the solve early, >= 0
+  /// Stop the solve (DeadlineExceeded) once steady_clock passes this point.
+  std::optional<std::chrono::steady_clock::time_point> deadline;
+  std::string editor;  ///< free-form label forwarded to watchers ("who edited")
+};
+
+/// A committed revision.
+struct DeformResult {
+  std::uint64_t revision = 0;  ///< 0 is the rest mesh; every committed move adds one
+  core::Method method = core::Method::ScaleAware;
+  std::shared_ptr<const Positions> positions;  ///< #V x 3, the full new positions
+  /// Vertices whose position differs (exactly, threshold 0) from the previous revision, ascending.
+  std::vector<int> changed;
+  Positions changed_positions;  ///< #changed x 3, their new positions
+  double e_theta = 0;           ///< RMS corner-angle error against the rest mesh (radians)
+  double e_phi = 0;             ///< RMS dihedral-angle error against the rest mesh (radians)
+  double area_log_rms = 0;      ///< RMS of log(area'/area) over faces
+  int iterations = 0;           ///< outer iterations run
+  bool converged = false;
+  double solve_seconds = 0;     ///< wall time of the solve (without factorization)
+  bool built_deformer = false;  ///< this move had to factor a new system (new method/handle set)
+  std::string editor;
+};
+
+/// What a watcher receives.
+struct DeformUpdate {
+  std::shared_ptr<const DeformResult> result;  ///< shared by every watcher
+  /// True on join and after a gap: only result->positions is meaningful (the changed lists are
+  /// relative to a revision this watcher never saw).
+  bool is_snapshot = false;
+  std::uint64_t skipped_revisions = 0;  ///< revisions dropped since the last taken update
+};
+
+/// A summary of a session.
+struct SessionInfo {
+  SessionId id;
+  int vertices = 0;
+  int faces = 0;
+  int boundary_loops = 0;
+  int components = 0;
+  Eigen::Vector3d bbox_min = Eigen::Vector3d::Zero();  ///< of the rest mesh
+  Eigen::Vector3d bbox_max = Eigen::Vector3d::Zero();
+  std::uint64_t revision = 0;
+  std::vector<HandleGroup> groups;
+  std::optional<core::Method> last_method;  ///< method of the last committed move
+  std::size_t estimated_bytes = 0;          ///< what the memory budget charges this session
+  int cached_deformers = 0;
+  int watchers = 0;
+};
+
+/// CreateSession input: exactly one of mesh bytes or a built-in sample name.
+struct CreateSessionRequest {
+  std::string mesh_bytes;                     ///< whole file contents
+  io::MeshFormat format = io::MeshFormat::Obj;
+  std::string sample;                         ///< see DeformationService::sample_names()
+  bool weld = false;                          ///< weld coincident vertices (STL always is)
+  core::DeformerSettings settings;            ///< lambda etc., fixed for the session
+};
+
+/// CreateSession output.
+struct CreatedSession {
+  SessionId id;
+  Token edit_token;  ///< needed to edit (set handles, move, close)
+  Token view_token;  ///< enough to watch, read the mesh and the info
+  SessionInfo info;
+  int welded_vertices = 0;        ///< cleaning: vertex indices refer to the cleaned mesh
+  int dropped_unreferenced = 0;
+  std::vector<HandleGroup> suggested_groups;  ///< samples: the benchmark's fixed and handle sets
+};
+
+/// Limits and sizes; every one has a sane default.
+struct ServiceOptions {
+  int workers = 0;                 ///< solver threads; 0 = std::thread::hardware_concurrency()
+  int max_vertices = 250'000;      ///< per mesh
+  int max_sessions = 64;
+  std::size_t memory_budget_bytes = std::size_t{2} << 30;  ///< estimated, see estimate_session_bytes
+  std::chrono::seconds idle_ttl{30 * 60};
+  int kept_revisions = 4;          ///< GetMesh can read the newest K revisions
+  int max_cached_deformers = 4;    ///< per session, least recently used dropped first
+  int solver_threads = 1;          ///< OpenMP threads inside one solve
+  Clock clock;                     ///< default: std::chrono::steady_clock::now
+};
+
+/// Service-wide counters (metrics and tests).
+struct ServiceStats {
+  std::uint64_t deformer_constructions = 0;  ///< make_deformer calls that succeeded
+  std::uint64_t moves_committed = 0;
+  std::uint64_t moves_cancelled = 0;         ///< Cancelled or DeadlineExceeded
+  std::uint64_t evicted_lru = 0;             ///< sessions evicted for the memory budget
+  std::uint64_t evicted_idle = 0;            ///< sessions evicted by the idle TTL
+  std::size_t sessions = 0;
+  std::size_t estimated_bytes = 0;
+  int workers = 0;
+};
+
+/// Rough memory charge of a session, for budgeting only (not measured): positions of the rest mesh,
+/// the current and the kept revisions, topology and measures, plus per cached deformer the sparse
+/// Cholesky factors of its systems (about 1.2 KB per vertex).
+/// @param[in] vertices, faces   mesh size.
+/// @param[in] cached_deformers  prefactored systems held.
+/// @param[in] kept_revisions    ServiceOptions::kept_revisions.
+std::size_t estimate_session_bytes(int vertices, int faces, int cached_deformers,
+                                   int kept_revisions);
+
+}  // namespace meshdeform::service

@@ -1,0 +1,46 @@
+#include "server/service/worker_pool.h"
+
+#include <algorithm>
+
+namespace meshdeform::service {
+
+WorkerPool::WorkerPool(int size) {
+  if (size < 1) size = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  threads_.reserve(static_cast<std::size_t>(size));
+  for (int i = 0; i < size; ++i) {
+    threads_.emplace_back([this](std::stop_token stop) { run(stop); });
+  }
+}
+
+WorkerPool::~WorkerPool() {
+  for (std::jthread& thread : threads_) thread.request_stop();
+  threads_.clear();  // joins; run() drains the queue before returning
+}
+
+void WorkerPool::submit(std::function<void()> task) {
+  {
+    std::lock_guard lock(mutex_);
+    queue_.push_back(std::move(task));
+  }
+  cv_.notify_one();
+}
+
+void WorkerPool::run(std::stop_token stop) {
+  while (true) {
+    std::function<void()> task;
+    {
+      std::unique_lock lock(mutex_);
+      cv_.wait(lock, stop, [this] { return !queue_.empty(); });
+      if (queue_.empty()) return;  // stop requested and nothing left to drain
+      task = std::move(queue_.front());
+      queue_.pop_front();
+    }
+    try {
+      task();
+    } catch (...) {
+      // Tasks report their own errors; a pool thread must survive a buggy one.
+    }
+  }
+}
+
+}  // namespace meshdeform::service
