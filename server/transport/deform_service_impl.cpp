@@ -1,0 +1,263 @@
+#include "server/transport/deform_service_impl.h"
+
+#include <chrono>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <stop_token>
+#include <utility>
+
+#include "server/transport/proto_convert.h"
+#include "server/transport/status_mapping.h"
+
+namespace meshdeform::transport {
+namespace {
+
+/// A unary reactor whose cancellation (client cancel, deadline, server shutdown) requests a stop
+/// of the work it started. Finish may be called from any thread, once.
+class StoppableUnaryReactor final : public grpc::ServerUnaryReactor {
+ public:
+  std::stop_token stop_token() const { return stop_.get_token(); }
+  void OnCancel() override { stop_.request_stop(); }
+  void OnDone() override { delete this; }
+
+ private:
+  std::stop_source stop_;
+};
+
+/// The call's deadline on the steady clock; nullopt when there is none (or it is years away).
+std::optional<std::chrono::steady_clock::time_point> steady_deadline(
+    const grpc::CallbackServerContext& context) {
+  const std::chrono::system_clock::time_point deadline = context.deadline();
+  const std::chrono::system_clock::time_point now = std::chrono::system_clock::now();
+  if (deadline == std::chrono::system_clock::time_point::max() ||
+      deadline - now > std::chrono::hours(24 * 365)) {
+    return std::nullopt;
+  }
+  return std::chrono::steady_clock::now() +
+         std::chrono::duration_cast<std::chrono::steady_clock::duration>(deadline - now);
+}
+
+grpc::ServerUnaryReactor* finish_now(grpc::CallbackServerContext* context, std::string_view rpc,
+                                     const Status& status) {
+  grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
+  reactor->Finish(to_grpc_status(status, rpc));
+  return reactor;
+}
+
+/// Streams a subscription. Owned by itself (self_) until OnDone; the watcher's notify holds only a
+/// weak_ptr, so a notify racing with OnDone keeps the object alive but does nothing.
+class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
+ public:
+  static WatchReactor* start(service::Subscription subscription) {
+    auto reactor = std::shared_ptr<WatchReactor>(new WatchReactor(std::move(subscription)));
+    reactor->self_ = reactor;
+    std::weak_ptr<WatchReactor> weak = reactor;
+    // The join snapshot is already pending, so this starts the first write at once (allowed
+    // before the handler returns the reactor).
+    reactor->subscription_->set_notify([weak] {
+      if (std::shared_ptr<WatchReactor> strong = weak.lock()) strong->pump();
+    });
+    return reactor.get();
+  }
+
+  void OnWriteDone(bool ok) override {
+    {
+      const std::lock_guard lock(mutex_);
+      is_writing_ = false;
+      if (!ok) is_cancelled_ = true;  // the stream is broken (client gone)
+    }
+    pump();
+  }
+
+  void OnCancel() override {
+    {
+      const std::lock_guard lock(mutex_);
+      is_cancelled_ = true;
+    }
+    pump();
+  }
+
+  void OnDone() override {
+    service::Subscription subscription;
+    std::shared_ptr<WatchReactor> keep;
+    {
+      const std::lock_guard lock(mutex_);
+      subscription = std::move(subscription_);
+      keep = std::move(self_);
+    }
+    subscription->set_notify(nullptr);
+    subscription.reset();  // unsubscribes; may close the watcher, which notifies nobody now
+    // `keep` releases this object (or a racing notify's weak_ptr lock does, later).
+  }
+
+ private:
+  explicit WatchReactor(service::Subscription subscription)
+      : subscription_(std::move(subscription)) {}
+
+  /// Starts the next write or the finish, if neither a write is in flight nor we are finished.
+  /// gRPC operations are started outside the lock.
+  void pump() {
+    enum class Next { Nothing, Write, FinishOk, FinishCancelled } next = Next::Nothing;
+    {
+      const std::lock_guard lock(mutex_);
+      if (is_finished_ || is_writing_) return;
+      if (is_cancelled_) {
+        next = Next::FinishCancelled;
+      } else if (std::optional<service::DeformUpdate> update = subscription_->try_take()) {
+        update_to_proto(*update, &message_);
+        next = Next::Write;
+      } else if (subscription_->closed()) {
+        next = Next::FinishOk;  // the session was closed or evicted
+      }
+      if (next == Next::Write) is_writing_ = true;
+      if (next == Next::FinishOk || next == Next::FinishCancelled) is_finished_ = true;
+    }
+    switch (next) {
+      case Next::Nothing:
+        break;
+      case Next::Write:
+        StartWrite(&message_);
+        break;
+      case Next::FinishOk:
+        Finish(grpc::Status::OK);
+        break;
+      case Next::FinishCancelled:
+        Finish(grpc::Status(grpc::StatusCode::CANCELLED, "watch cancelled"));
+        break;
+    }
+  }
+
+  std::mutex mutex_;
+  service::Subscription subscription_;
+  v1::DeformUpdate message_;  // owned by gRPC while is_writing_
+  bool is_writing_ = false;
+  bool is_cancelled_ = false;
+  bool is_finished_ = false;
+  std::shared_ptr<WatchReactor> self_;
+};
+
+class FailedWriteReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
+ public:
+  explicit FailedWriteReactor(const grpc::Status& status) { Finish(status); }
+  void OnDone() override { delete this; }
+};
+
+}  // namespace
+
+grpc::ServerUnaryReactor* DeformServiceImpl::CreateSession(grpc::CallbackServerContext* context,
+                                                           const v1::CreateSessionRequest* request,
+                                                           v1::CreateSessionResponse* response) {
+  // Parsing and cleaning run here (the service does no solve in create_session).
+  return finish_now(context, "CreateSession", run_guarded("CreateSession", [&]() -> Status {
+    MD_ASSIGN_OR_RETURN(service::CreateSessionRequest converted,
+                        create_request_from_proto(*request));
+    MD_ASSIGN_OR_RETURN(service::CreatedSession created, service_.create_session(converted));
+    created_to_proto(created, response);
+    return Status::success();
+  }));
+}
+
+grpc::ServerUnaryReactor* DeformServiceImpl::SetHandles(grpc::CallbackServerContext* context,
+                                                        const v1::SetHandlesRequest* request,
+                                                        v1::SetHandlesResponse* response) {
+  (void)context;
+  auto* reactor = new StoppableUnaryReactor();
+  const Status started = run_guarded("SetHandles", [&]() -> Status {
+    MD_ASSIGN_OR_RETURN(service::SetHandlesRequest converted, set_handles_from_proto(*request));
+    service_.set_handles_async(
+        service::SessionId{request->session_id()}, service::Token{request->token()},
+        std::move(converted), reactor->stop_token(),
+        [reactor, response](Result<service::SessionInfo> result) {
+          const Status status = run_guarded("SetHandles", [&]() -> Status {
+            if (!result.ok()) return result.status();
+            session_info_to_proto(*result, response->mutable_info());
+            return Status::success();
+          });
+          reactor->Finish(to_grpc_status(status, "SetHandles"));
+        });
+    return Status::success();
+  });
+  if (!started.ok()) reactor->Finish(to_grpc_status(started, "SetHandles"));
+  return reactor;
+}
+
+grpc::ServerUnaryReactor* DeformServiceImpl::MoveHandles(grpc::CallbackServerContext* context,
+                                                         const v1::MoveHandlesRequest* request,
+                                                         v1::MoveHandlesResponse* response) {
+  auto* reactor = new StoppableUnaryReactor();
+  const Status started = run_guarded("MoveHandles", [&]() -> Status {
+    MD_ASSIGN_OR_RETURN(service::MoveRequest converted, move_from_proto(*request));
+    converted.deadline = steady_deadline(*context);
+    const bool full_positions = request->full_positions();
+    service_.move_handles_async(
+        service::SessionId{request->session_id()}, service::Token{request->token()},
+        std::move(converted), reactor->stop_token(),
+        [reactor, response, full_positions](Result<service::DeformResult> result) {
+          const Status status = run_guarded("MoveHandles", [&]() -> Status {
+            if (!result.ok()) return result.status();
+            result_to_proto(*result, full_positions, response->mutable_result());
+            return Status::success();
+          });
+          reactor->Finish(to_grpc_status(status, "MoveHandles"));
+        });
+    return Status::success();
+  });
+  // Only a conversion error (or an exception before the async call took over) lands here: once
+  // move_handles_async is called, `done` always runs exactly once and finishes.
+  if (!started.ok()) reactor->Finish(to_grpc_status(started, "MoveHandles"));
+  return reactor;
+}
+
+grpc::ServerWriteReactor<v1::DeformUpdate>* DeformServiceImpl::Watch(
+    grpc::CallbackServerContext* context, const v1::WatchRequest* request) {
+  (void)context;
+  Result<service::Subscription> subscription = run_guarded("Watch", [&] {
+    return service_.watch(service::SessionId{request->session_id()},
+                          service::Token{request->token()});
+  });
+  if (!subscription.ok()) {
+    return new FailedWriteReactor(to_grpc_status(subscription.status(), "Watch"));
+  }
+  return WatchReactor::start(std::move(subscription).value());
+}
+
+grpc::ServerUnaryReactor* DeformServiceImpl::GetMesh(grpc::CallbackServerContext* context,
+                                                     const v1::GetMeshRequest* request,
+                                                     v1::GetMeshResponse* response) {
+  return finish_now(context, "GetMesh", run_guarded("GetMesh", [&]() -> Status {
+    MD_ASSIGN_OR_RETURN(io::MeshFormat format, format_from_proto(request->format(), true));
+    std::optional<std::uint64_t> revision;
+    if (request->has_revision()) revision = request->revision();
+    MD_ASSIGN_OR_RETURN(std::string bytes,
+                        service_.get_mesh(service::SessionId{request->session_id()},
+                                          service::Token{request->token()}, format, revision));
+    response->set_mesh_bytes(std::move(bytes));
+    response->set_format(format_to_proto(format));
+    return Status::success();
+  }));
+}
+
+grpc::ServerUnaryReactor* DeformServiceImpl::GetSessionInfo(
+    grpc::CallbackServerContext* context, const v1::GetSessionInfoRequest* request,
+    v1::GetSessionInfoResponse* response) {
+  return finish_now(context, "GetSessionInfo", run_guarded("GetSessionInfo", [&]() -> Status {
+    MD_ASSIGN_OR_RETURN(service::SessionInfo info,
+                        service_.session_info(service::SessionId{request->session_id()},
+                                              service::Token{request->token()}));
+    session_info_to_proto(info, response->mutable_info());
+    return Status::success();
+  }));
+}
+
+grpc::ServerUnaryReactor* DeformServiceImpl::CloseSession(grpc::CallbackServerContext* context,
+                                                          const v1::CloseSessionRequest* request,
+                                                          v1::CloseSessionResponse* response) {
+  (void)response;
+  return finish_now(context, "CloseSession", run_guarded("CloseSession", [&]() -> Status {
+    return service_.close_session(service::SessionId{request->session_id()},
+                                  service::Token{request->token()});
+  }));
+}
+
+}  // namespace meshdeform::transport

@@ -1,0 +1,45 @@
+#pragma once
+/// @file deform_service_impl.h
+/// The gRPC face of service::DeformationService (callback API). A thin adapter: converts
+/// messages (proto_convert), calls the service, maps statuses (status_mapping). Solves never run
+/// on gRPC threads: SetHandles / MoveHandles use the service's *_async calls and Finish from the
+/// worker; client cancellation (OnCancel) requests the solve's stop and the call's deadline
+/// becomes the move's deadline. Watch pulls from the subscription's one-slot mailbox when it is
+/// notified, so a slow stream never blocks the editor or a gRPC thread.
+
+#include "meshdeform/v1/deformation.grpc.pb.h"
+#include "server/service/deformation_service.h"
+
+namespace meshdeform::transport {
+
+class DeformServiceImpl final : public v1::DeformationService::CallbackService {
+ public:
+  /// @param[in] service  must outlive the grpc::Server this is registered with.
+  explicit DeformServiceImpl(service::DeformationService& service) : service_(service) {}
+
+  grpc::ServerUnaryReactor* CreateSession(grpc::CallbackServerContext* context,
+                                          const v1::CreateSessionRequest* request,
+                                          v1::CreateSessionResponse* response) override;
+  grpc::ServerUnaryReactor* SetHandles(grpc::CallbackServerContext* context,
+                                       const v1::SetHandlesRequest* request,
+                                       v1::SetHandlesResponse* response) override;
+  grpc::ServerUnaryReactor* MoveHandles(grpc::CallbackServerContext* context,
+                                        const v1::MoveHandlesRequest* request,
+                                        v1::MoveHandlesResponse* response) override;
+  grpc::ServerWriteReactor<v1::DeformUpdate>* Watch(grpc::CallbackServerContext* context,
+                                                    const v1::WatchRequest* request) override;
+  grpc::ServerUnaryReactor* GetMesh(grpc::CallbackServerContext* context,
+                                    const v1::GetMeshRequest* request,
+                                    v1::GetMeshResponse* response) override;
+  grpc::ServerUnaryReactor* GetSessionInfo(grpc::CallbackServerContext* context,
+                                           const v1::GetSessionInfoRequest* request,
+                                           v1::GetSessionInfoResponse* response) override;
+  grpc::ServerUnaryReactor* CloseSession(grpc::CallbackServerContext* context,
+                                         const v1::CloseSessionRequest* request,
+                                         v1::CloseSessionResponse* response) override;
+
+ private:
+  service::DeformationService& service_;
+};
+
+}  // namespace meshdeform::transport

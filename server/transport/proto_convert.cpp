@@ -1,0 +1,319 @@
+#include "server/transport/proto_convert.h"
+
+#include <climits>
+#include <cmath>
+#include <string>
+
+namespace meshdeform::transport {
+namespace {
+
+Status invalid(std::string message) { return Error(ErrorCode::InvalidArgument, std::move(message)); }
+
+bool finite(const v1::Vec3& v) {
+  return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
+}
+
+Result<Eigen::Vector3d> vec_from_proto(const v1::Vec3& v, const std::string& field) {
+  if (!finite(v)) {
+    return invalid(field + " has a non-finite component (" + std::to_string(v.x()) + ", " +
+                   std::to_string(v.y()) + ", " + std::to_string(v.z()) + ")");
+  }
+  return Eigen::Vector3d(v.x(), v.y(), v.z());
+}
+
+void vec_to_proto(const Eigen::Vector3d& v, v1::Vec3* out) {
+  out->set_x(v.x());
+  out->set_y(v.y());
+  out->set_z(v.z());
+}
+
+Result<int> index_from_proto(std::uint32_t value, const std::string& field) {
+  if (value > static_cast<std::uint32_t>(INT_MAX)) {
+    return invalid(field + " = " + std::to_string(value) + " is out of range");
+  }
+  return static_cast<int>(value);
+}
+
+void groups_to_proto(const std::vector<service::HandleGroup>& groups,
+                     google::protobuf::RepeatedPtrField<v1::HandleGroup>* out) {
+  for (const service::HandleGroup& group : groups) {
+    v1::HandleGroup* g = out->Add();
+    g->set_role(group.role == service::HandleRole::Fixed ? v1::HANDLE_ROLE_FIXED
+                                                         : v1::HANDLE_ROLE_HANDLE);
+    g->mutable_vertices()->Reserve(static_cast<int>(group.vertices.size()));
+    for (int v : group.vertices) g->add_vertices(static_cast<std::uint32_t>(v));
+  }
+}
+
+void rows_to_proto(const Positions& P, google::protobuf::RepeatedField<double>* out) {
+  out->Resize(static_cast<int>(P.rows() * 3), 0.0);
+  double* data = out->mutable_data();
+  for (Eigen::Index r = 0; r < P.rows(); ++r) {
+    data[3 * r + 0] = P(r, 0);
+    data[3 * r + 1] = P(r, 1);
+    data[3 * r + 2] = P(r, 2);
+  }
+}
+
+}  // namespace
+
+Result<io::MeshFormat> format_from_proto(v1::MeshFormat format, bool allow_unspecified) {
+  // Proto3 enums are open (any int32 can arrive), hence the default.
+  switch (format) {
+    case v1::MESH_FORMAT_UNSPECIFIED:
+      if (allow_unspecified) return io::MeshFormat::Glb;
+      return invalid("format is MESH_FORMAT_UNSPECIFIED; name the format of mesh_bytes");
+    case v1::MESH_FORMAT_OBJ:
+      return io::MeshFormat::Obj;
+    case v1::MESH_FORMAT_OFF:
+      return io::MeshFormat::Off;
+    case v1::MESH_FORMAT_PLY:
+      return io::MeshFormat::Ply;
+    case v1::MESH_FORMAT_STL:
+      return io::MeshFormat::Stl;
+    case v1::MESH_FORMAT_GLB:
+      return io::MeshFormat::Glb;
+    case v1::MESH_FORMAT_GLTF:
+      return io::MeshFormat::Gltf;
+    default:
+      return invalid("unknown format " + std::to_string(static_cast<int>(format)));
+  }
+}
+
+v1::MeshFormat format_to_proto(io::MeshFormat format) {
+  switch (format) {
+    case io::MeshFormat::Obj:
+      return v1::MESH_FORMAT_OBJ;
+    case io::MeshFormat::Off:
+      return v1::MESH_FORMAT_OFF;
+    case io::MeshFormat::Ply:
+      return v1::MESH_FORMAT_PLY;
+    case io::MeshFormat::Stl:
+      return v1::MESH_FORMAT_STL;
+    case io::MeshFormat::Glb:
+      return v1::MESH_FORMAT_GLB;
+    case io::MeshFormat::Gltf:
+      return v1::MESH_FORMAT_GLTF;
+  }
+  return v1::MESH_FORMAT_UNSPECIFIED;
+}
+
+Result<core::Method> method_from_proto(v1::Method method) {
+  switch (method) {
+    case v1::METHOD_UNSPECIFIED:
+    case v1::METHOD_SCALE_AWARE:
+      return core::Method::ScaleAware;
+    case v1::METHOD_ARAP:
+      return core::Method::Arap;
+    case v1::METHOD_LAPLACIAN:
+      return core::Method::Laplacian;
+    default:
+      return invalid("unknown method " + std::to_string(static_cast<int>(method)));
+  }
+}
+
+v1::Method method_to_proto(core::Method method) {
+  switch (method) {
+    case core::Method::ScaleAware:
+      return v1::METHOD_SCALE_AWARE;
+    case core::Method::Arap:
+      return v1::METHOD_ARAP;
+    case core::Method::Laplacian:
+      return v1::METHOD_LAPLACIAN;
+  }
+  return v1::METHOD_UNSPECIFIED;
+}
+
+Result<service::CreateSessionRequest> create_request_from_proto(
+    const v1::CreateSessionRequest& request) {
+  service::CreateSessionRequest out;
+  switch (request.source_case()) {
+    case v1::CreateSessionRequest::kMeshBytes: {
+      if (request.mesh_bytes().empty()) return invalid("mesh_bytes is empty");
+      MD_ASSIGN_OR_RETURN(out.format, format_from_proto(request.format(), false));
+      out.mesh_bytes = request.mesh_bytes();
+      break;
+    }
+    case v1::CreateSessionRequest::kSample:
+      if (request.sample().empty()) return invalid("sample is empty");
+      out.sample = request.sample();
+      break;
+    case v1::CreateSessionRequest::SOURCE_NOT_SET:
+      return invalid("give one of mesh_bytes and sample (got neither)");
+  }
+  out.weld = request.weld();
+  if (request.has_lambda()) {
+    if (!std::isfinite(request.lambda()) || request.lambda() <= 0) {
+      return invalid("lambda " + std::to_string(request.lambda()) + " is not finite and > 0");
+    }
+    out.settings.lambda = request.lambda();
+  }
+  return out;
+}
+
+Result<service::SetHandlesRequest> set_handles_from_proto(const v1::SetHandlesRequest& request) {
+  service::SetHandlesRequest out;
+  MD_ASSIGN_OR_RETURN(out.prepare, method_from_proto(request.prepare()));
+  out.groups.reserve(static_cast<std::size_t>(request.groups_size()));
+  for (int g = 0; g < request.groups_size(); ++g) {
+    const v1::HandleGroup& group = request.groups(g);
+    const std::string where = "groups[" + std::to_string(g) + "]";
+    service::HandleGroup converted;
+    switch (group.role()) {
+      case v1::HANDLE_ROLE_FIXED:
+        converted.role = service::HandleRole::Fixed;
+        break;
+      case v1::HANDLE_ROLE_HANDLE:
+        converted.role = service::HandleRole::Handle;
+        break;
+      default:
+        return invalid(where + ".role " + std::to_string(static_cast<int>(group.role())) +
+                       " is not FIXED or HANDLE");
+    }
+    converted.vertices.reserve(static_cast<std::size_t>(group.vertices_size()));
+    for (int i = 0; i < group.vertices_size(); ++i) {
+      MD_ASSIGN_OR_RETURN(int v, index_from_proto(group.vertices(i), where + ".vertices[" +
+                                                                         std::to_string(i) + "]"));
+      converted.vertices.push_back(v);
+    }
+    out.groups.push_back(std::move(converted));
+  }
+  return out;
+}
+
+Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& request) {
+  service::MoveRequest out;
+  for (int m = 0; m < request.moves_size(); ++m) {
+    const v1::GroupMove& move = request.moves(m);
+    const std::string where = "moves[" + std::to_string(m) + "]";
+    service::GroupMove converted;
+    MD_ASSIGN_OR_RETURN(converted.group, index_from_proto(move.group(), where + ".group"));
+    if (move.has_translation()) {
+      MD_ASSIGN_OR_RETURN(converted.translation,
+                          vec_from_proto(move.translation(), where + ".translation"));
+    }
+    if (move.has_rotation()) {
+      const v1::Quaternion& q = move.rotation();
+      if (!std::isfinite(q.w()) || !std::isfinite(q.x()) || !std::isfinite(q.y()) ||
+          !std::isfinite(q.z())) {
+        return invalid(where + ".rotation has a non-finite component");
+      }
+      if (q.w() == 0 && q.x() == 0 && q.y() == 0 && q.z() == 0) {
+        return invalid(where + ".rotation is the zero quaternion");
+      }
+      converted.rotation = Eigen::Quaterniond(q.w(), q.x(), q.y(), q.z());
+    }
+    if (move.has_scale()) {
+      if (!std::isfinite(move.scale())) return invalid(where + ".scale is non-finite");
+      converted.scale = move.scale();
+    }
+    if (move.has_pivot()) {
+      MD_ASSIGN_OR_RETURN(Eigen::Vector3d pivot, vec_from_proto(move.pivot(), where + ".pivot"));
+      converted.pivot = pivot;
+    }
+    out.moves.push_back(std::move(converted));
+  }
+  const v1::VertexTargets& targets = request.targets();
+  if (static_cast<std::size_t>(targets.positions_size()) !=
+      3 * static_cast<std::size_t>(targets.vertices_size())) {
+    return invalid("targets: " + std::to_string(targets.positions_size()) +
+                   " positions for " + std::to_string(targets.vertices_size()) +
+                   " vertices (need 3 per vertex)");
+  }
+  out.targets.reserve(static_cast<std::size_t>(targets.vertices_size()));
+  for (int i = 0; i < targets.vertices_size(); ++i) {
+    service::VertexTarget t;
+    MD_ASSIGN_OR_RETURN(t.vertex, index_from_proto(targets.vertices(i),
+                                                   "targets.vertices[" + std::to_string(i) + "]"));
+    t.position = Eigen::Vector3d(targets.positions(3 * i), targets.positions(3 * i + 1),
+                                 targets.positions(3 * i + 2));
+    if (!t.position.allFinite()) {
+      return invalid("targets: vertex " + std::to_string(t.vertex) +
+                     " has a non-finite target position");
+    }
+    out.targets.push_back(t);
+  }
+  MD_ASSIGN_OR_RETURN(out.method, method_from_proto(request.method()));
+  out.ora = request.ora();
+  if (request.max_iterations() != 0) {
+    if (request.max_iterations() > 1000) {
+      return invalid("max_iterations " + std::to_string(request.max_iterations()) +
+                     " is not in 1..1000");
+    }
+    out.max_iterations = static_cast<int>(request.max_iterations());
+  }
+  if (request.has_tolerance()) {
+    if (!std::isfinite(request.tolerance())) return invalid("tolerance is non-finite");
+    out.tolerance = request.tolerance();
+  }
+  out.editor = request.editor().substr(0, 256);
+  return out;
+}
+
+void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* out) {
+  out->set_session_id(info.id.value);
+  out->set_vertices(static_cast<std::uint32_t>(info.vertices));
+  out->set_faces(static_cast<std::uint32_t>(info.faces));
+  out->set_boundary_loops(static_cast<std::uint32_t>(info.boundary_loops));
+  out->set_components(static_cast<std::uint32_t>(info.components));
+  vec_to_proto(info.bbox_min, out->mutable_bbox_min());
+  vec_to_proto(info.bbox_max, out->mutable_bbox_max());
+  out->set_revision(info.revision);
+  groups_to_proto(info.groups, out->mutable_groups());
+  out->set_last_method(info.last_method ? method_to_proto(*info.last_method)
+                                        : v1::METHOD_UNSPECIFIED);
+  out->set_estimated_bytes(info.estimated_bytes);
+  out->set_cached_deformers(static_cast<std::uint32_t>(info.cached_deformers));
+  out->set_watchers(static_cast<std::uint32_t>(info.watchers));
+}
+
+void created_to_proto(const service::CreatedSession& created, v1::CreateSessionResponse* out) {
+  out->set_session_id(created.id.value);
+  out->set_edit_token(created.edit_token.value);
+  out->set_view_token(created.view_token.value);
+  session_info_to_proto(created.info, out->mutable_info());
+  out->set_welded_vertices(static_cast<std::uint32_t>(created.welded_vertices));
+  out->set_dropped_unreferenced(static_cast<std::uint32_t>(created.dropped_unreferenced));
+  groups_to_proto(created.suggested_groups, out->mutable_suggested_groups());
+}
+
+namespace {
+void result_metrics_to_proto(const service::DeformResult& result, v1::DeformResult* out) {
+  out->set_revision(result.revision);
+  out->set_method(method_to_proto(result.method));
+  out->set_e_theta(result.e_theta);
+  out->set_e_phi(result.e_phi);
+  out->set_area_log_rms(result.area_log_rms);
+  out->set_iterations(static_cast<std::uint32_t>(result.iterations));
+  out->set_converged(result.converged);
+  out->set_solve_seconds(result.solve_seconds);
+  out->set_built_deformer(result.built_deformer);
+  out->set_editor(result.editor);
+}
+}  // namespace
+
+void result_to_proto(const service::DeformResult& result, bool full_positions,
+                     v1::DeformResult* out) {
+  result_metrics_to_proto(result, out);
+  out->mutable_changed_indices()->Reserve(static_cast<int>(result.changed.size()));
+  for (int v : result.changed) out->add_changed_indices(static_cast<std::uint32_t>(v));
+  rows_to_proto(result.changed_positions, out->mutable_changed_positions());
+  if (full_positions && result.positions) rows_to_proto(*result.positions, out->mutable_positions());
+}
+
+void update_to_proto(const service::DeformUpdate& update, v1::DeformUpdate* out) {
+  out->Clear();
+  out->set_is_snapshot(update.is_snapshot);
+  out->set_skipped_revisions(update.skipped_revisions);
+  if (!update.result) return;
+  if (update.is_snapshot) {
+    result_metrics_to_proto(*update.result, out->mutable_result());
+    if (update.result->positions) {
+      rows_to_proto(*update.result->positions, out->mutable_result()->mutable_positions());
+    }
+  } else {
+    result_to_proto(*update.result, false, out->mutable_result());
+  }
+}
+
+}  // namespace meshdeform::transport

@@ -1,0 +1,44 @@
+#pragma once
+/// @file proto_convert.h
+/// meshdeform.v1 messages <-> service domain types. Checks the wire shape only (finite numbers,
+/// lengths, indices that fit an int, known enum values); the service checks the meaning (indices
+/// < #V, roles, scale > 0, ...). Every error is InvalidArgument naming the field.
+
+#include "core/deformer.h"
+#include "core/io/mesh_io.h"
+#include "core/status.h"
+#include "meshdeform/v1/deformation.pb.h"
+#include "server/service/types.h"
+
+namespace meshdeform::transport {
+
+/// @param[in] allow_unspecified  map MESH_FORMAT_UNSPECIFIED to GLB instead of rejecting it.
+/// @return the format; InvalidArgument for UNSPECIFIED (unless allowed) or an unknown value.
+[[nodiscard]] Result<io::MeshFormat> format_from_proto(v1::MeshFormat format,
+                                                       bool allow_unspecified);
+v1::MeshFormat format_to_proto(io::MeshFormat format);
+
+/// METHOD_UNSPECIFIED is scale-aware. @return InvalidArgument for an unknown value.
+[[nodiscard]] Result<core::Method> method_from_proto(v1::Method method);
+v1::Method method_to_proto(core::Method method);
+
+/// @return the request; InvalidArgument for neither bytes nor sample, a missing/unknown format
+///         with bytes, or a non-finite / non-positive lambda.
+[[nodiscard]] Result<service::CreateSessionRequest> create_request_from_proto(
+    const v1::CreateSessionRequest& request);
+/// @return the groups; InvalidArgument for an unspecified/unknown role or an index > INT_MAX.
+[[nodiscard]] Result<service::SetHandlesRequest> set_handles_from_proto(
+    const v1::SetHandlesRequest& request);
+/// @return the move; InvalidArgument for non-finite numbers, an all-zero quaternion, targets whose
+///         positions are not 3 per vertex, indices > INT_MAX, max_iterations > 1000.
+[[nodiscard]] Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& request);
+
+void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* out);
+void created_to_proto(const service::CreatedSession& created, v1::CreateSessionResponse* out);
+/// @param[in] full_positions  also fill out->positions with all #V x 3 positions.
+void result_to_proto(const service::DeformResult& result, bool full_positions,
+                     v1::DeformResult* out);
+/// Snapshots carry all positions and no changed lists; deltas the changed lists only.
+void update_to_proto(const service::DeformUpdate& update, v1::DeformUpdate* out);
+
+}  // namespace meshdeform::transport

@@ -1,0 +1,53 @@
+#pragma once
+/// @file status_mapping.h
+/// meshdeform::Status -> grpc::Status (one switch), message truncation, and run_guarded, which
+/// keeps exceptions from escaping an RPC handler (gRPC would turn them into UNKNOWN).
+
+#include <cstddef>
+#include <exception>
+#include <new>
+#include <string>
+#include <string_view>
+
+#include <grpcpp/support/status.h>
+
+#include "core/status.h"
+
+namespace meshdeform::transport {
+
+/// Longest message sent to a client; longer ones are cut and logged in full (TF Serving).
+inline constexpr std::size_t kMaxClientMessageBytes = 1024;
+
+/// The gRPC code of an error code (Ok -> OK).
+grpc::StatusCode to_grpc_code(ErrorCode code);
+
+/// `message` cut to at most kMaxClientMessageBytes bytes (ending in "..." when cut, never splitting
+/// a UTF-8 sequence).
+std::string truncate_message(std::string_view message);
+
+/// The client-facing status: code mapped by to_grpc_code, message truncated. Logs the full text
+/// of truncated messages and of Internal errors to stderr, tagged with `rpc`.
+grpc::Status to_grpc_status(const Status& status, std::string_view rpc = {});
+
+/// Writes one line to stderr ("meshdeform-server: <rpc>: <text>"); thread-safe.
+void log_line(std::string_view rpc, std::string_view text);
+
+/// Runs `fn` (returning Status or Result<T>), turning escaped exceptions into statuses:
+/// std::bad_alloc -> ResourceExhausted, other exceptions -> Internal (both logged).
+template <typename Fn>
+auto run_guarded(std::string_view rpc, Fn&& fn) -> decltype(fn()) {
+  try {
+    return fn();
+  } catch (const std::bad_alloc&) {
+    log_line(rpc, "out of memory");
+    return Error(ErrorCode::ResourceExhausted, "out of memory");
+  } catch (const std::exception& e) {
+    log_line(rpc, std::string("unexpected exception: ") + e.what());
+    return Error(ErrorCode::Internal, "unexpected exception");
+  } catch (...) {
+    log_line(rpc, "unexpected non-standard exception");
+    return Error(ErrorCode::Internal, "unexpected exception");
+  }
+}
+
+}  // namespace meshdeform::transport

@@ -1,0 +1,713 @@
+// Drives a real DeformationService through DeformServiceImpl in an in-process grpc::Server with the
+// generated stub. Positions travel as doubles (see deformation.proto), so results are compared with
+// the service's own to 1e-9 of the bounding-box diagonal; GLB stores float32 and is compared to
+// float round-off. Every wait is bounded by a call deadline; no test depends on timing thresholds
+// except that a 1000-iteration solve of a 4,802-vertex mesh outlasts a 300 ms deadline.
+#include <gtest/gtest.h>
+
+#include <grpcpp/create_channel.h>
+#include <grpcpp/generic/generic_stub.h>
+#include <grpcpp/grpcpp.h>
+#include <grpcpp/security/credentials.h>
+#include <grpcpp/security/server_credentials.h>
+
+#include <chrono>
+#include <cmath>
+#include <future>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "core/io/mesh_io.h"
+#include "meshdeform/v1/deformation.grpc.pb.h"
+#include "server/service/deformation_service.h"
+#include "server/transport/deform_service_impl.h"
+#include "server/transport/server_setup.h"
+#include "tests/support/mesh_factories.h"
+
+namespace meshdeform::transport {
+namespace {
+
+using std::chrono::milliseconds;
+using std::chrono::seconds;
+
+constexpr int kMaxMessageMib = 64;
+
+/// Every call gets a deadline, so that no test can hang.
+void bound(grpc::ClientContext& context, seconds timeout = seconds(60)) {
+  context.set_deadline(std::chrono::system_clock::now() + timeout);
+}
+
+std::string describe(const grpc::Status& status) {
+  return std::to_string(static_cast<int>(status.error_code())) + ": " + status.error_message();
+}
+
+v1::CreateSessionRequest sample_request(const std::string& name) {
+  v1::CreateSessionRequest request;
+  request.set_sample(name);
+  return request;
+}
+
+/// Group 1 (the sample's handle group) rotated about y by `angle_deg` and lifted, as in the
+/// service tests.
+v1::GroupMove bend(double angle_deg) {
+  v1::GroupMove move;
+  move.set_group(1);
+  const Eigen::Quaterniond q(
+      Eigen::AngleAxisd(angle_deg * M_PI / 180.0, Eigen::Vector3d::UnitY()));
+  move.mutable_rotation()->set_w(q.w());
+  move.mutable_rotation()->set_x(q.x());
+  move.mutable_rotation()->set_y(q.y());
+  move.mutable_rotation()->set_z(q.z());
+  move.mutable_translation()->set_x(0.1);
+  move.mutable_translation()->set_z(0.05);
+  return move;
+}
+
+service::MoveRequest bend_domain(double angle_deg) {
+  service::MoveRequest move;
+  service::GroupMove g;
+  g.group = 1;
+  g.rotation =
+      Eigen::Quaterniond(Eigen::AngleAxisd(angle_deg * M_PI / 180.0, Eigen::Vector3d::UnitY()));
+  g.translation = Eigen::Vector3d(0.1, 0.0, 0.05);
+  move.moves.push_back(g);
+  return move;
+}
+
+Positions positions_of(const google::protobuf::RepeatedField<double>& flat) {
+  Positions P(flat.size() / 3, 3);
+  for (int r = 0; r < P.rows(); ++r)
+    for (int c = 0; c < 3; ++c) P(r, c) = flat[3 * r + c];
+  return P;
+}
+
+service::ServiceOptions one_worker() {
+  service::ServiceOptions options;
+  options.workers = 1;
+  return options;
+}
+
+class DeformServiceTest : public ::testing::Test {
+ protected:
+  void SetUp() override { start(service::ServiceOptions{}); }
+  void TearDown() override { stop(); }
+
+  void start(service::ServiceOptions options) {
+    options.workers = 2;
+    service_ = std::make_unique<service::DeformationService>(options);
+    impl_ = std::make_unique<DeformServiceImpl>(*service_);
+    enable_health_and_reflection();
+    grpc::ServerBuilder builder;
+    configure_builder(builder, *impl_, kMaxMessageMib);
+    server_ = builder.BuildAndStart();
+    ASSERT_NE(server_, nullptr);
+    grpc::ChannelArguments args;
+    args.SetMaxReceiveMessageSize(kMaxMessageMib << 20);
+    args.SetMaxSendMessageSize(kMaxMessageMib << 20);
+    channel_ = server_->InProcessChannel(args);
+    stub_ = v1::DeformationService::NewStub(channel_);
+  }
+
+  void stop() {
+    if (server_) server_->Shutdown(std::chrono::system_clock::now() + seconds(10));
+    stub_.reset();
+    channel_.reset();
+    server_.reset();
+    impl_.reset();
+    service_.reset();
+  }
+
+  grpc::Status create(const v1::CreateSessionRequest& request, v1::CreateSessionResponse* out) {
+    grpc::ClientContext context;
+    bound(context);
+    return stub_->CreateSession(&context, request, out);
+  }
+
+  /// A sample session with its suggested groups set as handles.
+  v1::CreateSessionResponse create_with_handles(const std::string& sample) {
+    v1::CreateSessionResponse created;
+    const grpc::Status status = create(sample_request(sample), &created);
+    EXPECT_TRUE(status.ok()) << describe(status);
+    EXPECT_EQ(created.suggested_groups_size(), 2);
+    v1::SetHandlesRequest handles;
+    handles.set_session_id(created.session_id());
+    handles.set_token(created.edit_token());
+    *handles.mutable_groups() = created.suggested_groups();
+    v1::SetHandlesResponse response;
+    const grpc::Status set = set_handles(handles, &response);
+    EXPECT_TRUE(set.ok()) << describe(set);
+    return created;
+  }
+
+  grpc::Status set_handles(const v1::SetHandlesRequest& request, v1::SetHandlesResponse* out) {
+    grpc::ClientContext context;
+    bound(context);
+    return stub_->SetHandles(&context, request, out);
+  }
+
+  grpc::Status move(const v1::MoveHandlesRequest& request, v1::MoveHandlesResponse* out,
+                    seconds timeout = seconds(60)) {
+    grpc::ClientContext context;
+    bound(context, timeout);
+    return stub_->MoveHandles(&context, request, out);
+  }
+
+  v1::MoveHandlesRequest bend_request(const v1::CreateSessionResponse& created, double angle) {
+    v1::MoveHandlesRequest request;
+    request.set_session_id(created.session_id());
+    request.set_token(created.edit_token());
+    *request.add_moves() = bend(angle);
+    return request;
+  }
+
+  grpc::Status info(const std::string& id, const std::string& token, v1::SessionInfo* out) {
+    grpc::ClientContext context;
+    bound(context);
+    v1::GetSessionInfoRequest request;
+    request.set_session_id(id);
+    request.set_token(token);
+    v1::GetSessionInfoResponse response;
+    grpc::Status status = stub_->GetSessionInfo(&context, request, &response);
+    *out = response.info();
+    return status;
+  }
+
+  /// Waits (bounded) until the service counted `count` cancelled moves.
+  bool wait_for_cancelled_moves(std::uint64_t count) {
+    for (int i = 0; i < 600; ++i) {
+      if (service_->stats().moves_cancelled >= count) return true;
+      std::this_thread::sleep_for(milliseconds(50));
+    }
+    return false;
+  }
+
+  std::unique_ptr<service::DeformationService> service_;
+  std::unique_ptr<DeformServiceImpl> impl_;
+  std::unique_ptr<grpc::Server> server_;
+  std::shared_ptr<grpc::Channel> channel_;
+  std::unique_ptr<v1::DeformationService::Stub> stub_;
+};
+
+// --- create ------------------------------------------------------------------------------------
+
+TEST_F(DeformServiceTest, CreateFromObjBytes) {
+  const MeshData grid = test::make_grid(6, 0.05);
+  Result<std::string> obj = io::write_mesh_to_memory(grid, io::MeshFormat::Obj);
+  ASSERT_TRUE(obj.ok());
+  v1::CreateSessionRequest request;
+  request.set_mesh_bytes(*obj);
+  request.set_format(v1::MESH_FORMAT_OBJ);
+  v1::CreateSessionResponse created;
+  const grpc::Status status = create(request, &created);
+  ASSERT_TRUE(status.ok()) << describe(status);
+  EXPECT_EQ(created.session_id().size(), 32u);
+  EXPECT_EQ(created.edit_token().size(), 64u);
+  EXPECT_EQ(created.view_token().size(), 64u);
+  EXPECT_EQ(created.info().vertices(), 49u);
+  EXPECT_EQ(created.info().faces(), 72u);
+  EXPECT_EQ(created.info().boundary_loops(), 1u);
+  EXPECT_EQ(created.info().revision(), 0u);
+  EXPECT_NEAR(created.info().bbox_max().y(), 1.0, 1e-12);
+  EXPECT_EQ(created.suggested_groups_size(), 0);
+}
+
+TEST_F(DeformServiceTest, CreateFromSampleSuggestsGroups) {
+  v1::CreateSessionResponse created;
+  const grpc::Status status = create(sample_request("cylinder_small"), &created);
+  ASSERT_TRUE(status.ok()) << describe(status);
+  EXPECT_EQ(created.info().vertices(), 420u);
+  EXPECT_EQ(created.info().boundary_loops(), 2u);
+  ASSERT_EQ(created.suggested_groups_size(), 2);
+  EXPECT_EQ(created.suggested_groups(0).role(), v1::HANDLE_ROLE_FIXED);
+  EXPECT_EQ(created.suggested_groups(1).role(), v1::HANDLE_ROLE_HANDLE);
+}
+
+// --- move: the wire result equals the service's own -------------------------------------------
+
+TEST_F(DeformServiceTest, MoveMatchesTheServiceAndGetMeshParsesBack) {
+  const v1::CreateSessionResponse created = create_with_handles("cylinder_small");
+
+  // The same edits on a separate service, called directly.
+  service::DeformationService reference(one_worker());
+  service::CreateSessionRequest ref_request;
+  ref_request.sample = "cylinder_small";
+  Result<service::CreatedSession> ref = reference.create_session(ref_request);
+  ASSERT_TRUE(ref.ok());
+  ASSERT_TRUE(reference.set_handles(ref->id, ref->edit_token, {ref->suggested_groups}).ok());
+
+  const double diag = (Eigen::Vector3d(created.info().bbox_max().x(), created.info().bbox_max().y(),
+                                       created.info().bbox_max().z()) -
+                       Eigen::Vector3d(created.info().bbox_min().x(), created.info().bbox_min().y(),
+                                       created.info().bbox_min().z()))
+                          .norm();
+  Positions previous;
+  for (int step = 1; step <= 2; ++step) {
+    const double angle = 20.0 * step;
+    v1::MoveHandlesRequest request = bend_request(created, angle);
+    request.set_full_positions(true);
+    request.set_editor("test");
+    v1::MoveHandlesResponse response;
+    const grpc::Status status = move(request, &response);
+    ASSERT_TRUE(status.ok()) << describe(status);
+    Result<service::DeformResult> expected =
+        reference.move_handles(ref->id, ref->edit_token, bend_domain(angle));
+    ASSERT_TRUE(expected.ok());
+
+    const v1::DeformResult& r = response.result();
+    EXPECT_EQ(r.revision(), static_cast<std::uint64_t>(step));
+    EXPECT_EQ(r.method(), v1::METHOD_SCALE_AWARE);
+    EXPECT_EQ(r.iterations(), static_cast<std::uint32_t>(expected->iterations));
+    EXPECT_EQ(r.editor(), "test");
+    EXPECT_EQ(r.built_deformer(), false);  // SetHandles built it
+    EXPECT_NEAR(r.e_theta(), expected->e_theta, 1e-9);
+    EXPECT_NEAR(r.e_phi(), expected->e_phi, 1e-9);
+    ASSERT_EQ(r.positions_size(), 3 * 420);
+    const Positions V = positions_of(r.positions());
+    EXPECT_LE((V - *expected->positions).cwiseAbs().maxCoeff(), test::kExactTol * diag);
+    // The delta lists agree with the full positions.
+    ASSERT_EQ(r.changed_positions_size(), 3 * r.changed_indices_size());
+    EXPECT_EQ(static_cast<std::size_t>(r.changed_indices_size()), expected->changed.size());
+    const Positions changed = positions_of(r.changed_positions());
+    for (int j = 0; j < r.changed_indices_size(); ++j) {
+      EXPECT_EQ(static_cast<int>(r.changed_indices(j)), expected->changed[j]);
+      EXPECT_EQ(changed.row(j), V.row(r.changed_indices(j)));
+    }
+    previous = V;
+  }
+
+  // GetMesh (default format GLB, float32) parses back to the current positions.
+  grpc::ClientContext context;
+  bound(context);
+  v1::GetMeshRequest get;
+  get.set_session_id(created.session_id());
+  get.set_token(created.view_token());
+  v1::GetMeshResponse mesh;
+  const grpc::Status status = stub_->GetMesh(&context, get, &mesh);
+  ASSERT_TRUE(status.ok()) << describe(status);
+  EXPECT_EQ(mesh.format(), v1::MESH_FORMAT_GLB);
+  Result<MeshData> parsed = io::read_mesh_from_memory(mesh.mesh_bytes(), io::MeshFormat::Glb);
+  ASSERT_TRUE(parsed.ok()) << parsed.status().to_string();
+  ASSERT_EQ(parsed->V.rows(), 420);
+  EXPECT_EQ(parsed->F.rows(), static_cast<Eigen::Index>(created.info().faces()));
+  EXPECT_LE((parsed->V - previous).cwiseAbs().maxCoeff(), 1e-6 * diag);  // float32
+
+  v1::SessionInfo after;
+  ASSERT_TRUE(info(created.session_id(), created.view_token(), &after).ok());
+  EXPECT_EQ(after.revision(), 2u);
+  EXPECT_EQ(after.last_method(), v1::METHOD_SCALE_AWARE);
+  EXPECT_EQ(after.groups_size(), 2);
+}
+
+TEST_F(DeformServiceTest, ExplicitTargetsWithArap) {
+  const v1::CreateSessionResponse created = create_with_handles("cylinder_small");
+  v1::MoveHandlesRequest request;
+  request.set_session_id(created.session_id());
+  request.set_token(created.edit_token());
+  request.set_method(v1::METHOD_ARAP);
+  const std::uint32_t v = created.suggested_groups(1).vertices(0);
+  request.mutable_targets()->add_vertices(v);
+  for (double x : {0.5, 0.25, 2.0}) request.mutable_targets()->add_positions(x);
+  request.set_full_positions(true);
+  v1::MoveHandlesResponse response;
+  const grpc::Status status = move(request, &response);
+  ASSERT_TRUE(status.ok()) << describe(status);
+  EXPECT_EQ(response.result().method(), v1::METHOD_ARAP);
+  EXPECT_TRUE(response.result().built_deformer());
+  const Positions V = positions_of(response.result().positions());
+  // ARAP pins handles exactly.
+  EXPECT_NEAR((V.row(v) - Eigen::RowVector3d(0.5, 0.25, 2.0)).norm(), 0.0, 1e-9);
+}
+
+// --- error paths -------------------------------------------------------------------------------
+
+TEST_F(DeformServiceTest, BadInputIsInvalidArgument) {
+  v1::CreateSessionResponse created;
+  v1::CreateSessionRequest garbage;
+  garbage.set_mesh_bytes("this is not a mesh\nf 1 2 9\n");
+  garbage.set_format(v1::MESH_FORMAT_OBJ);
+  EXPECT_EQ(create(garbage, &created).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  v1::CreateSessionRequest no_format;
+  no_format.set_mesh_bytes("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+  EXPECT_EQ(create(no_format, &created).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(create(v1::CreateSessionRequest{}, &created).error_code(),
+            grpc::StatusCode::INVALID_ARGUMENT);
+  const grpc::Status unknown_sample = create(sample_request("spot"), &created);
+  EXPECT_EQ(unknown_sample.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(unknown_sample.error_message().find("cylinder_small"), std::string::npos);
+  v1::CreateSessionRequest bad_lambda = sample_request("cylinder_small");
+  bad_lambda.set_lambda(std::nan(""));
+  EXPECT_EQ(create(bad_lambda, &created).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+
+  const v1::CreateSessionResponse s = create_with_handles("cylinder_small");
+  // Bad index in SetHandles.
+  v1::SetHandlesRequest bad_index;
+  bad_index.set_session_id(s.session_id());
+  bad_index.set_token(s.edit_token());
+  v1::HandleGroup* g = bad_index.add_groups();
+  g->set_role(v1::HANDLE_ROLE_HANDLE);
+  g->add_vertices(3);
+  g->add_vertices(420);
+  v1::SetHandlesResponse set_response;
+  const grpc::Status bad = set_handles(bad_index, &set_response);
+  EXPECT_EQ(bad.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(bad.error_message().find("420"), std::string::npos) << bad.error_message();
+  g->set_role(v1::HANDLE_ROLE_UNSPECIFIED);
+  EXPECT_EQ(set_handles(bad_index, &set_response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+
+  v1::MoveHandlesResponse response;
+  // NaN target.
+  v1::MoveHandlesRequest nan_target;
+  nan_target.set_session_id(s.session_id());
+  nan_target.set_token(s.edit_token());
+  nan_target.mutable_targets()->add_vertices(s.suggested_groups(1).vertices(0));
+  for (double x : {0.0, std::nan(""), 0.0}) nan_target.mutable_targets()->add_positions(x);
+  EXPECT_EQ(move(nan_target, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  // Positions not 3 per vertex.
+  v1::MoveHandlesRequest short_targets = nan_target;
+  short_targets.mutable_targets()->mutable_positions()->RemoveLast();
+  EXPECT_EQ(move(short_targets, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  // Target for a vertex that is not constrained (index range checked by the service).
+  v1::MoveHandlesRequest free_target = nan_target;
+  free_target.mutable_targets()->set_vertices(0, 100000);
+  free_target.mutable_targets()->set_positions(1, 0.0);
+  EXPECT_EQ(move(free_target, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  // Non-finite translation, zero quaternion, bad group, too many iterations.
+  v1::MoveHandlesRequest bad_move = bend_request(s, 10);
+  bad_move.mutable_moves(0)->mutable_translation()->set_y(INFINITY);
+  EXPECT_EQ(move(bad_move, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  bad_move = bend_request(s, 10);
+  *bad_move.mutable_moves(0)->mutable_rotation() = v1::Quaternion();
+  EXPECT_EQ(move(bad_move, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  bad_move = bend_request(s, 10);
+  bad_move.mutable_moves(0)->set_group(7);
+  EXPECT_EQ(move(bad_move, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  bad_move = bend_request(s, 10);
+  bad_move.set_max_iterations(100000);
+  EXPECT_EQ(move(bad_move, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  v1::SessionInfo after;
+  ASSERT_TRUE(info(s.session_id(), s.view_token(), &after).ok());
+  EXPECT_EQ(after.revision(), 0u);  // nothing committed
+}
+
+TEST_F(DeformServiceTest, UnknownSessionIsNotFoundEverywhere) {
+  const std::string id(32, 'a'), token(64, 'b');
+  v1::SetHandlesResponse set_response;
+  v1::SetHandlesRequest set;
+  set.set_session_id(id);
+  set.set_token(token);
+  v1::HandleGroup* g = set.add_groups();
+  g->set_role(v1::HANDLE_ROLE_FIXED);
+  g->add_vertices(0);
+  EXPECT_EQ(set_handles(set, &set_response).error_code(), grpc::StatusCode::NOT_FOUND);
+  v1::MoveHandlesRequest move_request;
+  move_request.set_session_id(id);
+  move_request.set_token(token);
+  v1::MoveHandlesResponse move_response;
+  EXPECT_EQ(move(move_request, &move_response).error_code(), grpc::StatusCode::NOT_FOUND);
+  v1::SessionInfo unused;
+  EXPECT_EQ(info(id, token, &unused).error_code(), grpc::StatusCode::NOT_FOUND);
+  {
+    grpc::ClientContext context;
+    bound(context);
+    v1::GetMeshRequest request;
+    request.set_session_id(id);
+    request.set_token(token);
+    v1::GetMeshResponse response;
+    EXPECT_EQ(stub_->GetMesh(&context, request, &response).error_code(),
+              grpc::StatusCode::NOT_FOUND);
+  }
+  {
+    grpc::ClientContext context;
+    bound(context);
+    v1::CloseSessionRequest request;
+    request.set_session_id(id);
+    request.set_token(token);
+    v1::CloseSessionResponse response;
+    EXPECT_EQ(stub_->CloseSession(&context, request, &response).error_code(),
+              grpc::StatusCode::NOT_FOUND);
+  }
+  {
+    grpc::ClientContext context;
+    bound(context);
+    v1::WatchRequest request;
+    request.set_session_id(id);
+    request.set_token(token);
+    auto reader = stub_->Watch(&context, request);
+    v1::DeformUpdate update;
+    EXPECT_FALSE(reader->Read(&update));
+    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::NOT_FOUND);
+  }
+}
+
+TEST_F(DeformServiceTest, TokensArePermissionDenied) {
+  const v1::CreateSessionResponse s = create_with_handles("cylinder_small");
+  const std::string wrong(64, 'f');
+  // The view token cannot edit.
+  v1::SetHandlesRequest set;
+  set.set_session_id(s.session_id());
+  set.set_token(s.view_token());
+  *set.mutable_groups() = s.suggested_groups();
+  v1::SetHandlesResponse set_response;
+  EXPECT_EQ(set_handles(set, &set_response).error_code(), grpc::StatusCode::PERMISSION_DENIED);
+  v1::MoveHandlesRequest move_request = bend_request(s, 10);
+  move_request.set_token(s.view_token());
+  v1::MoveHandlesResponse move_response;
+  EXPECT_EQ(move(move_request, &move_response).error_code(), grpc::StatusCode::PERMISSION_DENIED);
+  move_request.set_token(wrong);
+  EXPECT_EQ(move(move_request, &move_response).error_code(), grpc::StatusCode::PERMISSION_DENIED);
+  {
+    grpc::ClientContext context;
+    bound(context);
+    v1::CloseSessionRequest request;
+    request.set_session_id(s.session_id());
+    request.set_token(s.view_token());
+    v1::CloseSessionResponse response;
+    EXPECT_EQ(stub_->CloseSession(&context, request, &response).error_code(),
+              grpc::StatusCode::PERMISSION_DENIED);
+  }
+  // A wrong token cannot read either; the view token can.
+  v1::SessionInfo unused;
+  EXPECT_EQ(info(s.session_id(), wrong, &unused).error_code(), grpc::StatusCode::PERMISSION_DENIED);
+  EXPECT_TRUE(info(s.session_id(), s.view_token(), &unused).ok());
+  {
+    grpc::ClientContext context;
+    bound(context);
+    v1::WatchRequest request;
+    request.set_session_id(s.session_id());
+    request.set_token(wrong);
+    auto reader = stub_->Watch(&context, request);
+    v1::DeformUpdate update;
+    EXPECT_FALSE(reader->Read(&update));
+    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::PERMISSION_DENIED);
+  }
+}
+
+TEST_F(DeformServiceTest, MoveBeforeHandlesIsFailedPrecondition) {
+  v1::CreateSessionResponse created;
+  ASSERT_TRUE(create(sample_request("cylinder_small"), &created).ok());
+  v1::MoveHandlesResponse response;
+  const grpc::Status status = move(bend_request(created, 10), &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << describe(status);
+}
+
+TEST_F(DeformServiceTest, LimitsAreResourceExhausted) {
+  stop();
+  service::ServiceOptions options;
+  options.max_sessions = 1;
+  options.max_vertices = 500;
+  start(options);
+  v1::CreateSessionResponse created;
+  // Over max_vertices: the 4,802-vertex cylinder.
+  EXPECT_EQ(create(sample_request("cylinder"), &created).error_code(),
+            grpc::StatusCode::RESOURCE_EXHAUSTED);
+  ASSERT_TRUE(create(sample_request("cylinder_small"), &created).ok());
+  const grpc::Status second = create(sample_request("cylinder_small"), &created);
+  EXPECT_EQ(second.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << describe(second);
+}
+
+// --- deadline and cancellation -----------------------------------------------------------------
+
+TEST_F(DeformServiceTest, DeadlineExpiringMidSolveIsDeadlineExceeded) {
+  const v1::CreateSessionResponse s = create_with_handles("cylinder");  // 4,802 vertices
+  v1::MoveHandlesRequest long_move = bend_request(s, 30);
+  long_move.set_max_iterations(1000);
+  long_move.set_tolerance(0.0);
+  v1::MoveHandlesResponse response;
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + milliseconds(300));
+  const grpc::Status status = stub_->MoveHandles(&context, long_move, &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED) << describe(status);
+  // The server stopped the solve (its deadline or the call's cancellation), committing nothing.
+  EXPECT_TRUE(wait_for_cancelled_moves(1));
+  v1::SessionInfo after;
+  ASSERT_TRUE(info(s.session_id(), s.view_token(), &after).ok());
+  EXPECT_EQ(after.revision(), 0u);
+  // The session still works.
+  v1::MoveHandlesResponse ok_response;
+  const grpc::Status ok = move(bend_request(s, 10), &ok_response);
+  ASSERT_TRUE(ok.ok()) << describe(ok);
+  EXPECT_EQ(ok_response.result().revision(), 1u);
+}
+
+TEST_F(DeformServiceTest, ClientCancellationStopsTheSolve) {
+  const v1::CreateSessionResponse s = create_with_handles("cylinder");
+  v1::MoveHandlesRequest long_move = bend_request(s, 30);
+  long_move.set_max_iterations(1000);
+  long_move.set_tolerance(0.0);
+  v1::MoveHandlesResponse response;
+  grpc::ClientContext context;
+  bound(context);
+  std::promise<grpc::Status> done;
+  std::future<grpc::Status> future = done.get_future();
+  stub_->async()->MoveHandles(&context, &long_move, &response,
+                              [&done](grpc::Status status) { done.set_value(std::move(status)); });
+  // Cancel once the solve has started (a cancel before the server sees the call is fine too).
+  std::this_thread::sleep_for(milliseconds(100));
+  context.TryCancel();
+  ASSERT_EQ(future.wait_for(seconds(60)), std::future_status::ready);
+  EXPECT_EQ(future.get().error_code(), grpc::StatusCode::CANCELLED);
+  EXPECT_TRUE(wait_for_cancelled_moves(1));
+  v1::SessionInfo after;
+  ASSERT_TRUE(info(s.session_id(), s.view_token(), &after).ok());
+  EXPECT_EQ(after.revision(), 0u);
+}
+
+// --- watch -------------------------------------------------------------------------------------
+
+TEST_F(DeformServiceTest, TwoWatchStreamsSeeTheSameRevisions) {
+  const v1::CreateSessionResponse s = create_with_handles("cylinder_small");
+  grpc::ClientContext c1, c2;
+  bound(c1);
+  bound(c2);
+  v1::WatchRequest w1, w2;
+  w1.set_session_id(s.session_id());
+  w1.set_token(s.view_token());
+  w2.set_session_id(s.session_id());
+  w2.set_token(s.edit_token());  // the edit token may watch too
+  auto r1 = stub_->Watch(&c1, w1);
+  auto r2 = stub_->Watch(&c2, w2);
+  for (auto* reader : {r1.get(), r2.get()}) {
+    v1::DeformUpdate snapshot;
+    ASSERT_TRUE(reader->Read(&snapshot));
+    EXPECT_TRUE(snapshot.is_snapshot());
+    EXPECT_EQ(snapshot.result().revision(), 0u);
+    EXPECT_EQ(snapshot.result().positions_size(), 3 * 420);
+    EXPECT_EQ(snapshot.result().changed_indices_size(), 0);
+  }
+  for (int step = 1; step <= 3; ++step) {
+    v1::MoveHandlesRequest request = bend_request(s, 10.0 * step);
+    request.set_editor("editor-" + std::to_string(step));
+    v1::MoveHandlesResponse response;
+    const grpc::Status status = move(request, &response);
+    ASSERT_TRUE(status.ok()) << describe(status);
+    for (auto* reader : {r1.get(), r2.get()}) {
+      v1::DeformUpdate update;
+      ASSERT_TRUE(reader->Read(&update));
+      EXPECT_FALSE(update.is_snapshot());
+      EXPECT_EQ(update.skipped_revisions(), 0u);
+      EXPECT_EQ(update.result().revision(), response.result().revision());
+      EXPECT_EQ(update.result().editor(), "editor-" + std::to_string(step));
+      ASSERT_EQ(update.result().changed_indices_size(),
+                response.result().changed_indices_size());
+      for (int j = 0; j < update.result().changed_indices_size(); ++j) {
+        EXPECT_EQ(update.result().changed_indices(j), response.result().changed_indices(j));
+      }
+      ASSERT_EQ(update.result().changed_positions_size(),
+                response.result().changed_positions_size());
+      for (int j = 0; j < update.result().changed_positions_size(); ++j) {
+        EXPECT_EQ(update.result().changed_positions(j), response.result().changed_positions(j));
+      }
+    }
+  }
+  v1::SessionInfo during;
+  ASSERT_TRUE(info(s.session_id(), s.view_token(), &during).ok());
+  EXPECT_EQ(during.watchers(), 2u);
+  // Closing the session ends both streams with OK.
+  {
+    grpc::ClientContext context;
+    bound(context);
+    v1::CloseSessionRequest request;
+    request.set_session_id(s.session_id());
+    request.set_token(s.edit_token());
+    v1::CloseSessionResponse response;
+    ASSERT_TRUE(stub_->CloseSession(&context, request, &response).ok());
+  }
+  for (auto* reader : {r1.get(), r2.get()}) {
+    v1::DeformUpdate update;
+    EXPECT_FALSE(reader->Read(&update));
+    const grpc::Status finished = reader->Finish();
+    EXPECT_TRUE(finished.ok()) << describe(finished);
+  }
+}
+
+TEST_F(DeformServiceTest, CancelledWatchUnsubscribes) {
+  const v1::CreateSessionResponse s = create_with_handles("cylinder_small");
+  {
+    grpc::ClientContext context;
+    bound(context);
+    v1::WatchRequest request;
+    request.set_session_id(s.session_id());
+    request.set_token(s.view_token());
+    auto reader = stub_->Watch(&context, request);
+    v1::DeformUpdate snapshot;
+    ASSERT_TRUE(reader->Read(&snapshot));
+    context.TryCancel();
+    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::CANCELLED);
+  }
+  // The server side unsubscribes in OnDone, shortly after the client sees CANCELLED.
+  v1::SessionInfo after;
+  for (int i = 0; i < 600; ++i) {
+    ASSERT_TRUE(info(s.session_id(), s.view_token(), &after).ok());
+    if (after.watchers() == 0) break;
+    std::this_thread::sleep_for(milliseconds(50));
+  }
+  EXPECT_EQ(after.watchers(), 0u);
+  v1::MoveHandlesResponse response;
+  EXPECT_TRUE(move(bend_request(s, 10), &response).ok());
+}
+
+// --- health ------------------------------------------------------------------------------------
+
+/// grpc.health.v1.Health/Check with an empty service name over a generic stub (Debian ships no
+/// generated health stub). The response is {status = 1 (SERVING)}: bytes 0x08 0x01.
+grpc::Status health_check(const std::shared_ptr<grpc::Channel>& channel, std::string* body) {
+  grpc::GenericStub stub(channel);
+  grpc::ClientContext context;
+  bound(context, seconds(30));
+  const grpc::Slice empty(std::string{});
+  const grpc::ByteBuffer request(&empty, 1);  // an empty HealthCheckRequest (service "")
+  grpc::ByteBuffer response;
+  std::promise<grpc::Status> done;
+  stub.UnaryCall(&context, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request, &response,
+                 [&done](grpc::Status status) { done.set_value(std::move(status)); });
+  std::future<grpc::Status> future = done.get_future();
+  if (future.wait_for(seconds(60)) != std::future_status::ready) {
+    return grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "no answer");
+  }
+  grpc::Status status = future.get();
+  std::vector<grpc::Slice> slices;
+  if (status.ok() && response.Dump(&slices).ok()) {
+    for (const grpc::Slice& slice : slices) {
+      body->append(reinterpret_cast<const char*>(slice.begin()), slice.size());
+    }
+  }
+  return status;
+}
+
+TEST_F(DeformServiceTest, HealthIsServingInProcessAndOnLoopback) {
+  std::string body;
+  const grpc::Status status = health_check(channel_, &body);
+  ASSERT_TRUE(status.ok()) << describe(status);
+  EXPECT_EQ(body, std::string("\x08\x01", 2));
+
+  // A second server on a loopback port picked by the kernel: the real network path.
+  service::DeformationService service(one_worker());
+  DeformServiceImpl impl(service);
+  grpc::ServerBuilder builder;
+  int port = 0;
+  builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
+  configure_builder(builder, impl, kMaxMessageMib);
+  std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
+  ASSERT_NE(server, nullptr);
+  ASSERT_GT(port, 0);
+  auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(port),
+                                     grpc::InsecureChannelCredentials());
+  std::string tcp_body;
+  const grpc::Status tcp = health_check(channel, &tcp_body);
+  ASSERT_TRUE(tcp.ok()) << describe(tcp);
+  EXPECT_EQ(tcp_body, std::string("\x08\x01", 2));
+  // And a real call over TCP.
+  auto stub = v1::DeformationService::NewStub(channel);
+  grpc::ClientContext context;
+  bound(context);
+  v1::CreateSessionResponse created;
+  const grpc::Status made = stub->CreateSession(&context, sample_request("bar_small"), &created);
+  ASSERT_TRUE(made.ok()) << describe(made);
+  EXPECT_EQ(created.info().vertices(), 554u);
+  server->Shutdown(std::chrono::system_clock::now() + seconds(10));
+}
+
+}  // namespace
+}  // namespace meshdeform::transport
