@@ -524,8 +524,12 @@ Result<MeshData> read_ply_body(Source& source, const std::vector<PlyElement>& el
           return invalid(where + ": missing or malformed list length of '" + prop.name + "'");
         }
         if (count_value > static_cast<double>(source.remaining_values(prop.type))) {
-          return invalid(where + ": list '" + prop.name + "' declares " +
-                         std::to_string(static_cast<std::uint64_t>(count_value)) +
+          // ASCII PLY does not bound the count by its type, so it may exceed 2^64: converting
+          // such a double to an integer is undefined behaviour (found by fuzz_mesh_ply).
+          const std::string declared = count_value < 1e18
+                                           ? std::to_string(static_cast<std::uint64_t>(count_value))
+                                           : std::to_string(count_value);
+          return invalid(where + ": list '" + prop.name + "' declares " + declared +
                          " values, more than the data holds (truncated?)");
         }
         const auto count = static_cast<std::size_t>(count_value);

@@ -533,6 +533,19 @@ TEST(MeshIoTest, TruncatedObjFaceIsAnError) {
   EXPECT_FALSE(read_mesh_from_memory(vcut, MeshFormat::Obj).ok());
 }
 
+TEST(MeshIoTest, AsciiPlyListCountBeyondAnyIntegerIsAnError) {
+  // Found by fuzz_mesh_ply: a list length above 2^64 in ASCII PLY (which does not bound the
+  // count by its declared type) was converted to an integer for the message: undefined behaviour.
+  const auto r = read_mesh_from_memory(
+      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+      "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+      "0 0 0\n1 0 0\n0 1 0\n1e300 0 1 2\n",
+      MeshFormat::Ply);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("more than the data holds"), std::string::npos)
+      << r.status().message();
+}
+
 TEST(MeshIoTest, ForgedHeaderCountsAreAnErrorNotAnAllocation) {
   EXPECT_FALSE(
       read_mesh_from_memory("OFF\n2000000000 2000000000 0\n0 0 0\n", MeshFormat::Off).ok());
