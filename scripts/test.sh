@@ -1,8 +1,29 @@
 #!/usr/bin/env bash
-# The whole test suite: installs what is missing, builds everything (the benchmarks too, so
-# they cannot rot) and runs CTest.
+# The whole test suite, in three stages; any failure fails the run:
+#  1. installs what is missing, builds everything in ./build (the benchmarks too, so they cannot
+#     rot) and runs CTest;
+#  2. the same tests under ASan + UBSan (scripts/test-sanitize.sh, ./build-asan; no benchmarks);
+#  3. a short bounded fuzz run of every parser (scripts/fuzz.sh, clang + libFuzzer, ./build-fuzz),
+#     MESHDEFORM_FUZZ_SECONDS per target (default 10).
+# MESHDEFORM_SKIP_SANITIZE=1 skips stage 2, MESHDEFORM_FUZZ_SECONDS=0 skips stage 3 (local loops).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+
+stage() { echo "== test.sh: $1 ($(( SECONDS - start ))s)" >&2; }
+start=$SECONDS
+
 "$root/scripts/build.sh" -DMESHDEFORM_BUILD_TESTS=ON -DMESHDEFORM_BUILD_BENCH=ON -DMESHDEFORM_BUILD_CLI=ON \
   -DMESHDEFORM_BUILD_SERVER=ON
 ctest --test-dir "$root/build" --output-on-failure --timeout 600 -j"$(nproc)"
+stage "stage 1 (build + tests) done"
+
+if [ "${MESHDEFORM_SKIP_SANITIZE:-0}" != "1" ]; then
+  "$root/scripts/test-sanitize.sh"
+  stage "stage 2 (ASan + UBSan tests) done"
+fi
+
+fuzz_seconds="${MESHDEFORM_FUZZ_SECONDS:-10}"
+if [ "$fuzz_seconds" != "0" ]; then
+  "$root/scripts/fuzz.sh" "$fuzz_seconds"
+  stage "stage 3 (fuzz, ${fuzz_seconds}s per target) done"
+fi

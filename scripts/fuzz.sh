@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# Builds the libFuzzer targets (clang, ASan + UBSan, ./build-fuzz) and runs each for a bounded
+# time on a scratch copy of its committed seed corpus (tests/fuzz/corpus/<target>/, never written
+# to). Fails on the first crash, sanitizer report, leak, timeout or out-of-memory; the reproducer
+# is kept in build-fuzz/findings/<target>/.
+#
+#   scripts/fuzz.sh [SECONDS_PER_TARGET=10] [TARGET...]
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+seconds="${1:-10}"
+shift || true
+[[ "$seconds" =~ ^[0-9]+$ ]] || { echo "usage: $0 [SECONDS_PER_TARGET] [TARGET...]" >&2; exit 2; }
+
+"$root/scripts/install-fuzz-deps.sh"
+build="$root/build-fuzz"
+cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+  -DCMAKE_CXX_COMPILER=clang++ -DMESHDEFORM_BUILD_FUZZERS=ON \
+  -DMESHDEFORM_BUILD_TESTS=OFF -DMESHDEFORM_BUILD_CLI=OFF -DMESHDEFORM_BUILD_BENCH=OFF \
+  -DMESHDEFORM_BUILD_SERVER=OFF >/dev/null
+cmake --build "$build" -j"$(nproc)" --target meshdeform_fuzzers
+
+if [ $# -gt 0 ]; then
+  targets=("$@")
+else
+  targets=(fuzz_mesh_obj fuzz_mesh_off fuzz_mesh_ply fuzz_mesh_stl fuzz_mesh_glb fuzz_mesh_gltf
+           fuzz_sel fuzz_def fuzz_edit_spec fuzz_clean)
+fi
+
+scratch="$(mktemp -d)"
+trap 'rm -rf "$scratch"' EXIT
+export ASAN_OPTIONS="halt_on_error=1:detect_leaks=1:allocator_may_return_null=0"
+export UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1"
+for target in "${targets[@]}"; do
+  corpus="$scratch/$target"
+  findings="$build/findings/$target"
+  mkdir -p "$corpus" "$findings"
+  cp -r "$root/tests/fuzz/corpus/$target/." "$corpus/"
+  echo "fuzz: $target for ${seconds}s" >&2
+  # One process, bounded by time; -timeout / -rss_limit_mb turn hangs and blow-ups into failures.
+  if ! "$build/tests/fuzz/$target" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 \
+      -max_len=4096 -print_final_stats=1 -artifact_prefix="$findings/" "$corpus" \
+      >"$scratch/$target.log" 2>&1; then
+    tail -n 60 "$scratch/$target.log" >&2
+    echo "fuzz: $target FAILED; reproducer in $findings/" >&2
+    exit 1
+  fi
+  grep -E '^stat::number_of_executed_units|^Done' "$scratch/$target.log" | tr '\n' ' ' >&2 || true
+  echo >&2
+done
+echo "fuzz: all ${#targets[@]} targets ran ${seconds}s each without a finding" >&2
