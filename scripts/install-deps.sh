@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Installs the Debian 12 packages meshdeform builds and tests with. Idempotent: does nothing
-# when everything is already there, so it is cheap to call from every entry script.
+# Installs the Debian 12 packages meshdeform builds and tests with, plus any package names given
+# as arguments (scripts/install-fuzz-deps.sh passes clang's). Idempotent: does nothing when
+# everything is already there, so it is cheap to call from every entry script.
 set -euo pipefail
 
 packages=(
@@ -10,6 +11,7 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libcgal-dev
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
+  "$@"
 )
 
 missing=()
