@@ -4,6 +4,8 @@
 /// `Result<T>` can become an alias later. Messages name the offending value.
 
 #include <cassert>
+#include <exception>
+#include <new>
 #include <string>
 #include <utility>
 #include <variant>
@@ -73,6 +75,20 @@ class [[nodiscard]] Result {
  private:
   std::variant<T, Status> data_;
 };
+
+/// Runs `body` (returning a Status or Result) so that no exception escapes: std::bad_alloc
+/// becomes ResourceExhausted "<what>: out of memory", any other std::exception becomes
+/// `on_exception` "<what>: <e.what()>".
+template <typename F>
+auto guard_exceptions(const char* what, ErrorCode on_exception, F&& body) -> decltype(body()) {
+  try {
+    return body();
+  } catch (const std::bad_alloc&) {
+    return Error(ErrorCode::ResourceExhausted, std::string(what) + ": out of memory");
+  } catch (const std::exception& e) {
+    return Error(on_exception, std::string(what) + ": " + e.what());
+  }
+}
 
 }  // namespace meshdeform
 

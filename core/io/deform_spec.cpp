@@ -418,13 +418,7 @@ Result<Positions> group_targets(const HandleGroup& group, const Positions& V,
 
 template <typename F>
 auto guarded(const char* what, F&& body) -> decltype(body()) {
-  try {
-    return body();
-  } catch (const std::bad_alloc&) {
-    return Error(ErrorCode::ResourceExhausted, std::string(what) + ": out of memory");
-  } catch (const std::exception& e) {
-    return Error(ErrorCode::Internal, std::string(what) + ": " + e.what());
-  }
+  return guard_exceptions(what, ErrorCode::Internal, std::forward<F>(body));
 }
 
 }  // namespace

@@ -1263,13 +1263,7 @@ Result<std::string> write_gltf(const MeshData& mesh, bool binary) {
 // allocation, anything thrown inside tinygltf/nlohmann) escapes the API.
 template <typename F>
 auto guarded(const char* what, F&& body) -> decltype(body()) {
-  try {
-    return body();
-  } catch (const std::bad_alloc&) {
-    return Error(ErrorCode::ResourceExhausted, std::string(what) + ": out of memory");
-  } catch (const std::exception& e) {
-    return Error(ErrorCode::InvalidArgument, std::string(what) + ": " + e.what());
-  }
+  return guard_exceptions(what, ErrorCode::InvalidArgument, std::forward<F>(body));
 }
 
 Result<MeshData> read_any(std::string_view bytes, MeshFormat format, bool allow_files,
