@@ -7,6 +7,7 @@
 #include <signal.h>
 
 #include <algorithm>
+#include <atomic>
 #include <charconv>
 #include <chrono>
 #include <condition_variable>
@@ -20,7 +21,9 @@
 #include <thread>
 
 #include "server/service/deformation_service.h"
+#include "server/service/log.h"
 #include "server/transport/deform_service_impl.h"
+#include "server/transport/http_server.h"
 #include "server/transport/server_setup.h"
 
 namespace {
@@ -33,6 +36,9 @@ struct Flags {
   int max_message_mib = 64;
   int workers = 0;
   int shutdown_grace_seconds = 10;
+  int refine_budget = 30;
+  std::string http_listen;
+  std::string log_level = "info";
 };
 
 constexpr const char* kUsage =
@@ -44,7 +50,14 @@ constexpr const char* kUsage =
     "  --idle-ttl-seconds N        sessions idle for longer are closed (default 1800)\n"
     "  --max-message-mib N         largest request/response, e.g. a mesh upload (default 64)\n"
     "  --workers N                 solver threads (default 0 = one per core)\n"
-    "  --shutdown-grace-seconds N  on SIGTERM/SIGINT, time to finish calls (default 10)\n";
+    "  --shutdown-grace-seconds N  on SIGTERM/SIGINT, time to finish calls (default 10)\n"
+    "  --refine-budget N           outer iterations the server keeps refining a session in the\n"
+    "                              background after a move while its handles rest, publishing\n"
+    "                              each improvement as a revision (default 30; 0 = off)\n"
+    "  --http-listen ADDR          also serve HTTP/1.1 on ADDR (e.g. 127.0.0.1:9464): GET /metrics\n"
+    "                              (Prometheus text format) and GET /healthz (default: off)\n"
+    "  --log-level LEVEL           debug, info, warn or error (default info); logs are JSON lines\n"
+    "                              on stderr\n";
 
 bool parse_int(std::string_view text, int min, int max, int& out) {
   int value = 0;
@@ -87,6 +100,14 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
       ok = parse_int(value, 1, 2047, flags.max_message_mib);
     } else if (arg == "--workers") {
       ok = parse_int(value, 0, 1024, flags.workers);
+    } else if (arg == "--refine-budget") {
+      ok = parse_int(value, 0, 100'000, flags.refine_budget);
+    } else if (arg == "--http-listen") {
+      flags.http_listen = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--log-level") {
+      flags.log_level = std::string(value);
+      ok = value == "debug" || value == "info" || value == "warn" || value == "error";
     } else if (arg == "--shutdown-grace-seconds") {
       ok = parse_int(value, 0, 3600, flags.shutdown_grace_seconds);
     } else {
@@ -104,6 +125,9 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  using meshdeform::service::log_event;
+  using meshdeform::service::LogFields;
+  using meshdeform::service::LogLevel;
   Flags flags;
   bool help = false;
   if (!parse_flags(argc, argv, flags, help)) return 2;
@@ -111,6 +135,10 @@ int main(int argc, char** argv) {
     std::cout << kUsage;
     return 0;
   }
+  meshdeform::service::set_log_level(flags.log_level == "debug"  ? LogLevel::Debug
+                                     : flags.log_level == "warn" ? LogLevel::Warn
+                                     : flags.log_level == "error" ? LogLevel::Error
+                                                                  : LogLevel::Info);
 
   // Block the shutdown signals before any thread starts, so every thread inherits the mask and
   // only sigwait below receives them.
@@ -125,6 +153,7 @@ int main(int argc, char** argv) {
   options.max_sessions = flags.max_sessions;
   options.max_vertices = flags.max_vertices;
   options.idle_ttl = std::chrono::seconds(flags.idle_ttl_seconds);
+  options.refine_budget = flags.refine_budget;
   meshdeform::service::DeformationService service(options);
   meshdeform::transport::DeformServiceImpl impl(service);
 
@@ -135,11 +164,33 @@ int main(int argc, char** argv) {
   meshdeform::transport::configure_builder(builder, impl, flags.max_message_mib);
   std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
   if (!server || port == 0) {
-    std::cerr << "meshdeform-server: cannot listen on " << flags.listen << "\n";
+    log_event(LogLevel::Error, "listen_failed", LogFields().add("address", flags.listen));
     return 1;
   }
-  std::cerr << "meshdeform-server: listening on " << flags.listen << " (port " << port << "), "
-            << service.stats().workers << " workers\n";
+  log_event(LogLevel::Info, "listening",
+            LogFields()
+                .add("address", flags.listen)
+                .add("port", port)
+                .add("workers", service.stats().workers)
+                .add("refine_budget", flags.refine_budget));
+
+  std::atomic<bool> serving{true};
+  std::unique_ptr<meshdeform::transport::HttpServer> http;
+  if (!flags.http_listen.empty()) {
+    auto started = meshdeform::transport::HttpServer::start(
+        flags.http_listen,
+        [&service, &serving](const meshdeform::transport::HttpRequest& request) {
+          return meshdeform::transport::handle_ops_request(request, service, serving.load());
+        });
+    if (!started.ok()) {
+      log_event(LogLevel::Error, "listen_failed",
+                LogFields().add("address", flags.http_listen).add("message", started.status().message()));
+      return 1;
+    }
+    http = std::move(started).value();
+    log_event(LogLevel::Info, "http_listening",
+              LogFields().add("address", flags.http_listen).add("port", http->port()));
+  }
 
   // Sweeps idle sessions (create_session also sweeps, but a quiet server should free memory too).
   std::jthread sweeper([&service, ttl = std::chrono::seconds(flags.idle_ttl_seconds)](
@@ -157,12 +208,17 @@ int main(int argc, char** argv) {
 
   int received = 0;
   sigwait(&signals, &received);
-  std::cerr << "meshdeform-server: signal " << received << ", shutting down (grace "
-            << flags.shutdown_grace_seconds << " s)\n";
-  // Stops accepting calls; after the grace period, cancels what is left (running solves see
-  // the cancellation through their stop token and end quickly).
+  log_event(LogLevel::Info, "shutdown",
+            LogFields().add("signal", received).add("grace_seconds", flags.shutdown_grace_seconds));
+  // Health checks say NOT_SERVING at once (balancers stop sending); then stop accepting calls and,
+  // after the grace period, cancel what is left (running solves see the cancellation through
+  // their stop token and end quickly).
+  serving.store(false);
+  server->GetHealthCheckService()->SetServingStatus(false);
   server->Shutdown(std::chrono::system_clock::now() +
                    std::chrono::seconds(flags.shutdown_grace_seconds));
   sweeper.request_stop();
+  if (http) http->stop();
+  log_event(LogLevel::Info, "stopped");
   return 0;
 }

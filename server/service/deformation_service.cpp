@@ -1,6 +1,9 @@
 #include "server/service/deformation_service.h"
 
+#include <unistd.h>
+
 #include <cmath>
+#include <cstdio>
 #include <exception>
 #include <future>
 #include <new>
@@ -8,6 +11,7 @@
 
 #include "core/procedural.h"
 #include "core/validate.h"
+#include "server/service/log.h"
 #include "server/service/tokens.h"
 
 namespace meshdeform::service {
@@ -28,6 +32,18 @@ auto run_guarded(Fn&& fn) -> decltype(fn()) {
   } catch (...) {
     return Error(ErrorCode::Internal, "unexpected non-standard exception");
   }
+}
+
+/// The resident set of this process from /proc/self/statm (Linux); 0 where unavailable.
+std::size_t resident_set_bytes() {
+  std::FILE* file = std::fopen("/proc/self/statm", "r");
+  if (file == nullptr) return 0;
+  unsigned long long size_pages = 0, resident_pages = 0;
+  const int read = std::fscanf(file, "%llu %llu", &size_pages, &resident_pages);
+  std::fclose(file);
+  if (read != 2) return 0;
+  const long page = sysconf(_SC_PAGESIZE);
+  return static_cast<std::size_t>(resident_pages) * static_cast<std::size_t>(page > 0 ? page : 4096);
 }
 
 /// Ids come from clients: keep error messages short.
@@ -195,7 +211,9 @@ Result<std::shared_ptr<Session>> DeformationService::find_for_edit(const Session
   return session;
 }
 
-void DeformationService::post(const std::shared_ptr<Session>& session, std::function<void()> task) {
+void DeformationService::post(const std::shared_ptr<Session>& session, std::function<void()> task,
+                              bool is_refinement) {
+  if (!is_refinement) session->preempt_refinement();
   session->inflight().fetch_add(1);
   SessionStore* store = &store_;
   auto wrapped = [session, store, task = std::move(task)] {
@@ -268,6 +286,38 @@ void DeformationService::move_handles_async(const SessionId& id, const Token& ed
       return session->move(request, combined.token());
     });
     done(std::move(result));
+    schedule_refinement(session);
+  });
+}
+
+void DeformationService::schedule_refinement(const std::shared_ptr<Session>& session) {
+  if (options_.refine_budget <= 0 || shutdown_.stop_requested()) return;
+  // Strand-only state, read on the strand: this runs at the end of an edit or refinement task.
+  if (!session->wants_refinement() || session->has_queued_edits()) return;
+  pool_.submit_background([this, session] {
+    post(
+        session,
+        [this, session] {
+          // An edit queued meanwhile runs first and schedules refinement again after itself.
+          if (session->has_queued_edits() || shutdown_.stop_requested()) return;
+          const Result<std::optional<DeformResult>> refined = run_guarded(
+              [&]() -> Result<std::optional<DeformResult>> {
+                return session->refine(shutdown_.get_token());
+              });
+          if (refined.ok() && refined->has_value()) {
+            const DeformResult& r = **refined;
+            log_event(LogLevel::Debug, "refinement",
+                      LogFields()
+                          .add("session", session->id().value)
+                          .add("revision", r.revision)
+                          .add("iterations", r.iterations)
+                          .add("converged", r.converged)
+                          .add("e_theta", r.e_theta)
+                          .add("solve_seconds", r.solve_seconds));
+          }
+          if (refined.ok()) schedule_refinement(session);
+        },
+        /*is_refinement=*/true);
   });
 }
 
@@ -324,6 +374,12 @@ ServiceStats DeformationService::stats() const {
   stats.deformer_constructions = counters_->deformer_constructions.load();
   stats.moves_committed = counters_->moves_committed.load();
   stats.moves_cancelled = counters_->moves_cancelled.load();
+  stats.refinements_committed = counters_->refinements_committed.load();
+  stats.refinements_preempted = counters_->refinements_preempted.load();
+  stats.pcg_iterations = counters_->pcg_iterations.load();
+  stats.outer_iterations = counters_->outer_iterations.load();
+  stats.resident_bytes = resident_set_bytes();
+  stats.watchers = store_.watcher_count();
   stats.evicted_lru = store_.evicted_lru();
   stats.evicted_idle = store_.evicted_idle();
   stats.sessions = store_.size();

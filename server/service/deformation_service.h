@@ -101,12 +101,21 @@ class DeformationService {
   std::size_t evict_expired(std::chrono::steady_clock::time_point now);
 
   ServiceStats stats() const;
+  /// Where front ends record their calls (MetricsRegistry::record_rpc).
+  MetricsRegistry& metrics() { return counters_->metrics; }
+  /// The Prometheus text exposition of stats() and the recorded metrics (for GET /metrics).
+  std::string render_metrics() const { return counters_->metrics.render(stats()); }
 
  private:
   Result<std::shared_ptr<Session>> find_for_edit(const SessionId& id, const Token& token);
   Result<std::shared_ptr<Session>> find_for_view(const SessionId& id, const Token& token);
-  /// Queues `task` on the session's strand and the strand on the pool.
-  void post(const std::shared_ptr<Session>& session, std::function<void()> task);
+  /// Queues `task` on the session's strand and the strand on the pool. An edit (not
+  /// `is_refinement`) preempts a running refinement slice of the session.
+  void post(const std::shared_ptr<Session>& session, std::function<void()> task,
+            bool is_refinement = false);
+  /// If the session wants refinement, queues one slice at background priority (it runs when no
+  /// edit of any session waits) and, after it, the next.
+  void schedule_refinement(const std::shared_ptr<Session>& session);
 
   ServiceOptions options_;
   std::shared_ptr<ServiceCounters> counters_;

@@ -175,6 +175,7 @@ Result<Session::CachedDeformer*> Session::get_or_build(core::Method method,
 
 Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request) {
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
+  refine_.reset();  // new anchors: the old solve is not worth continuing
   const int nv = static_cast<int>(rest_.V.rows());
   if (request.groups.empty()) {
     return Error(ErrorCode::InvalidArgument, "set_handles needs at least one handle group");
@@ -366,9 +367,25 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   }
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " was closed");
 
+  DeformResult result = commit(std::move(report).value(), request.method, targets, base_positions,
+                               built, request.editor, /*refinement=*/false, entry);
+  counters_->moves_committed.fetch_add(1);
+  if (options_.refine_budget > 0 && !result.converged) {
+    refine_ = RefineState{request.method, request.ora, request.tolerance, options_.refine_budget};
+  } else {
+    refine_.reset();
+  }
+  return result;
+}
+
+DeformResult Session::commit(core::SolveReport report, core::Method method,
+                             const Positions& targets,
+                             const std::shared_ptr<const Positions>& base_positions, bool built,
+                             const std::string& editor, bool refinement, CachedDeformer* entry) {
+  const int nv = static_cast<int>(rest_.V.rows());
   auto result = std::make_shared<DeformResult>();
-  result->method = request.method;
-  result->positions = std::make_shared<const Positions>(std::move(report->V));
+  result->method = method;
+  result->positions = std::make_shared<const Positions>(std::move(report.V));
   const Positions& V = *result->positions;
   for (int v = 0; v < nv; ++v) {
     if (V.row(v) != base_positions->row(v)) result->changed.push_back(v);
@@ -381,11 +398,16 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   result->e_theta = errors.e_theta;
   result->e_phi = errors.e_phi;
   result->area_log_rms = errors.area_log_rms;
-  result->iterations = report->iterations;
-  result->converged = report->converged;
-  result->solve_seconds = report->seconds;
+  result->iterations = report.iterations;
+  result->converged = report.converged;
+  result->solve_seconds = report.seconds;
   result->built_deformer = built;
-  result->editor = request.editor;
+  result->editor = editor;
+  result->refinement = refinement;
+  result->pcg_iterations = report.pcg_iterations;
+  counters_->pcg_iterations.fetch_add(static_cast<std::uint64_t>(std::max(report.pcg_iterations, 0)));
+  counters_->outer_iterations.fetch_add(static_cast<std::uint64_t>(std::max(report.iterations, 0)));
+  counters_->metrics.record_solve(refinement, report.seconds);
 
   std::vector<std::shared_ptr<Watcher>> watchers;
   {
@@ -394,15 +416,98 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     history_.push_back(result);
     while (static_cast<int>(history_.size()) > options_.kept_revisions) history_.pop_front();
     targets_ = targets;
-    last_method_ = request.method;
+    last_method_ = method;
     watchers = watchers_;
   }
   entry->state_revision = result->revision;
-  counters_->moves_committed.fetch_add(1);
   // Revisions are committed by one strand task at a time, so publishing outside the lock keeps
   // them in order; a watcher joining in between drops the older one (see Watcher::offer).
   for (const std::shared_ptr<Watcher>& watcher : watchers) watcher->publish(result);
   return DeformResult(*result);
+}
+
+Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
+  if (!refine_ || is_closed()) {
+    refine_.reset();
+    return std::optional<DeformResult>{};
+  }
+  const RefineState state = *refine_;
+  std::vector<int> constrained;
+  Positions targets;
+  std::uint64_t base_revision = 0;
+  std::shared_ptr<const Positions> base_positions;
+  {
+    std::lock_guard lock(state_mutex_);
+    constrained = constrained_;
+    targets = targets_;
+    base_revision = revision_;
+    base_positions = history_.back()->positions;
+  }
+  CachedDeformer* entry = nullptr;
+  for (CachedDeformer& d : deformers_) {
+    if (d.method == state.method && d.constrained == constrained) entry = &d;
+  }
+  // The deformer must still hold the current revision (it is warm-started from it); otherwise
+  // something else committed or the cache dropped it, and there is nothing to continue.
+  if (entry == nullptr || entry->state_revision != base_revision) {
+    refine_.reset();
+    return std::optional<DeformResult>{};
+  }
+  entry->last_used = ++deformer_tick_;
+
+  std::stop_source local;
+  {
+    std::lock_guard lock(refine_mutex_);
+    refine_stop_ = local;
+  }
+  std::stop_callback forward(stop, [&local] { local.request_stop(); });
+  if (has_queued_edits()) local.request_stop();  // an edit is waiting: yield to it
+
+  // Short slices keep a waiting edit's latency to about one outer iteration.
+  constexpr int kSliceIterations = 2;
+  core::SolveOptions options;
+  options.max_iterations = std::min(kSliceIterations, state.remaining);
+  options.tolerance = state.tolerance;
+  options.lambda = settings_.lambda;
+  options.ora = state.ora;
+  Result<core::SolveReport> report =
+      local.stop_requested()
+          ? Result<core::SolveReport>(Error(ErrorCode::Cancelled, "refinement preempted"))
+          : entry->deformer->solve(targets, options, {}, local.get_token());
+  {
+    std::lock_guard lock(refine_mutex_);
+    refine_stop_ = std::stop_source(std::nostopstate);
+  }
+  if (!report.ok()) {
+    if (report.status().code() == ErrorCode::Cancelled) {
+      counters_->refinements_preempted.fetch_add(1);
+      return report.status();  // state untouched: refinement resumes after the edit if wanted
+    }
+    entry->state_revision = ~std::uint64_t{0};
+    refine_.reset();
+    return report.status();
+  }
+  if (is_closed()) {
+    refine_.reset();
+    return Error(ErrorCode::NotFound, "session " + id_.value + " was closed");
+  }
+  const int iterations = report->iterations;
+  DeformResult result = commit(std::move(report).value(), state.method, targets, base_positions,
+                               /*built=*/false, "refinement", /*refinement=*/true, entry);
+  counters_->refinements_committed.fetch_add(1);
+  refine_->remaining -= std::max(iterations, 1);
+  if (result.converged || refine_->remaining <= 0) refine_.reset();
+  return std::optional<DeformResult>(std::move(result));
+}
+
+void Session::preempt_refinement() {
+  std::lock_guard lock(refine_mutex_);
+  refine_stop_.request_stop();
+}
+
+bool Session::has_queued_edits() {
+  std::lock_guard lock(strand_mutex_);
+  return !strand_.empty();
 }
 
 SessionInfo Session::info() const {

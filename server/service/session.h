@@ -17,6 +17,7 @@
 #include "core/deformer.h"
 #include "core/measures.h"
 #include "core/topology.h"
+#include "server/service/metrics.h"
 #include "server/service/types.h"
 #include "server/service/watcher.h"
 
@@ -27,6 +28,11 @@ struct ServiceCounters {
   std::atomic<std::uint64_t> deformer_constructions{0};
   std::atomic<std::uint64_t> moves_committed{0};
   std::atomic<std::uint64_t> moves_cancelled{0};
+  std::atomic<std::uint64_t> refinements_committed{0};
+  std::atomic<std::uint64_t> refinements_preempted{0};
+  std::atomic<std::uint64_t> pcg_iterations{0};
+  std::atomic<std::uint64_t> outer_iterations{0};
+  MetricsRegistry metrics;  ///< RPC and solve histograms (see metrics.h)
 };
 
 /// A session. Reads (info, positions_at, add_watcher) are safe from any thread. Edits
@@ -72,6 +78,23 @@ class Session : public std::enable_shared_from_this<Session> {
   ///         factorization does not fit the budget; NumericalFailure if the solve breaks down.
   [[nodiscard]] Result<DeformResult> move(const MoveRequest& request, std::stop_token stop);
 
+  /// Background refinement (ServiceOptions::refine_budget > 0). A committed move that did not
+  /// converge leaves the session wanting refinement: more outer iterations of the same method on
+  /// the same targets, warm-started from the committed result, in slices of a few iterations,
+  /// each committed as a revision marked `refinement`, until the solver converges or the budget
+  /// is spent. set_handles, a failed move and closing end it; a new edit preempts a running slice.
+  /// Edit (strand) only.
+  /// @return the committed revision; nullopt when there was nothing to refine (or the state
+  ///         changed since); Cancelled when preempted or stopped (nothing committed); the
+  ///         solver's error otherwise (refinement then ends).
+  [[nodiscard]] Result<std::optional<DeformResult>> refine(std::stop_token stop);
+  /// True while refinement should continue. Edit (strand) only.
+  bool wants_refinement() const { return refine_.has_value() && !is_closed(); }
+  /// Stops a running refinement slice (any thread). Called when a new edit is queued.
+  void preempt_refinement();
+  /// True when edits are queued behind the running one (any thread).
+  bool has_queued_edits();
+
   SessionInfo info() const;
   /// Positions at `revision` (default: the current one).
   /// @return NotFound naming the kept range for a revision that is not (or no longer) kept.
@@ -115,6 +138,19 @@ class Session : public std::enable_shared_from_this<Session> {
   Result<CachedDeformer*> get_or_build(core::Method method, const std::vector<int>& constrained,
                                        bool* built);
   void update_estimate();
+  /// Turns a solver report into the next revision, publishes it and updates the deformer entry.
+  /// Strand only.
+  DeformResult commit(core::SolveReport report, core::Method method, const Positions& targets,
+                      const std::shared_ptr<const Positions>& base_positions, bool built,
+                      const std::string& editor, bool refinement, CachedDeformer* entry);
+
+  /// What background refinement continues (strand only).
+  struct RefineState {
+    core::Method method = core::Method::ScaleAware;
+    bool ora = false;
+    double tolerance = 1e-4;
+    int remaining = 0;  ///< outer iterations left in the budget
+  };
   std::shared_ptr<const DeformResult> snapshot_locked() const;
 
   SessionId id_;
@@ -131,6 +167,7 @@ class Session : public std::enable_shared_from_this<Session> {
   // Touched only by the strand (edits).
   std::vector<CachedDeformer> deformers_;
   std::uint64_t deformer_tick_ = 0;
+  std::optional<RefineState> refine_;
 
   // Guarded by state_mutex_.
   mutable std::mutex state_mutex_;
@@ -144,6 +181,9 @@ class Session : public std::enable_shared_from_this<Session> {
   std::optional<core::Method> last_method_;
   std::vector<std::shared_ptr<Watcher>> watchers_;
   std::chrono::steady_clock::time_point last_used_{};
+
+  std::mutex refine_mutex_;
+  std::stop_source refine_stop_;  ///< of the running refinement slice; guarded by refine_mutex_
 
   std::mutex strand_mutex_;
   std::deque<std::function<void()>> strand_;

@@ -160,4 +160,11 @@ void SessionStore::clear() {
   for (auto& [id, session] : sessions) session->close();
 }
 
+int SessionStore::watcher_count() const {
+  std::lock_guard lock(mutex_);
+  int count = 0;
+  for (const auto& [id, session] : sessions_) count += session->watcher_count();
+  return count;
+}
+
 }  // namespace meshdeform::service

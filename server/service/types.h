@@ -103,6 +103,10 @@ struct DeformResult {
   double solve_seconds = 0;     ///< wall time of the solve (without factorization)
   bool built_deformer = false;  ///< this move had to factor a new system (new method/handle set)
   std::string editor;
+  /// Committed by background refinement (ServiceOptions::refine_budget) on the previous
+  /// revision's targets, not by a move; editor is "refinement".
+  bool refinement = false;
+  int pcg_iterations = 0;       ///< conjugate-gradient iterations of step two in this solve
 };
 
 /// What a watcher receives.
@@ -161,6 +165,10 @@ struct ServiceOptions {
   int kept_revisions = 4;          ///< GetMesh can read the newest K revisions
   int max_cached_deformers = 4;    ///< per session, least recently used dropped first
   int solver_threads = 1;          ///< OpenMP threads inside one solve
+  /// Background refinement: after a committed move, while no other edit of the session waits,
+  /// the service keeps running outer iterations on the same targets (in slices, committing each
+  /// improvement as a revision) up to this many in total; 0 = off.
+  int refine_budget = 0;
   Clock clock;                     ///< default: std::chrono::steady_clock::now
 };
 
@@ -169,10 +177,16 @@ struct ServiceStats {
   std::uint64_t deformer_constructions = 0;  ///< make_deformer calls that succeeded
   std::uint64_t moves_committed = 0;
   std::uint64_t moves_cancelled = 0;         ///< Cancelled or DeadlineExceeded
+  std::uint64_t refinements_committed = 0;   ///< revisions committed by background refinement
+  std::uint64_t refinements_preempted = 0;   ///< refinement slices stopped by a new edit
+  std::uint64_t pcg_iterations = 0;          ///< step-two CG iterations over all solves
+  std::uint64_t outer_iterations = 0;        ///< outer iterations over all solves
   std::uint64_t evicted_lru = 0;             ///< sessions evicted for the memory budget
   std::uint64_t evicted_idle = 0;            ///< sessions evicted by the idle TTL
   std::size_t sessions = 0;
   std::size_t estimated_bytes = 0;
+  std::size_t resident_bytes = 0;            ///< the process's resident set (Linux), 0 if unknown
+  int watchers = 0;
   int workers = 0;
 };
 

@@ -25,15 +25,30 @@ void WorkerPool::submit(std::function<void()> task) {
   cv_.notify_one();
 }
 
+void WorkerPool::submit_background(std::function<void()> task) {
+  {
+    std::lock_guard lock(mutex_);
+    background_.push_back(std::move(task));
+  }
+  cv_.notify_one();
+}
+
 void WorkerPool::run(std::stop_token stop) {
   while (true) {
     std::function<void()> task;
     {
       std::unique_lock lock(mutex_);
-      cv_.wait(lock, stop, [this] { return !queue_.empty(); });
-      if (queue_.empty()) return;  // stop requested and nothing left to drain
-      task = std::move(queue_.front());
-      queue_.pop_front();
+      cv_.wait(lock, stop, [this] { return !queue_.empty() || !background_.empty(); });
+      if (!queue_.empty()) {
+        task = std::move(queue_.front());
+        queue_.pop_front();
+      } else if (stop.stop_requested()) {
+        background_.clear();
+        return;  // stop requested and no normal task left to drain
+      } else {
+        task = std::move(background_.front());
+        background_.pop_front();
+      }
     }
     try {
       task();

@@ -7,6 +7,7 @@
 #include <stop_token>
 #include <utility>
 
+#include "server/service/log.h"
 #include "server/transport/proto_convert.h"
 #include "server/transport/status_mapping.h"
 
@@ -38,10 +39,47 @@ std::optional<std::chrono::steady_clock::time_point> steady_deadline(
          std::chrono::duration_cast<std::chrono::steady_clock::duration>(deadline - now);
 }
 
-grpc::ServerUnaryReactor* finish_now(grpc::CallbackServerContext* context, std::string_view rpc,
+/// One call's bookkeeping: when it finishes, its status is mapped (to_grpc_status), counted and
+/// timed in the service's metrics, and logged as one structured line. Session ids are logged;
+/// tokens never are. Routine successes of high-rate calls (moves, reads) log at debug level.
+class CallRecord {
+ public:
+  CallRecord(service::DeformationService& service, std::string_view rpc, std::string session)
+      : service_(&service), rpc_(rpc), session_(std::move(session)),
+        start_(std::chrono::steady_clock::now()) {}
+
+  grpc::Status finish(const Status& status) const {
+    grpc::Status mapped = to_grpc_status(status, rpc_);
+    const double seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+    const std::string_view code = grpc_code_name(mapped.error_code());
+    service_->metrics().record_rpc("grpc", rpc_, code, seconds);
+    const bool routine = rpc_ == "MoveHandles" || rpc_ == "GetSessionInfo" || rpc_ == "GetMesh" ||
+                         rpc_ == "GetServerStats";
+    const service::LogLevel level =
+        !status.ok() ? (mapped.error_code() == grpc::StatusCode::INTERNAL ? service::LogLevel::Error
+                                                                          : service::LogLevel::Info)
+        : routine   ? service::LogLevel::Debug
+                    : service::LogLevel::Info;
+    service::LogFields fields;
+    fields.add("frontend", "grpc").add("method", rpc_).add("code", code).add("ms", seconds * 1e3);
+    if (!session_.empty()) fields.add("session", session_.substr(0, 64));
+    if (!status.ok()) fields.add("message", mapped.error_message());
+    service::log_event(level, "rpc", fields);
+    return mapped;
+  }
+
+ private:
+  service::DeformationService* service_;
+  std::string_view rpc_;
+  std::string session_;
+  std::chrono::steady_clock::time_point start_;
+};
+
+grpc::ServerUnaryReactor* finish_now(grpc::CallbackServerContext* context, const CallRecord& call,
                                      const Status& status) {
   grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
-  reactor->Finish(to_grpc_status(status, rpc));
+  reactor->Finish(call.finish(status));
   return reactor;
 }
 
@@ -49,8 +87,9 @@ grpc::ServerUnaryReactor* finish_now(grpc::CallbackServerContext* context, std::
 /// weak_ptr, so a notify racing with OnDone keeps the object alive but does nothing.
 class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
  public:
-  static WatchReactor* start(service::Subscription subscription) {
-    auto reactor = std::shared_ptr<WatchReactor>(new WatchReactor(std::move(subscription)));
+  static WatchReactor* start(service::Subscription subscription, CallRecord call) {
+    auto reactor = std::shared_ptr<WatchReactor>(
+        new WatchReactor(std::move(subscription), std::move(call)));
     reactor->self_ = reactor;
     std::weak_ptr<WatchReactor> weak = reactor;
     // The join snapshot is already pending, so this starts the first write at once (allowed
@@ -92,8 +131,8 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
   }
 
  private:
-  explicit WatchReactor(service::Subscription subscription)
-      : subscription_(std::move(subscription)) {}
+  WatchReactor(service::Subscription subscription, CallRecord call)
+      : subscription_(std::move(subscription)), call_(std::move(call)) {}
 
   /// Starts the next write or the finish, if neither a write is in flight nor we are finished.
   /// gRPC operations are started outside the lock.
@@ -120,10 +159,10 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
         StartWrite(&message_);
         break;
       case Next::FinishOk:
-        Finish(grpc::Status::OK);
+        Finish(call_.finish(Status::success()));
         break;
       case Next::FinishCancelled:
-        Finish(grpc::Status(grpc::StatusCode::CANCELLED, "watch cancelled"));
+        Finish(call_.finish(Error(ErrorCode::Cancelled, "watch cancelled")));
         break;
     }
   }
@@ -134,6 +173,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
   bool is_writing_ = false;
   bool is_cancelled_ = false;
   bool is_finished_ = false;
+  CallRecord call_;
   std::shared_ptr<WatchReactor> self_;
 };
 
@@ -149,7 +189,8 @@ grpc::ServerUnaryReactor* DeformServiceImpl::CreateSession(grpc::CallbackServerC
                                                            const v1::CreateSessionRequest* request,
                                                            v1::CreateSessionResponse* response) {
   // Parsing and cleaning run here (the service does no solve in create_session).
-  return finish_now(context, "CreateSession", run_guarded("CreateSession", [&]() -> Status {
+  const CallRecord call(service_, "CreateSession", {});
+  return finish_now(context, call, run_guarded("CreateSession", [&]() -> Status {
     MD_ASSIGN_OR_RETURN(service::CreateSessionRequest converted,
                         create_request_from_proto(*request));
     MD_ASSIGN_OR_RETURN(service::CreatedSession created, service_.create_session(converted));
@@ -163,22 +204,23 @@ grpc::ServerUnaryReactor* DeformServiceImpl::SetHandles(grpc::CallbackServerCont
                                                         v1::SetHandlesResponse* response) {
   (void)context;
   auto* reactor = new StoppableUnaryReactor();
+  const CallRecord call(service_, "SetHandles", request->session_id());
   const Status started = run_guarded("SetHandles", [&]() -> Status {
     MD_ASSIGN_OR_RETURN(service::SetHandlesRequest converted, set_handles_from_proto(*request));
     service_.set_handles_async(
         service::SessionId{request->session_id()}, service::Token{request->token()},
         std::move(converted), reactor->stop_token(),
-        [reactor, response](Result<service::SessionInfo> result) {
+        [reactor, response, call](Result<service::SessionInfo> result) {
           const Status status = run_guarded("SetHandles", [&]() -> Status {
             if (!result.ok()) return result.status();
             session_info_to_proto(*result, response->mutable_info());
             return Status::success();
           });
-          reactor->Finish(to_grpc_status(status, "SetHandles"));
+          reactor->Finish(call.finish(status));
         });
     return Status::success();
   });
-  if (!started.ok()) reactor->Finish(to_grpc_status(started, "SetHandles"));
+  if (!started.ok()) reactor->Finish(call.finish(started));
   return reactor;
 }
 
@@ -186,6 +228,7 @@ grpc::ServerUnaryReactor* DeformServiceImpl::MoveHandles(grpc::CallbackServerCon
                                                          const v1::MoveHandlesRequest* request,
                                                          v1::MoveHandlesResponse* response) {
   auto* reactor = new StoppableUnaryReactor();
+  const CallRecord call(service_, "MoveHandles", request->session_id());
   const Status started = run_guarded("MoveHandles", [&]() -> Status {
     MD_ASSIGN_OR_RETURN(service::MoveRequest converted, move_from_proto(*request));
     converted.deadline = steady_deadline(*context);
@@ -193,39 +236,41 @@ grpc::ServerUnaryReactor* DeformServiceImpl::MoveHandles(grpc::CallbackServerCon
     service_.move_handles_async(
         service::SessionId{request->session_id()}, service::Token{request->token()},
         std::move(converted), reactor->stop_token(),
-        [reactor, response, full_positions](Result<service::DeformResult> result) {
+        [reactor, response, full_positions, call](Result<service::DeformResult> result) {
           const Status status = run_guarded("MoveHandles", [&]() -> Status {
             if (!result.ok()) return result.status();
             result_to_proto(*result, full_positions, response->mutable_result());
             return Status::success();
           });
-          reactor->Finish(to_grpc_status(status, "MoveHandles"));
+          reactor->Finish(call.finish(status));
         });
     return Status::success();
   });
   // Only a conversion error (or an exception before the async call took over) lands here: once
   // move_handles_async is called, `done` always runs exactly once and finishes.
-  if (!started.ok()) reactor->Finish(to_grpc_status(started, "MoveHandles"));
+  if (!started.ok()) reactor->Finish(call.finish(started));
   return reactor;
 }
 
 grpc::ServerWriteReactor<v1::DeformUpdate>* DeformServiceImpl::Watch(
     grpc::CallbackServerContext* context, const v1::WatchRequest* request) {
   (void)context;
+  CallRecord call(service_, "Watch", request->session_id());
   Result<service::Subscription> subscription = run_guarded("Watch", [&] {
     return service_.watch(service::SessionId{request->session_id()},
                           service::Token{request->token()});
   });
   if (!subscription.ok()) {
-    return new FailedWriteReactor(to_grpc_status(subscription.status(), "Watch"));
+    return new FailedWriteReactor(call.finish(subscription.status()));
   }
-  return WatchReactor::start(std::move(subscription).value());
+  return WatchReactor::start(std::move(subscription).value(), std::move(call));
 }
 
 grpc::ServerUnaryReactor* DeformServiceImpl::GetMesh(grpc::CallbackServerContext* context,
                                                      const v1::GetMeshRequest* request,
                                                      v1::GetMeshResponse* response) {
-  return finish_now(context, "GetMesh", run_guarded("GetMesh", [&]() -> Status {
+  const CallRecord call(service_, "GetMesh", request->session_id());
+  return finish_now(context, call, run_guarded("GetMesh", [&]() -> Status {
     MD_ASSIGN_OR_RETURN(io::MeshFormat format, format_from_proto(request->format(), true));
     std::optional<std::uint64_t> revision;
     if (request->has_revision()) revision = request->revision();
@@ -241,7 +286,8 @@ grpc::ServerUnaryReactor* DeformServiceImpl::GetMesh(grpc::CallbackServerContext
 grpc::ServerUnaryReactor* DeformServiceImpl::GetSessionInfo(
     grpc::CallbackServerContext* context, const v1::GetSessionInfoRequest* request,
     v1::GetSessionInfoResponse* response) {
-  return finish_now(context, "GetSessionInfo", run_guarded("GetSessionInfo", [&]() -> Status {
+  const CallRecord call(service_, "GetSessionInfo", request->session_id());
+  return finish_now(context, call, run_guarded("GetSessionInfo", [&]() -> Status {
     MD_ASSIGN_OR_RETURN(service::SessionInfo info,
                         service_.session_info(service::SessionId{request->session_id()},
                                               service::Token{request->token()}));
@@ -254,10 +300,26 @@ grpc::ServerUnaryReactor* DeformServiceImpl::CloseSession(grpc::CallbackServerCo
                                                           const v1::CloseSessionRequest* request,
                                                           v1::CloseSessionResponse* response) {
   (void)response;
-  return finish_now(context, "CloseSession", run_guarded("CloseSession", [&]() -> Status {
+  const CallRecord call(service_, "CloseSession", request->session_id());
+  return finish_now(context, call, run_guarded("CloseSession", [&]() -> Status {
     return service_.close_session(service::SessionId{request->session_id()},
                                   service::Token{request->token()});
   }));
+}
+
+grpc::ServerUnaryReactor* DeformServiceImpl::GetServerStats(
+    grpc::CallbackServerContext* context, const v1::GetServerStatsRequest* request,
+    v1::GetServerStatsResponse* response) {
+  (void)request;
+  const CallRecord call(service_, "GetServerStats", {});
+  return finish_now(context, call, run_guarded("GetServerStats", [&]() -> Status {
+    server_stats_to_proto(service_.stats(), uptime_seconds(), response);
+    return Status::success();
+  }));
+}
+
+double DeformServiceImpl::uptime_seconds() const {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - started_).count();
 }
 
 }  // namespace meshdeform::transport

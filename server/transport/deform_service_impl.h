@@ -5,7 +5,10 @@
 /// on gRPC threads: SetHandles / MoveHandles use the service's *_async calls and Finish from the
 /// worker; client cancellation (OnCancel) requests the solve's stop and the call's deadline
 /// becomes the move's deadline. Watch pulls from the subscription's one-slot mailbox when it is
-/// notified, so a slow stream never blocks the editor or a gRPC thread.
+/// notified, so a slow stream never blocks the editor or a gRPC thread. Every call is counted and
+/// timed in the service's MetricsRegistry and logged as one JSON line (never with its token).
+
+#include <chrono>
 
 #include "meshdeform/v1/deformation.grpc.pb.h"
 #include "server/service/deformation_service.h"
@@ -37,9 +40,15 @@ class DeformServiceImpl final : public v1::DeformationService::CallbackService {
   grpc::ServerUnaryReactor* CloseSession(grpc::CallbackServerContext* context,
                                          const v1::CloseSessionRequest* request,
                                          v1::CloseSessionResponse* response) override;
+  grpc::ServerUnaryReactor* GetServerStats(grpc::CallbackServerContext* context,
+                                           const v1::GetServerStatsRequest* request,
+                                           v1::GetServerStatsResponse* response) override;
 
  private:
+  double uptime_seconds() const;
+
   service::DeformationService& service_;
+  std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
 };
 
 }  // namespace meshdeform::transport

@@ -1,5 +1,6 @@
 #include "server/transport/proto_convert.h"
 
+#include <algorithm>
 #include <climits>
 #include <cmath>
 #include <string>
@@ -289,6 +290,8 @@ void result_metrics_to_proto(const service::DeformResult& result, v1::DeformResu
   out->set_solve_seconds(result.solve_seconds);
   out->set_built_deformer(result.built_deformer);
   out->set_editor(result.editor);
+  out->set_refinement(result.refinement);
+  out->set_pcg_iterations(static_cast<std::uint32_t>(std::max(result.pcg_iterations, 0)));
 }
 }  // namespace
 
@@ -314,6 +317,22 @@ void update_to_proto(const service::DeformUpdate& update, v1::DeformUpdate* out)
   } else {
     result_to_proto(*update.result, false, out->mutable_result());
   }
+}
+
+void server_stats_to_proto(const service::ServiceStats& stats, double uptime_seconds,
+                           v1::GetServerStatsResponse* out) {
+  out->set_sessions(static_cast<std::uint32_t>(stats.sessions));
+  out->set_estimated_bytes(stats.estimated_bytes);
+  out->set_resident_bytes(stats.resident_bytes);
+  out->set_moves_committed(stats.moves_committed);
+  out->set_moves_cancelled(stats.moves_cancelled);
+  out->set_refinements_committed(stats.refinements_committed);
+  out->set_deformer_constructions(stats.deformer_constructions);
+  out->set_evicted_lru(stats.evicted_lru);
+  out->set_evicted_idle(stats.evicted_idle);
+  out->set_workers(static_cast<std::uint32_t>(std::max(stats.workers, 0)));
+  out->set_uptime_seconds(uptime_seconds);
+  out->set_watchers(static_cast<std::uint32_t>(std::max(stats.watchers, 0)));
 }
 
 }  // namespace meshdeform::transport

@@ -40,5 +40,7 @@ void result_to_proto(const service::DeformResult& result, bool full_positions,
                      v1::DeformResult* out);
 /// Snapshots carry all positions and no changed lists; deltas the changed lists only.
 void update_to_proto(const service::DeformUpdate& update, v1::DeformUpdate* out);
+void server_stats_to_proto(const service::ServiceStats& stats, double uptime_seconds,
+                           v1::GetServerStatsResponse* out);
 
 }  // namespace meshdeform::transport

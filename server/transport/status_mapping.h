@@ -21,6 +21,9 @@ inline constexpr std::size_t kMaxClientMessageBytes = 1024;
 /// The gRPC code of an error code (Ok -> OK).
 grpc::StatusCode to_grpc_code(ErrorCode code);
 
+/// The canonical upper-case name of a gRPC code ("OK", "NOT_FOUND", ...), for metrics and logs.
+std::string_view grpc_code_name(grpc::StatusCode code);
+
 /// `message` cut to at most kMaxClientMessageBytes bytes (ending in "..." when cut, never splitting
 /// a UTF-8 sequence).
 std::string truncate_message(std::string_view message);
@@ -29,7 +32,7 @@ std::string truncate_message(std::string_view message);
 /// of truncated messages and of Internal errors to stderr, tagged with `rpc`.
 grpc::Status to_grpc_status(const Status& status, std::string_view rpc = {});
 
-/// Writes one line to stderr ("meshdeform-server: <rpc>: <text>"); thread-safe.
+/// Writes one structured error line (event "rpc_error", fields rpc and message); thread-safe.
 void log_line(std::string_view rpc, std::string_view text);
 
 /// Runs `fn` (returning Status or Result<T>), turning escaped exceptions into statuses:

@@ -9,6 +9,7 @@
 #include <set>
 #include <stop_token>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "core/deformer.h"
@@ -635,6 +636,147 @@ TEST(ConcurrencyTest, TwoSessionsSolveConcurrentlyAndEditsAreSerialised) {
   ASSERT_TRUE(mesh_a.ok() && mesh_s.ok());
   EXPECT_EQ(*mesh_a, *mesh_s);
   EXPECT_EQ(service.stats().moves_committed, 8u);
+}
+
+}  // namespace
+}  // namespace meshdeform::service
+
+// --- background refinement ---------------------------------------------------------------------
+
+namespace meshdeform::service {
+namespace {
+
+/// Waits (bounded) until the session reaches `revision`.
+bool wait_for_revision(DeformationService& service, const Fixture& f, std::uint64_t revision,
+                       seconds bound = seconds(60)) {
+  const auto deadline = std::chrono::steady_clock::now() + bound;
+  while (std::chrono::steady_clock::now() < deadline) {
+    Result<SessionInfo> info = service.session_info(f.created.id, f.created.view_token);
+    if (!info.ok()) return false;
+    if (info->revision >= revision) return info->revision == revision;
+    std::this_thread::sleep_for(milliseconds(5));
+  }
+  return false;
+}
+
+TEST(RefinementTest, ContinuesTheSameSolveWhileHandlesRestAndStops) {
+  ServiceOptions options = small_options();
+  options.refine_budget = 9;
+  options.kept_revisions = 64;
+  DeformationService service(options);
+  Fixture f = create_with_handles(service, "cylinder_small");
+  const std::vector<int> constrained = constrained_of(f.groups);
+  core::DeformationBenchmark bench;
+  for (auto& b : core::make_suite(core::SuiteScale::Small))
+    if (b.name == "cylinder") bench = b;
+  const Eigen::VectorXi idx = Eigen::Map<const Eigen::VectorXi>(
+      constrained.data(), static_cast<Eigen::Index>(constrained.size()));
+
+  // What refinement must do: the move's 1 iteration, then slices of at most 2 iterations on the
+  // same targets, warm-started, until converged or 9 iterations are spent.
+  auto deformer = core::make_deformer(core::Method::ScaleAware, bench.mesh.V, bench.mesh.F, idx);
+  ASSERT_TRUE(deformer.ok()) << message_of(deformer);
+  const Positions targets = expected_targets(bench.mesh.V, f.groups, constrained, 60.0);
+  core::SolveOptions solve;
+  solve.max_iterations = 1;
+  auto first = (*deformer)->solve(targets, solve);
+  ASSERT_TRUE(first.ok());
+  ASSERT_FALSE(first->converged);
+  std::vector<Positions> expected;
+  for (int remaining = 9; remaining > 0;) {
+    solve.max_iterations = std::min(2, remaining);
+    auto slice = (*deformer)->solve(targets, solve);
+    ASSERT_TRUE(slice.ok()) << message_of(slice);
+    expected.push_back(slice->V);
+    remaining -= slice->iterations;
+    if (slice->converged) break;
+  }
+  ASSERT_GE(expected.size(), 2u) << "the edit should need more than one refinement slice";
+
+  Result<Subscription> watch = service.watch(f.created.id, f.created.view_token);
+  ASSERT_TRUE(watch.ok());
+  ASSERT_TRUE(watch->watcher().wait_take(milliseconds(5000)).has_value());  // join snapshot
+  Result<DeformResult> moved =
+      service.move_handles(f.created.id, f.created.edit_token, bend_move(60.0, 1));
+  ASSERT_TRUE(moved.ok()) << message_of(moved);
+  EXPECT_FALSE(moved->refinement);
+  EXPECT_EQ(moved->revision, 1u);
+
+  const std::uint64_t last = 1 + expected.size();
+  ASSERT_TRUE(wait_for_revision(service, f, last)) << "refinement did not reach revision " << last;
+  const double diag = test::bbox_diagonal(bench.mesh);
+  for (std::size_t k = 0; k < expected.size(); ++k) {
+    Result<std::string> obj = service.get_mesh(f.created.id, f.created.view_token,
+                                               io::MeshFormat::Obj, 2 + k);
+    ASSERT_TRUE(obj.ok()) << message_of(obj);
+    Result<io::LoadedMesh> loaded = io::load_mesh_from_memory(*obj, io::MeshFormat::Obj);
+    ASSERT_TRUE(loaded.ok()) << message_of(loaded);
+    EXPECT_LE((loaded->mesh.V - expected[k]).cwiseAbs().maxCoeff(), test::kExactTol * diag)
+        << "refinement revision " << 2 + k;
+  }
+  // Watchers see refinements marked as such, in order.
+  std::uint64_t seen = 1;
+  while (seen < last) {
+    std::optional<DeformUpdate> update = watch->watcher().wait_take(milliseconds(5000));
+    ASSERT_TRUE(update.has_value());
+    EXPECT_GT(update->result->revision, seen);
+    seen = update->result->revision;
+    if (seen >= 2) {
+      EXPECT_TRUE(update->result->refinement);
+      EXPECT_EQ(update->result->editor, "refinement");
+    }
+  }
+  const ServiceStats stats = service.stats();
+  EXPECT_EQ(stats.refinements_committed, expected.size());
+  EXPECT_EQ(stats.moves_committed, 1u);
+}
+
+TEST(RefinementTest, AnEditDuringRefinementIsServedAndRefinementResumesOnItsTargets) {
+  ServiceOptions options = small_options();
+  options.refine_budget = 200;  // long enough to be running when the next edit arrives
+  DeformationService service(options);
+  Fixture f = create_with_handles(service, "cylinder_small");
+  Result<DeformResult> first =
+      service.move_handles(f.created.id, f.created.edit_token, bend_move(40.0, 1));
+  ASSERT_TRUE(first.ok()) << message_of(first);
+  Result<DeformResult> second =
+      service.move_handles(f.created.id, f.created.edit_token, bend_move(70.0, 1));
+  ASSERT_TRUE(second.ok()) << message_of(second);
+  EXPECT_FALSE(second->refinement);
+  EXPECT_GE(second->revision, 2u);
+  // Refinement goes on after the second move (its targets), so more revisions follow it.
+  const auto deadline = std::chrono::steady_clock::now() + seconds(60);
+  while (service.session_info(f.created.id, f.created.view_token)->revision <= second->revision &&
+         std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(milliseconds(5));
+  }
+  ASSERT_GT(service.session_info(f.created.id, f.created.view_token)->revision, second->revision);
+  // set_handles ends refinement: the revision stops changing once it returns.
+  Result<SessionInfo> reset = service.set_handles(f.created.id, f.created.edit_token,
+                                                  SetHandlesRequest{f.groups, core::Method::ScaleAware});
+  ASSERT_TRUE(reset.ok()) << message_of(reset);
+  const std::uint64_t after_reset = reset->revision;
+  // Queue an edit-free probe through the strand: a failing move runs after anything queued.
+  MoveRequest bad = bend_move(10.0, 1);
+  bad.moves[0].group = 7;
+  EXPECT_EQ(service.move_handles(f.created.id, f.created.edit_token, bad).status().code(),
+            ErrorCode::InvalidArgument);
+  EXPECT_EQ(service.session_info(f.created.id, f.created.view_token)->revision, after_reset);
+  EXPECT_GE(service.stats().refinements_committed, 1u);
+}
+
+TEST(RefinementTest, OffByDefaultInTheService) {
+  DeformationService service(small_options());
+  Fixture f = create_with_handles(service, "cylinder_small");
+  Result<DeformResult> moved =
+      service.move_handles(f.created.id, f.created.edit_token, bend_move(60.0, 1));
+  ASSERT_TRUE(moved.ok());
+  // A second edit through the strand runs after anything the first could have queued.
+  ASSERT_TRUE(service.set_handles(f.created.id, f.created.edit_token,
+                                  SetHandlesRequest{f.groups, core::Method::ScaleAware})
+                  .ok());
+  EXPECT_EQ(service.session_info(f.created.id, f.created.view_token)->revision, 1u);
+  EXPECT_EQ(service.stats().refinements_committed, 0u);
 }
 
 }  // namespace

@@ -1,0 +1,61 @@
+#pragma once
+/// @file server_process.h
+/// Runs the real meshdeform-server binary on a loopback port for integration tests: spawns it
+/// with `--listen 127.0.0.1:0` plus extra flags, reads its stderr (on a thread, so the server
+/// never blocks on a full pipe) until the structured `"event":"listening"` line gives the bound
+/// port, and stops it (SIGTERM, then SIGKILL after a bound) when destroyed. Every wait is bounded.
+/// POSIX only; no gRPC here.
+
+#include <chrono>
+#include <condition_variable>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace meshdeform::test {
+
+class ServerProcess {
+ public:
+  /// Starts `binary` and waits at most `startup` for its listening line.
+  /// @return the running server, or nullptr with `error` set (the stderr seen so far included).
+  static std::unique_ptr<ServerProcess> start(
+      const std::string& binary, const std::vector<std::string>& extra_flags, std::string& error,
+      std::chrono::seconds startup = std::chrono::seconds(30));
+  ServerProcess(const ServerProcess&) = delete;
+  ServerProcess& operator=(const ServerProcess&) = delete;
+  /// Stops the server if it still runs (SIGTERM, then SIGKILL after 20 s).
+  ~ServerProcess();
+
+  int port() const { return port_; }
+  int pid() const { return pid_; }
+  /// "127.0.0.1:PORT", for grpc::CreateChannel.
+  std::string address() const;
+
+  /// Sends `signal` (e.g. SIGTERM or SIGKILL) and waits at most `timeout` for the exit.
+  /// @return the wait status (use WIFEXITED / WEXITSTATUS / WIFSIGNALED), or nullopt if it did
+  ///         not exit in time (or was already reaped).
+  std::optional<int> stop(int signal, std::chrono::milliseconds timeout);
+
+  /// Everything the server wrote to stderr so far (its structured log lines).
+  std::string log() const;
+  /// Waits at most `timeout` for `needle` to appear in the log. @return whether it did.
+  bool wait_for_log(const std::string& needle, std::chrono::milliseconds timeout) const;
+
+ private:
+  ServerProcess() = default;
+  void read_stderr();
+
+  int pid_ = -1;
+  int stderr_fd_ = -1;
+  int port_ = 0;
+  mutable std::mutex mutex_;
+  mutable std::condition_variable changed_;
+  std::string log_;
+  bool eof_ = false;
+  std::thread reader_;
+};
+
+}  // namespace meshdeform::test
