@@ -34,6 +34,7 @@ struct Flags {
   int max_vertices = 250'000;
   int idle_ttl_seconds = 30 * 60;
   int max_message_mib = 64;
+  int memory_budget_mib = 2048;
   int workers = 0;
   int shutdown_grace_seconds = 10;
   int refine_budget = 30;
@@ -48,6 +49,8 @@ constexpr const char* kUsage =
     "  --max-sessions N            open sessions (default 64)\n"
     "  --max-vertices N            vertices per mesh (default 250000)\n"
     "  --idle-ttl-seconds N        sessions idle for longer are closed (default 1800)\n"
+    "  --memory-budget-mib N       estimated memory for all sessions; least recently used idle\n"
+    "                              sessions are evicted to make room (default 2048)\n"
     "  --max-message-mib N         largest request/response, e.g. a mesh upload (default 64)\n"
     "  --workers N                 solver threads (default 0 = one per core)\n"
     "  --shutdown-grace-seconds N  on SIGTERM/SIGINT, time to finish calls (default 10)\n"
@@ -96,6 +99,8 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
       ok = parse_int(value, 3, 100'000'000, flags.max_vertices);
     } else if (arg == "--idle-ttl-seconds") {
       ok = parse_int(value, 1, 365 * 24 * 3600, flags.idle_ttl_seconds);
+    } else if (arg == "--memory-budget-mib") {
+      ok = parse_int(value, 1, 1'000'000, flags.memory_budget_mib);
     } else if (arg == "--max-message-mib") {
       ok = parse_int(value, 1, 2047, flags.max_message_mib);
     } else if (arg == "--workers") {
@@ -154,6 +159,7 @@ int main(int argc, char** argv) {
   options.max_vertices = flags.max_vertices;
   options.idle_ttl = std::chrono::seconds(flags.idle_ttl_seconds);
   options.refine_budget = flags.refine_budget;
+  options.memory_budget_bytes = static_cast<std::size_t>(flags.memory_budget_mib) << 20;
   meshdeform::service::DeformationService service(options);
   meshdeform::transport::DeformServiceImpl impl(service);
 

@@ -188,6 +188,32 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
   });
 }
 
+void DeformationService::create_session_async(CreateSessionRequest request, std::stop_token stop,
+                                              std::function<void(Result<CreatedSession>)> done) {
+  pool_.submit([this, request = std::move(request), stop = std::move(stop),
+                done = std::move(done)] {
+    if (stop.stop_requested() || shutdown_.stop_requested()) {
+      done(Error(ErrorCode::Cancelled, "create_session cancelled before it started"));
+      return;
+    }
+    done(create_session(request));
+  });
+}
+
+void DeformationService::get_mesh_async(SessionId id, Token token, io::MeshFormat format,
+                                        std::optional<std::uint64_t> revision,
+                                        std::stop_token stop,
+                                        std::function<void(Result<std::string>)> done) {
+  pool_.submit([this, id = std::move(id), token = std::move(token), format, revision,
+                stop = std::move(stop), done = std::move(done)] {
+    if (stop.stop_requested() || shutdown_.stop_requested()) {
+      done(Error(ErrorCode::Cancelled, "get_mesh cancelled before it started"));
+      return;
+    }
+    done(get_mesh(id, token, format, revision));
+  });
+}
+
 Result<std::shared_ptr<Session>> DeformationService::find_for_view(const SessionId& id,
                                                                    const Token& token) {
   std::shared_ptr<Session> session = store_.find(id);

@@ -7,8 +7,9 @@
 /// Threading: every call may come from any thread. Solves and factorizations run on the
 /// service's own WorkerPool (never on the caller's thread): the *_async calls return at once and
 /// call `done` on a worker. Edits to one session run one at a time in submission order; different
-/// sessions run in parallel. create_session, get_mesh, session_info, watch and close_session run
-/// on the caller's thread (parsing / serialising only, no solves).
+/// sessions run in parallel. create_session and get_mesh (parsing / serialising) have *_async
+/// forms that run on the pool too; session_info, watch and close_session are quick and run on the
+/// caller's thread.
 ///
 /// Access: create_session returns an edit token and a view token. Edits (set_handles,
 /// move_handles, close_session) need the edit token; reads and watches accept either token.
@@ -53,6 +54,11 @@ class DeformationService {
   ///         ResourceExhausted for a mesh over max_vertices (naming both counts), max_sessions
   ///         open sessions, or a memory budget that eviction of idle sessions cannot meet.
   [[nodiscard]] Result<CreatedSession> create_session(const CreateSessionRequest& request);
+  /// create_session on the worker pool (parsing a large upload can take a while: it must not
+  /// hold a transport thread). Cancelled if `stop` is requested before it starts. `done` runs on
+  /// a worker thread.
+  void create_session_async(CreateSessionRequest request, std::stop_token stop,
+                            std::function<void(Result<CreatedSession>)> done);
 
   /// Sets the handle groups on the worker pool; see Session::set_handles for the errors, plus
   /// NotFound (unknown/expired/closed session), PermissionDenied (not the edit token) and
@@ -82,6 +88,10 @@ class DeformationService {
   [[nodiscard]] Result<std::string> get_mesh(const SessionId& id, const Token& token,
                                              io::MeshFormat format,
                                              std::optional<std::uint64_t> revision = {});
+  /// get_mesh on the worker pool (serialising a large mesh is not for transport threads).
+  void get_mesh_async(SessionId id, Token token, io::MeshFormat format,
+                      std::optional<std::uint64_t> revision, std::stop_token stop,
+                      std::function<void(Result<std::string>)> done);
 
   /// @return the summary; NotFound; PermissionDenied.
   [[nodiscard]] Result<SessionInfo> session_info(const SessionId& id, const Token& token);

@@ -188,15 +188,27 @@ class FailedWriteReactor final : public grpc::ServerWriteReactor<v1::DeformUpdat
 grpc::ServerUnaryReactor* DeformServiceImpl::CreateSession(grpc::CallbackServerContext* context,
                                                            const v1::CreateSessionRequest* request,
                                                            v1::CreateSessionResponse* response) {
-  // Parsing and cleaning run here (the service does no solve in create_session).
+  (void)context;
+  // Parsing and cleaning an upload run on the service's workers, not on this gRPC thread.
+  auto* reactor = new StoppableUnaryReactor();
   const CallRecord call(service_, "CreateSession", {});
-  return finish_now(context, call, run_guarded("CreateSession", [&]() -> Status {
+  const Status started = run_guarded("CreateSession", [&]() -> Status {
     MD_ASSIGN_OR_RETURN(service::CreateSessionRequest converted,
                         create_request_from_proto(*request));
-    MD_ASSIGN_OR_RETURN(service::CreatedSession created, service_.create_session(converted));
-    created_to_proto(created, response);
+    service_.create_session_async(
+        std::move(converted), reactor->stop_token(),
+        [reactor, response, call](Result<service::CreatedSession> created) {
+          const Status status = run_guarded("CreateSession", [&]() -> Status {
+            if (!created.ok()) return created.status();
+            created_to_proto(*created, response);
+            return Status::success();
+          });
+          reactor->Finish(call.finish(status));
+        });
     return Status::success();
-  }));
+  });
+  if (!started.ok()) reactor->Finish(call.finish(started));
+  return reactor;
 }
 
 grpc::ServerUnaryReactor* DeformServiceImpl::SetHandles(grpc::CallbackServerContext* context,
@@ -269,18 +281,30 @@ grpc::ServerWriteReactor<v1::DeformUpdate>* DeformServiceImpl::Watch(
 grpc::ServerUnaryReactor* DeformServiceImpl::GetMesh(grpc::CallbackServerContext* context,
                                                      const v1::GetMeshRequest* request,
                                                      v1::GetMeshResponse* response) {
+  (void)context;
+  // Serialising (GLB/OBJ/...) runs on the service's workers.
+  auto* reactor = new StoppableUnaryReactor();
   const CallRecord call(service_, "GetMesh", request->session_id());
-  return finish_now(context, call, run_guarded("GetMesh", [&]() -> Status {
+  const Status started = run_guarded("GetMesh", [&]() -> Status {
     MD_ASSIGN_OR_RETURN(io::MeshFormat format, format_from_proto(request->format(), true));
     std::optional<std::uint64_t> revision;
     if (request->has_revision()) revision = request->revision();
-    MD_ASSIGN_OR_RETURN(std::string bytes,
-                        service_.get_mesh(service::SessionId{request->session_id()},
-                                          service::Token{request->token()}, format, revision));
-    response->set_mesh_bytes(std::move(bytes));
-    response->set_format(format_to_proto(format));
+    service_.get_mesh_async(
+        service::SessionId{request->session_id()}, service::Token{request->token()}, format,
+        revision, reactor->stop_token(),
+        [reactor, response, call, format](Result<std::string> bytes) {
+          const Status status = run_guarded("GetMesh", [&]() -> Status {
+            if (!bytes.ok()) return bytes.status();
+            response->set_mesh_bytes(std::move(bytes).value());
+            response->set_format(format_to_proto(format));
+            return Status::success();
+          });
+          reactor->Finish(call.finish(status));
+        });
     return Status::success();
-  }));
+  });
+  if (!started.ok()) reactor->Finish(call.finish(started));
+  return reactor;
 }
 
 grpc::ServerUnaryReactor* DeformServiceImpl::GetSessionInfo(
