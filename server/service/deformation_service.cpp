@@ -124,7 +124,31 @@ DeformationService::DeformationService(ServiceOptions options)
       }()),
       counters_(std::make_shared<ServiceCounters>()),
       store_(options_),
-      pool_(options_.workers) {}
+      pool_(options_.workers) {
+  if (options_.state_dir.empty()) return;
+  Result<StateDirectory> dir = StateDirectory::open(options_.state_dir);
+  if (!dir.ok()) {
+    log_event(LogLevel::Error, "state_dir_unusable",
+              LogFields().add("path", options_.state_dir).add("message", dir.status().message()));
+    return;
+  }
+  state_dir_.emplace(std::move(dir).value());
+  // Check every file now so corruption is reported at start; sessions load on first use.
+  int good = 0;
+  for (const SessionId& id : state_dir_->list()) {
+    Result<PersistedSession> state = state_dir_->read(id);
+    if (state.ok()) {
+      ++good;
+    } else {
+      state_files_corrupt_.fetch_add(1);
+      log_event(LogLevel::Warn, "state_file_corrupt",
+                LogFields().add("session", id.value).add("message", state.status().message()));
+    }
+  }
+  log_event(LogLevel::Info, "state_dir",
+            LogFields().add("path", state_dir_->path()).add("sessions", good)
+                .add("corrupt", static_cast<std::uint64_t>(state_files_corrupt_.load())));
+}
 
 DeformationService::~DeformationService() {
   shutdown_.request_stop();
@@ -182,6 +206,10 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
                         [store](std::size_t bytes, const Session& requester) {
                           return store->reserve(bytes, requester);
                         }));
+    if (state_dir_) {
+      session->set_state_directory(&*state_dir_);
+      session->persist();
+    }
     MD_RETURN_IF_ERROR(store_.insert(session));
     created.info = session->info();
     return created;
@@ -214,9 +242,55 @@ void DeformationService::get_mesh_async(SessionId id, Token token, io::MeshForma
   });
 }
 
+std::shared_ptr<Session> DeformationService::find_or_restore(const SessionId& id) {
+  if (std::shared_ptr<Session> session = store_.find(id)) return session;
+  if (!state_dir_ || !is_valid_session_id(id.value)) return nullptr;
+  const std::lock_guard lock(restore_mutex_);
+  if (std::shared_ptr<Session> session = store_.find(id)) return session;  // restored meanwhile
+  const std::optional<double> age = state_dir_->age_seconds(id);
+  if (!age) return nullptr;
+  if (*age > std::chrono::duration<double>(options_.idle_ttl).count()) {
+    state_dir_->remove(id);  // expired while no server held it
+    return nullptr;
+  }
+  Result<PersistedSession> state = state_dir_->read(id);
+  if (!state.ok()) {
+    if (state.status().code() != ErrorCode::NotFound) {
+      state_files_corrupt_.fetch_add(1);
+      log_event(LogLevel::Warn, "state_file_corrupt",
+                LogFields().add("session", id.value).add("message", state.status().message()));
+    }
+    return nullptr;
+  }
+  SessionStore* store = &store_;
+  Result<std::shared_ptr<Session>> restored = run_guarded([&] {
+    return Session::restore(std::move(state).value(), options_, counters_,
+                            [store](std::size_t bytes, const Session& requester) {
+                              return store->reserve(bytes, requester);
+                            });
+  });
+  if (!restored.ok()) {
+    state_files_corrupt_.fetch_add(1);
+    log_event(LogLevel::Warn, "state_restore_failed",
+              LogFields().add("session", id.value).add("message", restored.status().message()));
+    return nullptr;
+  }
+  std::shared_ptr<Session> session = std::move(restored).value();
+  session->set_state_directory(&*state_dir_);
+  if (const Status inserted = store_.insert(session); !inserted.ok()) {
+    log_event(LogLevel::Warn, "state_restore_refused",
+              LogFields().add("session", id.value).add("message", inserted.message()));
+    return nullptr;
+  }
+  sessions_restored_.fetch_add(1);
+  log_event(LogLevel::Info, "session_restored",
+            LogFields().add("session", id.value).add("revision", session->revision()));
+  return session;
+}
+
 Result<std::shared_ptr<Session>> DeformationService::find_for_view(const SessionId& id,
                                                                    const Token& token) {
-  std::shared_ptr<Session> session = store_.find(id);
+  std::shared_ptr<Session> session = find_or_restore(id);
   if (!session) {
     return Error(ErrorCode::NotFound,
                  "session '" + short_id(id) + "' not found (unknown, closed or expired)");
@@ -378,6 +452,7 @@ Status DeformationService::close_session(const SessionId& id, const Token& edit_
   Result<std::shared_ptr<Session>> found = find_for_edit(id, edit_token);
   if (!found.ok()) return found.status();
   store_.erase(id);
+  if (state_dir_) state_dir_->remove(id);
   return Status::success();
 }
 
@@ -405,6 +480,9 @@ ServiceStats DeformationService::stats() const {
   stats.pcg_iterations = counters_->pcg_iterations.load();
   stats.outer_iterations = counters_->outer_iterations.load();
   stats.resident_bytes = resident_set_bytes();
+  stats.sessions_restored = sessions_restored_.load();
+  stats.state_files_corrupt = state_files_corrupt_.load();
+  stats.persist_failures = counters_->persist_failures.load();
   stats.watchers = store_.watcher_count();
   stats.evicted_lru = store_.evicted_lru();
   stats.evicted_idle = store_.evicted_idle();

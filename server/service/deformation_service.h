@@ -16,8 +16,10 @@
 /// Every call checks the session first (NotFound), then the token (PermissionDenied).
 
 #include <chrono>
+#include <atomic>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <stop_token>
 #include <string>
@@ -25,6 +27,7 @@
 
 #include "core/io/mesh_io.h"
 #include "core/status.h"
+#include "server/service/persistence.h"
 #include "server/service/session.h"
 #include "server/service/session_store.h"
 #include "server/service/types.h"
@@ -117,6 +120,8 @@ class DeformationService {
   std::string render_metrics() const { return counters_->metrics.render(stats()); }
 
  private:
+  /// The session from the store, or restored from the state directory (nullptr if neither).
+  std::shared_ptr<Session> find_or_restore(const SessionId& id);
   Result<std::shared_ptr<Session>> find_for_edit(const SessionId& id, const Token& token);
   Result<std::shared_ptr<Session>> find_for_view(const SessionId& id, const Token& token);
   /// Queues `task` on the session's strand and the strand on the pool. An edit (not
@@ -130,6 +135,10 @@ class DeformationService {
   ServiceOptions options_;
   std::shared_ptr<ServiceCounters> counters_;
   std::stop_source shutdown_;
+  std::optional<StateDirectory> state_dir_;
+  std::mutex restore_mutex_;  ///< one restore at a time, so a session is loaded once
+  std::atomic<std::uint64_t> sessions_restored_{0};
+  std::atomic<std::uint64_t> state_files_corrupt_{0};
   SessionStore store_;
   WorkerPool pool_;  // declared last: destroyed (drained, joined) before the store
 };

@@ -6,6 +6,8 @@
 #include <string>
 #include <unordered_map>
 
+#include "core/validate.h"
+#include "server/service/log.h"
 #include "server/service/tokens.h"
 
 namespace meshdeform::service {
@@ -101,6 +103,79 @@ Result<std::shared_ptr<Session>> Session::create(SessionId id, Token edit_token,
   session->history_.push_back(std::move(rest));
   session->update_estimate();
   return session;
+}
+
+Result<std::shared_ptr<Session>> Session::restore(PersistedSession state,
+                                                  const ServiceOptions& options,
+                                                  std::shared_ptr<ServiceCounters> counters,
+                                                  ReserveFn reserve) {
+  MD_RETURN_IF_ERROR(core::validate_triangle_mesh(state.rest.V, state.rest.F));
+  core::DeformerSettings settings;
+  settings.lambda = state.lambda;
+  const int nv = static_cast<int>(state.rest.V.rows());
+  MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session,
+                      create(state.id, state.edit_token, state.view_token, std::move(state.rest),
+                             settings, options, std::move(counters), std::move(reserve)));
+  std::vector<int> group_of(static_cast<std::size_t>(nv), -1);
+  std::vector<int> constrained;
+  for (std::size_t g = 0; g < state.groups.size(); ++g) {
+    for (int v : state.groups[g].vertices) {
+      if (group_of[static_cast<std::size_t>(v)] >= 0) {
+        return Error(ErrorCode::InvalidArgument,
+                     "state file: vertex " + std::to_string(v) + " is in two groups");
+      }
+      group_of[static_cast<std::size_t>(v)] = static_cast<int>(g);
+      constrained.push_back(v);
+    }
+  }
+  std::sort(constrained.begin(), constrained.end());
+  auto current = std::make_shared<DeformResult>();
+  current->revision = state.revision;
+  current->positions = std::make_shared<const Positions>(std::move(state.positions));
+  current->changed_positions.resize(0, 3);
+  if (state.last_method) current->method = *state.last_method;
+  {
+    std::lock_guard lock(session->state_mutex_);
+    session->groups_ = std::move(state.groups);
+    session->constrained_ = std::move(constrained);
+    session->anchors_ = std::move(state.anchors);
+    session->targets_ = std::move(state.targets);
+    session->vertex_group_ = std::move(group_of);
+    session->revision_ = state.revision;
+    session->last_method_ = state.last_method;
+    session->history_.clear();
+    session->history_.push_back(std::move(current));
+  }
+  return session;
+}
+
+void Session::persist() {
+  if (state_dir_ == nullptr) return;
+  PersistedSession state;
+  state.id = id_;
+  state.edit_token = edit_token_;
+  state.view_token = view_token_;
+  state.lambda = settings_.lambda;
+  state.rest = rest_;
+  {
+    std::lock_guard lock(state_mutex_);
+    state.groups = groups_;
+    state.anchors = anchors_;
+    state.targets = targets_;
+    state.positions = *history_.back()->positions;
+    state.revision = revision_;
+    state.last_method = last_method_;
+  }
+  if (state.anchors.rows() == 0) state.anchors.resize(0, 3);
+  if (state.targets.rows() == 0) state.targets.resize(0, 3);
+  const Status written = state_dir_->write(state);
+  if (written.ok()) {
+    counters_->persisted_writes.fetch_add(1);
+    return;
+  }
+  counters_->persist_failures.fetch_add(1);
+  log_event(LogLevel::Error, "persist_failed",
+            LogFields().add("session", id_.value).add("message", written.message()));
 }
 
 bool Session::can_edit(const Token& token) const {
@@ -221,6 +296,7 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request) {
     targets_ = std::move(anchors);
     vertex_group_ = std::move(group_of);
   }
+  persist();
   return info();
 }
 
@@ -420,6 +496,7 @@ DeformResult Session::commit(core::SolveReport report, core::Method method,
     watchers = watchers_;
   }
   entry->state_revision = result->revision;
+  persist();  // durable before anyone hears of the revision
   // Revisions are committed by one strand task at a time, so publishing outside the lock keeps
   // them in order; a watcher joining in between drops the older one (see Watcher::offer).
   for (const std::shared_ptr<Watcher>& watcher : watchers) watcher->publish(result);

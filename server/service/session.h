@@ -18,6 +18,7 @@
 #include "core/measures.h"
 #include "core/topology.h"
 #include "server/service/metrics.h"
+#include "server/service/persistence.h"
 #include "server/service/types.h"
 #include "server/service/watcher.h"
 
@@ -32,6 +33,8 @@ struct ServiceCounters {
   std::atomic<std::uint64_t> refinements_preempted{0};
   std::atomic<std::uint64_t> pcg_iterations{0};
   std::atomic<std::uint64_t> outer_iterations{0};
+  std::atomic<std::uint64_t> persist_failures{0};
+  std::atomic<std::uint64_t> persisted_writes{0};
   MetricsRegistry metrics;  ///< RPC and solve histograms (see metrics.h)
 };
 
@@ -49,6 +52,19 @@ class Session : public std::enable_shared_from_this<Session> {
       SessionId id, Token edit_token, Token view_token, MeshData mesh,
       const core::DeformerSettings& settings, const ServiceOptions& options,
       std::shared_ptr<ServiceCounters> counters, ReserveFn reserve);
+
+  /// Recreates a session from its state file (see persistence.h); the factorizations are rebuilt
+  /// on the next move. @return the session; InvalidArgument if the stored mesh, groups or sizes
+  /// do not validate.
+  [[nodiscard]] static Result<std::shared_ptr<Session>> restore(
+      PersistedSession state, const ServiceOptions& options,
+      std::shared_ptr<ServiceCounters> counters, ReserveFn reserve);
+  /// Writes every committed revision and handle change to `dir` (before it is acknowledged or
+  /// published) from now on; nullptr stops. Call before the session is shared.
+  void set_state_directory(const StateDirectory* dir) { state_dir_ = dir; }
+  /// Writes the current state now (creation). Errors are logged and counted, not returned:
+  /// the edit stands in memory either way.
+  void persist();
 
   const SessionId& id() const { return id_; }
   const MeshData& rest() const { return rest_; }
@@ -181,6 +197,8 @@ class Session : public std::enable_shared_from_this<Session> {
   std::optional<core::Method> last_method_;
   std::vector<std::shared_ptr<Watcher>> watchers_;
   std::chrono::steady_clock::time_point last_used_{};
+
+  const StateDirectory* state_dir_ = nullptr;
 
   std::mutex refine_mutex_;
   std::stop_source refine_stop_;  ///< of the running refinement slice; guarded by refine_mutex_

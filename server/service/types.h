@@ -169,6 +169,10 @@ struct ServiceOptions {
   /// the service keeps running outer iterations on the same targets (in slices, committing each
   /// improvement as a revision) up to this many in total; 0 = off.
   int refine_budget = 0;
+  /// Directory for session state files (persistence.h); empty = in memory only. Sessions whose
+  /// file is younger than idle_ttl are restored on their first request after a restart (or on
+  /// another replica sharing the directory).
+  std::string state_dir;
   Clock clock;                     ///< default: std::chrono::steady_clock::now
 };
 
@@ -181,6 +185,9 @@ struct ServiceStats {
   std::uint64_t refinements_preempted = 0;   ///< refinement slices stopped by a new edit
   std::uint64_t pcg_iterations = 0;          ///< step-two CG iterations over all solves
   std::uint64_t outer_iterations = 0;        ///< outer iterations over all solves
+  std::uint64_t sessions_restored = 0;       ///< loaded from the state directory
+  std::uint64_t state_files_corrupt = 0;     ///< found corrupt (startup scan or restore) and skipped
+  std::uint64_t persist_failures = 0;        ///< state writes that failed (logged)
   std::uint64_t evicted_lru = 0;             ///< sessions evicted for the memory budget
   std::uint64_t evicted_idle = 0;            ///< sessions evicted by the idle TTL
   std::size_t sessions = 0;

@@ -1,0 +1,338 @@
+#include "server/service/persistence.h"
+
+#include <dirent.h>
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <array>
+#include <cerrno>
+#include <chrono>
+#include <cstring>
+#include <limits>
+
+namespace meshdeform::service {
+namespace {
+
+constexpr std::string_view kMagic = "MDSTATE1";
+constexpr std::uint32_t kMaxCount = 100'000'000;  // vertices, faces, group sizes
+
+std::uint32_t crc32(std::string_view data) {
+  static const std::array<std::uint32_t, 256> table = [] {
+    std::array<std::uint32_t, 256> t{};
+    for (std::uint32_t i = 0; i < 256; ++i) {
+      std::uint32_t c = i;
+      for (int k = 0; k < 8; ++k) c = (c & 1) ? 0xEDB88320u ^ (c >> 1) : c >> 1;
+      t[i] = c;
+    }
+    return t;
+  }();
+  std::uint32_t crc = 0xFFFFFFFFu;
+  for (const char ch : data) crc = table[(crc ^ static_cast<unsigned char>(ch)) & 0xFFu] ^ (crc >> 8);
+  return crc ^ 0xFFFFFFFFu;
+}
+
+class Writer {
+ public:
+  template <typename T>
+  void pod(T value) {
+    char bytes[sizeof(T)];
+    std::memcpy(bytes, &value, sizeof(T));  // little-endian hosts only (x86-64, arm64)
+    out_.append(bytes, sizeof(T));
+  }
+  void str(std::string_view s) {
+    pod(static_cast<std::uint32_t>(s.size()));
+    out_.append(s);
+  }
+  void matrix(const Positions& P) {
+    pod(static_cast<std::uint32_t>(P.rows()));
+    for (Eigen::Index r = 0; r < P.rows(); ++r)
+      for (int c = 0; c < 3; ++c) pod(P(r, c));
+  }
+  std::string& bytes() { return out_; }
+
+ private:
+  std::string out_;
+};
+
+class Reader {
+ public:
+  explicit Reader(std::string_view in) : in_(in) {}
+  template <typename T>
+  Status pod(T& value, const char* what) {
+    if (in_.size() - at_ < sizeof(T)) return truncated(what);
+    std::memcpy(&value, in_.data() + at_, sizeof(T));
+    at_ += sizeof(T);
+    return Status::success();
+  }
+  Status str(std::string& s, const char* what, std::size_t max) {
+    std::uint32_t n = 0;
+    MD_RETURN_IF_ERROR(pod(n, what));
+    if (n > max || in_.size() - at_ < n) return truncated(what);
+    s.assign(in_.data() + at_, n);
+    at_ += n;
+    return Status::success();
+  }
+  Status count(std::uint32_t& n, const char* what, std::size_t bytes_each) {
+    MD_RETURN_IF_ERROR(pod(n, what));
+    if (n > kMaxCount || (in_.size() - at_) / bytes_each < n) return truncated(what);
+    return Status::success();
+  }
+  Status matrix(Positions& P, const char* what) {
+    std::uint32_t rows = 0;
+    MD_RETURN_IF_ERROR(count(rows, what, 24));
+    P.resize(rows, 3);
+    for (Eigen::Index r = 0; r < P.rows(); ++r)
+      for (int c = 0; c < 3; ++c) MD_RETURN_IF_ERROR(pod(P(r, c), what));
+    if (!P.allFinite()) return Error(ErrorCode::InvalidArgument, std::string(what) + " is not finite");
+    return Status::success();
+  }
+  bool done() const { return at_ == in_.size(); }
+
+ private:
+  Status truncated(const char* what) const {
+    return Error(ErrorCode::InvalidArgument,
+                 std::string("state file truncated or corrupt at ") + what + " (byte " +
+                     std::to_string(at_) + ")");
+  }
+  std::string_view in_;
+  std::size_t at_ = 0;
+};
+
+Status os_error(const std::string& what, const std::string& path) {
+  return Error(ErrorCode::Internal, what + " " + path + ": " + std::strerror(errno));
+}
+
+}  // namespace
+
+bool is_valid_session_id(std::string_view id) {
+  return id.size() == 32 && id.find_first_not_of("0123456789abcdef") == std::string_view::npos;
+}
+
+std::string encode_session(const PersistedSession& s) {
+  Writer w;
+  w.str(s.id.value);
+  w.str(s.edit_token.value);
+  w.str(s.view_token.value);
+  w.pod(s.lambda);
+  w.matrix(s.rest.V);
+  w.pod(static_cast<std::uint32_t>(s.rest.F.rows()));
+  for (Eigen::Index f = 0; f < s.rest.F.rows(); ++f)
+    for (int k = 0; k < 3; ++k) w.pod(static_cast<std::int32_t>(s.rest.F(f, k)));
+  w.pod(static_cast<std::uint32_t>(s.groups.size()));
+  for (const HandleGroup& g : s.groups) {
+    w.pod(static_cast<std::uint8_t>(g.role == HandleRole::Fixed ? 0 : 1));
+    w.pod(static_cast<std::uint32_t>(g.vertices.size()));
+    for (int v : g.vertices) w.pod(static_cast<std::int32_t>(v));
+  }
+  w.matrix(s.anchors);
+  w.matrix(s.targets);
+  w.matrix(s.positions);
+  w.pod(s.revision);
+  w.pod(static_cast<std::int32_t>(s.last_method ? static_cast<int>(*s.last_method) : -1));
+
+  std::string file(kMagic);
+  const std::string& payload = w.bytes();
+  Writer header;
+  header.pod(static_cast<std::uint64_t>(payload.size()));
+  file += header.bytes();
+  file += payload;
+  Writer trailer;
+  trailer.pod(crc32(payload));
+  file += trailer.bytes();
+  return file;
+}
+
+Result<PersistedSession> decode_session(std::string_view bytes) {
+  if (bytes.size() < kMagic.size() + 8 + 4 || bytes.substr(0, kMagic.size()) != kMagic) {
+    return Error(ErrorCode::InvalidArgument, "not a meshdeform state file (bad magic or too short)");
+  }
+  std::uint64_t length = 0;
+  std::memcpy(&length, bytes.data() + kMagic.size(), 8);
+  const std::size_t header = kMagic.size() + 8;
+  if (length != bytes.size() - header - 4) {
+    return Error(ErrorCode::InvalidArgument,
+                 "state file length mismatch: header says " + std::to_string(length) +
+                     " payload bytes, the file holds " + std::to_string(bytes.size() - header - 4));
+  }
+  const std::string_view payload = bytes.substr(header, length);
+  std::uint32_t stored = 0;
+  std::memcpy(&stored, bytes.data() + header + length, 4);
+  if (crc32(payload) != stored) {
+    return Error(ErrorCode::InvalidArgument, "state file checksum mismatch (corrupt)");
+  }
+
+  PersistedSession s;
+  Reader r(payload);
+  MD_RETURN_IF_ERROR(r.str(s.id.value, "session id", 64));
+  MD_RETURN_IF_ERROR(r.str(s.edit_token.value, "edit token", 256));
+  MD_RETURN_IF_ERROR(r.str(s.view_token.value, "view token", 256));
+  MD_RETURN_IF_ERROR(r.pod(s.lambda, "lambda"));
+  MD_RETURN_IF_ERROR(r.matrix(s.rest.V, "rest positions"));
+  std::uint32_t faces = 0;
+  MD_RETURN_IF_ERROR(r.count(faces, "faces", 12));
+  s.rest.F.resize(faces, 3);
+  const auto nv = static_cast<std::int32_t>(s.rest.V.rows());
+  for (Eigen::Index f = 0; f < s.rest.F.rows(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      std::int32_t v = 0;
+      MD_RETURN_IF_ERROR(r.pod(v, "faces"));
+      if (v < 0 || v >= nv) {
+        return Error(ErrorCode::InvalidArgument, "state file: face " + std::to_string(f) +
+                                                     " references vertex " + std::to_string(v));
+      }
+      s.rest.F(f, k) = v;
+    }
+  }
+  std::uint32_t groups = 0;
+  MD_RETURN_IF_ERROR(r.count(groups, "groups", 5));
+  for (std::uint32_t g = 0; g < groups; ++g) {
+    HandleGroup group;
+    std::uint8_t role = 0;
+    MD_RETURN_IF_ERROR(r.pod(role, "group role"));
+    group.role = role == 0 ? HandleRole::Fixed : HandleRole::Handle;
+    std::uint32_t size = 0;
+    MD_RETURN_IF_ERROR(r.count(size, "group vertices", 4));
+    for (std::uint32_t i = 0; i < size; ++i) {
+      std::int32_t v = 0;
+      MD_RETURN_IF_ERROR(r.pod(v, "group vertices"));
+      if (v < 0 || v >= nv) {
+        return Error(ErrorCode::InvalidArgument,
+                     "state file: group " + std::to_string(g) + " vertex " + std::to_string(v) +
+                         " out of range");
+      }
+      group.vertices.push_back(v);
+    }
+    s.groups.push_back(std::move(group));
+  }
+  MD_RETURN_IF_ERROR(r.matrix(s.anchors, "anchors"));
+  MD_RETURN_IF_ERROR(r.matrix(s.targets, "targets"));
+  MD_RETURN_IF_ERROR(r.matrix(s.positions, "positions"));
+  MD_RETURN_IF_ERROR(r.pod(s.revision, "revision"));
+  std::int32_t method = -1;
+  MD_RETURN_IF_ERROR(r.pod(method, "method"));
+  if (method >= 0) s.last_method = static_cast<core::Method>(method);
+  if (!r.done()) return Error(ErrorCode::InvalidArgument, "state file has trailing bytes");
+  std::size_t constrained = 0;
+  for (const HandleGroup& g : s.groups) constrained += g.vertices.size();
+  if (s.positions.rows() != s.rest.V.rows() ||
+      static_cast<std::size_t>(s.anchors.rows()) != constrained ||
+      s.targets.rows() != s.anchors.rows() || !is_valid_session_id(s.id.value) ||
+      !(s.lambda > 0) || (method > 2)) {
+    return Error(ErrorCode::InvalidArgument, "state file: inconsistent sizes or values");
+  }
+  return s;
+}
+
+Result<StateDirectory> StateDirectory::open(std::string path) {
+  if (path.empty()) return Error(ErrorCode::InvalidArgument, "empty state directory path");
+  if (::mkdir(path.c_str(), 0700) != 0 && errno != EEXIST) return os_error("cannot create", path);
+  struct stat info {};
+  if (::stat(path.c_str(), &info) != 0 || !S_ISDIR(info.st_mode)) {
+    return Error(ErrorCode::Internal, "state directory " + path + " is not a directory");
+  }
+  if (::access(path.c_str(), W_OK | X_OK) != 0) return os_error("cannot write to", path);
+  return StateDirectory(std::move(path));
+}
+
+std::string StateDirectory::file_of(const SessionId& id) const {
+  return path_ + "/" + id.value + ".state";
+}
+
+Status StateDirectory::write(const PersistedSession& state) const {
+  if (!is_valid_session_id(state.id.value)) {
+    return Error(ErrorCode::InvalidArgument, "not a session id this server issues");
+  }
+  const std::string bytes = encode_session(state);
+  const std::string final_path = file_of(state.id);
+  const std::string temp_path = final_path + ".tmp";
+  const int fd = ::open(temp_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+  if (fd < 0) return os_error("cannot create", temp_path);
+  std::size_t written = 0;
+  while (written < bytes.size()) {
+    const ssize_t n = ::write(fd, bytes.data() + written, bytes.size() - written);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      const Status error = os_error("cannot write", temp_path);
+      ::close(fd);
+      ::unlink(temp_path.c_str());
+      return error;
+    }
+    written += static_cast<std::size_t>(n);
+  }
+  // Data durable before the rename makes it visible; the directory entry durable after.
+  if (::fsync(fd) != 0) {
+    const Status error = os_error("cannot fsync", temp_path);
+    ::close(fd);
+    ::unlink(temp_path.c_str());
+    return error;
+  }
+  ::close(fd);
+  if (::rename(temp_path.c_str(), final_path.c_str()) != 0) {
+    const Status error = os_error("cannot rename onto", final_path);
+    ::unlink(temp_path.c_str());
+    return error;
+  }
+  const int dir = ::open(path_.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dir >= 0) {
+    ::fsync(dir);
+    ::close(dir);
+  }
+  return Status::success();
+}
+
+Result<PersistedSession> StateDirectory::read(const SessionId& id) const {
+  if (!is_valid_session_id(id.value)) return Error(ErrorCode::NotFound, "no such session file");
+  const std::string path = file_of(id);
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) {
+    if (errno == ENOENT) return Error(ErrorCode::NotFound, "no such session file");
+    return os_error("cannot open", path);
+  }
+  std::string bytes;
+  char buffer[1 << 16];
+  while (true) {
+    const ssize_t n = ::read(fd, buffer, sizeof buffer);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) break;
+    bytes.append(buffer, static_cast<std::size_t>(n));
+  }
+  ::close(fd);
+  Result<PersistedSession> state = decode_session(bytes);
+  if (state.ok() && state->id.value != id.value) {
+    return Error(ErrorCode::InvalidArgument, "state file " + path + " holds another session");
+  }
+  return state;
+}
+
+std::optional<double> StateDirectory::age_seconds(const SessionId& id) const {
+  if (!is_valid_session_id(id.value)) return std::nullopt;
+  struct stat info {};
+  if (::stat(file_of(id).c_str(), &info) != 0) return std::nullopt;
+  timespec now{};
+  clock_gettime(CLOCK_REALTIME, &now);
+  return static_cast<double>(now.tv_sec - info.st_mtim.tv_sec) +
+         1e-9 * static_cast<double>(now.tv_nsec - info.st_mtim.tv_nsec);
+}
+
+void StateDirectory::remove(const SessionId& id) const {
+  if (is_valid_session_id(id.value)) ::unlink(file_of(id).c_str());
+}
+
+std::vector<SessionId> StateDirectory::list() const {
+  std::vector<SessionId> ids;
+  DIR* dir = ::opendir(path_.c_str());
+  if (dir == nullptr) return ids;
+  while (const dirent* entry = ::readdir(dir)) {
+    const std::string_view name = entry->d_name;
+    constexpr std::string_view kSuffix = ".state";
+    if (name.size() == 32 + kSuffix.size() && name.ends_with(kSuffix) &&
+        is_valid_session_id(name.substr(0, 32))) {
+      ids.push_back(SessionId{std::string(name.substr(0, 32))});
+    }
+  }
+  ::closedir(dir);
+  return ids;
+}
+
+}  // namespace meshdeform::service
