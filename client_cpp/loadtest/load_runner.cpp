@@ -1,0 +1,773 @@
+#include "client_cpp/loadtest/load_runner.h"
+
+#include <grpcpp/create_channel.h>
+#include <grpcpp/grpcpp.h>
+#include <grpcpp/security/credentials.h>
+#include <grpcpp/support/channel_arguments.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <array>
+#include <cctype>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <ctime>
+#include <exception>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <utility>
+#include <vector>
+
+#include "client_cpp/loadtest/scripted_drag.h"
+#include "meshdeform/v1/deformation.grpc.pb.h"
+
+namespace meshdeform::loadtest {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// After --duration, moves still in flight get this long (their deadline is capped to it).
+constexpr auto kDrain = std::chrono::seconds(5);
+// Deadline of GetServerStats and CloseSession.
+constexpr auto kShortCallDeadline = std::chrono::seconds(5);
+// Deadlines of CreateSession (parsing an upload) and SetHandles (a factorization); both are
+// also capped by the end of the run.
+constexpr auto kSetupCallDeadline = std::chrono::seconds(60);
+// How long a session waits for its watchers' join snapshots before starting to move.
+constexpr auto kWatchJoinWait = std::chrono::seconds(10);
+// After CloseSession, how long the watch streams get to end by themselves before cancellation.
+constexpr auto kWatcherEndWait = std::chrono::seconds(5);
+// Watch streams never outlive the run by more than this (a backstop; they are cancelled first).
+constexpr auto kWatchBackstop = std::chrono::seconds(30);
+// Bounds the per-watcher arrival log used for propagation delays (counts continue past it).
+constexpr std::size_t kMaxSeenPerWatcher = 250'000;
+// Bounds the per-session latency samples (a very fast laplacian run at rate 0 stays far below).
+constexpr std::size_t kMaxSamplesPerSession = 1'000'000;
+// Move parameterisation at rate 0: move i is the drag at i / kNominalRateHz seconds.
+constexpr double kNominalRateHz = 10.0;
+// Uploads without suggested groups: fixed / handle = lowest / highest slab of this fraction.
+constexpr double kSlabFraction = 0.05;
+// Stored error messages are cut to this length.
+constexpr std::size_t kMaxMessageChars = 300;
+
+double ms_between(Clock::time_point from, Clock::time_point to) {
+  return std::chrono::duration<double, std::milli>(to - from).count();
+}
+
+double seconds_between(Clock::time_point from, Clock::time_point to) {
+  return std::chrono::duration<double>(to - from).count();
+}
+
+std::string code_name(grpc::StatusCode code) {
+  switch (code) {
+    case grpc::StatusCode::OK:
+      return "OK";
+    case grpc::StatusCode::CANCELLED:
+      return "CANCELLED";
+    case grpc::StatusCode::UNKNOWN:
+      return "UNKNOWN";
+    case grpc::StatusCode::INVALID_ARGUMENT:
+      return "INVALID_ARGUMENT";
+    case grpc::StatusCode::DEADLINE_EXCEEDED:
+      return "DEADLINE_EXCEEDED";
+    case grpc::StatusCode::NOT_FOUND:
+      return "NOT_FOUND";
+    case grpc::StatusCode::ALREADY_EXISTS:
+      return "ALREADY_EXISTS";
+    case grpc::StatusCode::PERMISSION_DENIED:
+      return "PERMISSION_DENIED";
+    case grpc::StatusCode::UNAUTHENTICATED:
+      return "UNAUTHENTICATED";
+    case grpc::StatusCode::RESOURCE_EXHAUSTED:
+      return "RESOURCE_EXHAUSTED";
+    case grpc::StatusCode::FAILED_PRECONDITION:
+      return "FAILED_PRECONDITION";
+    case grpc::StatusCode::ABORTED:
+      return "ABORTED";
+    case grpc::StatusCode::OUT_OF_RANGE:
+      return "OUT_OF_RANGE";
+    case grpc::StatusCode::UNIMPLEMENTED:
+      return "UNIMPLEMENTED";
+    case grpc::StatusCode::INTERNAL:
+      return "INTERNAL";
+    case grpc::StatusCode::UNAVAILABLE:
+      return "UNAVAILABLE";
+    case grpc::StatusCode::DATA_LOSS:
+      return "DATA_LOSS";
+    case grpc::StatusCode::DO_NOT_USE:
+      break;
+  }
+  return "CODE_" + std::to_string(static_cast<int>(code));
+}
+
+std::string truncated(std::string text) {
+  if (text.size() > kMaxMessageChars) {
+    text.resize(kMaxMessageChars);
+    text += "...";
+  }
+  return text;
+}
+
+// Sets a steady-clock deadline on a call (gRPC takes system-clock time points).
+void set_deadline(grpc::ClientContext& context, Clock::time_point deadline) {
+  const auto remaining = std::max(Clock::duration::zero(), deadline - Clock::now());
+  context.set_deadline(std::chrono::system_clock::now() +
+                       std::chrono::duration_cast<std::chrono::system_clock::duration>(remaining));
+}
+
+v1::Method to_proto(Method method) {
+  switch (method) {
+    case Method::ScaleAware:
+      return v1::METHOD_SCALE_AWARE;
+    case Method::Arap:
+      return v1::METHOD_ARAP;
+    case Method::Laplacian:
+      return v1::METHOD_LAPLACIAN;
+  }
+  return v1::METHOD_UNSPECIFIED;
+}
+
+std::string read_first_line(const char* path, const std::string& prefix) {
+  std::ifstream in(path);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (prefix.empty() || line.rfind(prefix, 0) == 0) return line;
+  }
+  return {};
+}
+
+std::string load_average() {
+  std::istringstream in(read_first_line("/proc/loadavg", ""));
+  std::string one, five, fifteen;
+  if (!(in >> one >> five >> fifteen)) return "unknown";
+  return one + " " + five + " " + fifteen;
+}
+
+MachineFacts collect_machine_facts() {
+  MachineFacts facts;
+  const std::time_t now = std::time(nullptr);
+  std::tm utc{};
+  gmtime_r(&now, &utc);
+  char date[32];
+  std::strftime(date, sizeof date, "%Y-%m-%dT%H:%M:%SZ", &utc);
+  facts.date_utc = date;
+  facts.hardware_threads = static_cast<int>(sysconf(_SC_NPROCESSORS_ONLN));
+  std::string model = read_first_line("/proc/cpuinfo", "model name");
+  if (const std::size_t colon = model.find(':'); colon != std::string::npos) {
+    model = model.substr(colon + 1);
+    model.erase(0, model.find_first_not_of(" \t"));
+    if (!model.empty()) facts.cpu_model = model;
+  }
+  facts.load_average_start = load_average();
+#ifdef MESHDEFORM_LOADTEST_BUILD_TYPE
+  if (const std::string build_type = MESHDEFORM_LOADTEST_BUILD_TYPE; !build_type.empty()) {
+    facts.build_type = build_type;
+  }
+#endif
+  return facts;
+}
+
+// The arrival of one update at a watcher.
+struct Seen {
+  std::uint64_t revision = 0;
+  Clock::time_point at;
+  bool is_refinement = false;
+};
+
+struct WatcherState {
+  std::unique_ptr<grpc::ClientContext> context = std::make_unique<grpc::ClientContext>();
+  std::thread thread;
+  WatcherResult result;
+  std::vector<Seen> seen;
+};
+
+struct SessionState {
+  SessionResult result;
+  v1::DeformationService::Stub* stub = nullptr;
+  std::string session_id;
+  std::string edit_token;
+  std::string view_token;
+  std::array<double, 3> bbox_min{};
+  std::array<double, 3> bbox_max{};
+  std::uint32_t handle_group = 1;
+  // Own revisions (written by the mover only): when the move was sent and when it returned.
+  std::map<std::uint64_t, std::pair<Clock::time_point, Clock::time_point>> move_times;
+
+  std::mutex mutex;  //< guards the two counters below
+  std::condition_variable changed;
+  int watchers_joined = 0;    //< got the join snapshot or ended
+  int watchers_finished = 0;  //< stream ended
+  std::vector<std::unique_ptr<WatcherState>> watchers;
+};
+
+class LoadRun {
+ public:
+  LoadRun(const Options& options, const MeshUpload& upload) : options_(options), upload_(upload) {}
+
+  RunResult run();
+
+ private:
+  void run_session(SessionState& session);
+  bool set_up(SessionState& session);
+  bool pick_groups_from_snapshot(SessionState& session, v1::SetHandlesRequest& request);
+  void start_watchers(SessionState& session);
+  void run_watcher(SessionState& session, WatcherState& watcher);
+  void drive(SessionState& session);
+  // Sends one move aimed at the drag pose at `drag_seconds`; blocks until it returns.
+  void send_move(SessionState& session, const ScriptedDrag& drag, double drag_seconds);
+  void close_session(SessionState& session);
+  void finish_watchers(SessionState& session);
+  ServerStatsSample fetch_stats();
+  void note_setup_failure(SessionState& session, const std::string& call,
+                          const grpc::Status& status);
+
+  const Options& options_;
+  const MeshUpload& upload_;
+  std::vector<std::shared_ptr<grpc::Channel>> channels_;
+  std::vector<std::unique_ptr<v1::DeformationService::Stub>> stubs_;
+  Clock::time_point start_;
+  Clock::time_point run_end_;   //< start + duration: no move is sent after it
+  Clock::time_point hard_end_;  //< run_end + drain + backstop: no call outlives it
+
+  std::mutex phase_mutex_;
+  std::condition_variable phase_changed_;
+  int setups_done_ = 0;
+  int drives_done_ = 0;
+  bool is_go_ = false;
+  bool is_close_ = false;
+  Clock::time_point go_time_;
+};
+
+ServerStatsSample LoadRun::fetch_stats() {
+  ServerStatsSample sample;
+  grpc::ClientContext context;
+  set_deadline(context, Clock::now() + kShortCallDeadline);
+  v1::GetServerStatsResponse response;
+  const grpc::Status status =
+      stubs_.front()->GetServerStats(&context, v1::GetServerStatsRequest{}, &response);
+  sample.status = code_name(status.error_code());
+  if (!status.ok()) {
+    // UNIMPLEMENTED (an older server) means "unknown", not a failed run.
+    sample.message = truncated(status.error_message());
+    return sample;
+  }
+  sample.is_available = true;
+  sample.sessions = response.sessions();
+  sample.estimated_bytes = response.estimated_bytes();
+  sample.resident_bytes = response.resident_bytes();
+  sample.moves_committed = response.moves_committed();
+  sample.moves_cancelled = response.moves_cancelled();
+  sample.refinements_committed = response.refinements_committed();
+  sample.deformer_constructions = response.deformer_constructions();
+  sample.evicted_lru = response.evicted_lru();
+  sample.evicted_idle = response.evicted_idle();
+  sample.workers = response.workers();
+  sample.uptime_seconds = response.uptime_seconds();
+  return sample;
+}
+
+void LoadRun::note_setup_failure(SessionState& session, const std::string& call,
+                                 const grpc::Status& status) {
+  session.result.setup_status = call + ": " + code_name(status.error_code());
+  session.result.setup_error = truncated(status.error_message());
+}
+
+bool LoadRun::set_up(SessionState& session) {
+  SessionResult& result = session.result;
+  const Clock::time_point setup_deadline = std::min(Clock::now() + kSetupCallDeadline, run_end_);
+
+  v1::CreateSessionRequest create;
+  if (options_.mesh_path.empty()) {
+    create.set_sample(options_.sample);
+  } else {
+    create.set_mesh_bytes(upload_.bytes);
+    create.set_format(static_cast<v1::MeshFormat>(upload_.format));
+  }
+  v1::CreateSessionResponse created;
+  {
+    grpc::ClientContext context;
+    set_deadline(context, setup_deadline);
+    const Clock::time_point sent = Clock::now();
+    const grpc::Status status = session.stub->CreateSession(&context, create, &created);
+    result.create_ms = ms_between(sent, Clock::now());
+    if (!status.ok()) {
+      note_setup_failure(session, "CreateSession", status);
+      return false;
+    }
+  }
+  session.session_id = created.session_id();
+  session.edit_token = created.edit_token();
+  session.view_token = created.view_token();
+  result.vertices = created.info().vertices();
+  result.faces = created.info().faces();
+  session.bbox_min = {created.info().bbox_min().x(), created.info().bbox_min().y(),
+                      created.info().bbox_min().z()};
+  session.bbox_max = {created.info().bbox_max().x(), created.info().bbox_max().y(),
+                      created.info().bbox_max().z()};
+
+  v1::SetHandlesRequest set_handles;
+  set_handles.set_session_id(session.session_id);
+  set_handles.set_token(session.edit_token);
+  set_handles.set_prepare(to_proto(options_.method));
+  if (created.suggested_groups_size() > 0) {
+    *set_handles.mutable_groups() = created.suggested_groups();
+  } else if (!pick_groups_from_snapshot(session, set_handles)) {
+    return false;
+  }
+  bool has_handle = false;
+  for (int g = 0; g < set_handles.groups_size(); ++g) {
+    const v1::HandleGroup& group = set_handles.groups(g);
+    if (group.role() == v1::HANDLE_ROLE_FIXED) result.fixed_vertices += group.vertices_size();
+    if (group.role() == v1::HANDLE_ROLE_HANDLE) {
+      result.handle_vertices += group.vertices_size();
+      if (!has_handle) session.handle_group = static_cast<std::uint32_t>(g);
+      has_handle = true;
+    }
+  }
+  if (!has_handle) {
+    result.setup_status = "SetHandles: no HANDLE group";
+    result.setup_error = "the suggested groups contain no HANDLE group to drag";
+    return false;
+  }
+  {
+    grpc::ClientContext context;
+    context.AddMetadata("x-session-id", session.session_id);
+    set_deadline(context, setup_deadline);
+    v1::SetHandlesResponse response;
+    const Clock::time_point sent = Clock::now();
+    const grpc::Status status = session.stub->SetHandles(&context, set_handles, &response);
+    result.set_handles_ms = ms_between(sent, Clock::now());
+    if (!status.ok()) {
+      note_setup_failure(session, "SetHandles", status);
+      return false;
+    }
+    result.last_revision = response.info().revision();
+  }
+  result.is_set_up = true;
+  result.setup_status = "OK";
+  return true;
+}
+
+// An uploaded mesh has no suggested groups: take the rest positions from a watch's join
+// snapshot (doubles, the cleaned mesh's indices) and use the lowest / highest slab along the
+// longest bounding-box axis as the fixed / handle group.
+bool LoadRun::pick_groups_from_snapshot(SessionState& session, v1::SetHandlesRequest& request) {
+  grpc::ClientContext context;
+  context.AddMetadata("x-session-id", session.session_id);
+  set_deadline(context, std::min(Clock::now() + kSetupCallDeadline, run_end_));
+  v1::WatchRequest watch;
+  watch.set_session_id(session.session_id);
+  watch.set_token(session.view_token);
+  std::unique_ptr<grpc::ClientReader<v1::DeformUpdate>> reader =
+      session.stub->Watch(&context, watch);
+  v1::DeformUpdate update;
+  const bool has_update = reader->Read(&update);
+  context.TryCancel();  // only the snapshot is needed
+  const grpc::Status status = reader->Finish();
+  if (!has_update) {
+    note_setup_failure(session, "Watch (rest positions)", status);
+    return false;
+  }
+  const auto& positions = update.result().positions();
+  int axis = 0;
+  for (int k = 1; k < 3; ++k) {
+    if (session.bbox_max[k] - session.bbox_min[k] >
+        session.bbox_max[axis] - session.bbox_min[axis]) {
+      axis = k;
+    }
+  }
+  const double low = session.bbox_min[axis];
+  const double high = session.bbox_max[axis];
+  const double slab = kSlabFraction * (high - low);
+  v1::HandleGroup* fixed = request.add_groups();
+  fixed->set_role(v1::HANDLE_ROLE_FIXED);
+  v1::HandleGroup* handle = request.add_groups();
+  handle->set_role(v1::HANDLE_ROLE_HANDLE);
+  const int vertex_count = positions.size() / 3;
+  for (int v = 0; v < vertex_count; ++v) {
+    const double coordinate = positions[3 * v + axis];
+    if (coordinate <= low + slab) {
+      fixed->add_vertices(static_cast<std::uint32_t>(v));
+    } else if (coordinate >= high - slab) {
+      handle->add_vertices(static_cast<std::uint32_t>(v));
+    }
+  }
+  if (fixed->vertices_size() == 0 || handle->vertices_size() == 0) {
+    session.result.setup_status = "SetHandles: no groups";
+    session.result.setup_error = "the uploaded mesh has no vertices in its lowest or highest slab";
+    return false;
+  }
+  return true;
+}
+
+void LoadRun::start_watchers(SessionState& session) {
+  for (int w = 0; w < options_.watchers; ++w) {
+    auto watcher = std::make_unique<WatcherState>();
+    watcher->result.index = w;
+    watcher->context->AddMetadata("x-session-id", session.session_id);
+    set_deadline(*watcher->context, hard_end_);
+    WatcherState& raw = *watcher;
+    session.watchers.push_back(std::move(watcher));
+    raw.thread = std::thread([this, &session, &raw] { run_watcher(session, raw); });
+  }
+  // Move only once every watcher holds its join snapshot, so that each sees every revision.
+  std::unique_lock lock(session.mutex);
+  session.changed.wait_until(lock, std::min(Clock::now() + kWatchJoinWait, run_end_),
+                             [&] { return session.watchers_joined == options_.watchers; });
+}
+
+void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
+  WatcherResult& result = watcher.result;
+  bool has_joined = false;
+  const auto mark_joined = [&] {
+    if (has_joined) return;
+    has_joined = true;
+    const std::lock_guard lock(session.mutex);
+    ++session.watchers_joined;
+    session.changed.notify_all();
+  };
+  try {
+    v1::WatchRequest request;
+    request.set_session_id(session.session_id);
+    request.set_token(session.view_token);  // a viewer, as in a shared editing session
+    const Clock::time_point started = Clock::now();
+    std::unique_ptr<grpc::ClientReader<v1::DeformUpdate>> reader =
+        session.stub->Watch(watcher.context.get(), request);
+    v1::DeformUpdate update;
+    while (reader->Read(&update)) {
+      const Clock::time_point at = Clock::now();
+      const v1::DeformResult& deform = update.result();
+      if (result.updates == 0) {
+        result.has_join_snapshot = update.is_snapshot();
+        result.join_ms = ms_between(started, at);
+      }
+      ++result.updates;
+      if (update.is_snapshot()) {
+        ++result.snapshots;
+      } else {
+        ++result.deltas;
+      }
+      if (deform.refinement()) ++result.refinements;
+      result.skipped_revisions += static_cast<std::int64_t>(update.skipped_revisions());
+      result.last_revision = deform.revision();
+      if (watcher.seen.size() < kMaxSeenPerWatcher) {
+        watcher.seen.push_back(Seen{deform.revision(), at, deform.refinement()});
+      }
+      mark_joined();
+    }
+    const grpc::Status status = reader->Finish();
+    result.end_status = code_name(status.error_code());
+    result.end_message = truncated(status.error_message());
+  } catch (const std::exception& e) {
+    result.end_status = "CLIENT_EXCEPTION";
+    result.end_message = truncated(e.what());
+  }
+  mark_joined();
+  const std::lock_guard lock(session.mutex);
+  ++session.watchers_finished;
+  session.changed.notify_all();
+}
+
+void LoadRun::send_move(SessionState& session, const ScriptedDrag& drag, double drag_seconds) {
+  SessionResult& result = session.result;
+  const DragPose pose = drag.pose_at(drag_seconds);
+  v1::MoveHandlesRequest request;
+  request.set_session_id(session.session_id);
+  request.set_token(session.edit_token);
+  request.set_method(to_proto(options_.method));
+  request.set_max_iterations(static_cast<std::uint32_t>(options_.iterations));
+  request.set_editor("loadtest-" + std::to_string(result.index));
+  v1::GroupMove* move = request.add_moves();
+  move->set_group(session.handle_group);
+  move->mutable_translation()->set_x(pose.translation[0]);
+  move->mutable_translation()->set_y(pose.translation[1]);
+  move->mutable_translation()->set_z(pose.translation[2]);
+  move->mutable_rotation()->set_w(pose.rotation[0]);
+  move->mutable_rotation()->set_x(pose.rotation[1]);
+  move->mutable_rotation()->set_y(pose.rotation[2]);
+  move->mutable_rotation()->set_z(pose.rotation[3]);
+
+  grpc::ClientContext context;
+  context.AddMetadata("x-session-id", session.session_id);
+  const Clock::time_point sent = Clock::now();
+  set_deadline(context, std::min(sent + std::chrono::milliseconds(options_.move_deadline_ms),
+                                 run_end_ + kDrain));
+  v1::MoveHandlesResponse response;
+  ++result.moves_sent;
+  const grpc::Status status = session.stub->MoveHandles(&context, request, &response);
+  const Clock::time_point returned = Clock::now();
+  if (!status.ok()) {
+    const std::string code = code_name(status.error_code());
+    ++result.errors_by_code[code];
+    result.first_error.try_emplace(code, truncated(status.error_message()));
+    return;
+  }
+  ++result.moves_ok;
+  const v1::DeformResult& deform = response.result();
+  if (result.latencies_ms.size() < kMaxSamplesPerSession) {
+    result.latencies_ms.push_back(ms_between(sent, returned));
+    result.solve_ms.push_back(1000.0 * deform.solve_seconds());
+  }
+  result.iterations += deform.iterations();
+  if (deform.converged()) ++result.converged;
+  if (deform.built_deformer()) ++result.built_deformer;
+  if (deform.revision() > result.last_revision + 1) {
+    result.revision_gaps += static_cast<std::int64_t>(deform.revision() - result.last_revision - 1);
+  }
+  result.last_revision = std::max(result.last_revision, deform.revision());
+  if (session.move_times.size() < kMaxSamplesPerSession) {
+    session.move_times.emplace(deform.revision(), std::make_pair(sent, returned));
+  }
+}
+
+// The scripted drag. At a rate, ticks come every 1/rate s (staggered per session); one move is
+// in flight at a time; a tick that comes while a move is in flight is skipped (newest target
+// wins), and the next move goes at the first tick after the response. At rate 0 the moves go
+// back to back.
+void LoadRun::drive(SessionState& session) {
+  SessionResult& result = session.result;
+  const int count = options_.sessions;
+  const ScriptedDrag drag(session.bbox_min, session.bbox_max,
+                          static_cast<double>(result.index) / std::max(count, 1));
+  const auto has_budget = [&] { return options_.moves == 0 || result.moves_sent < options_.moves; };
+  if (options_.rate_hz <= 0.0) {
+    while (has_budget() && Clock::now() < run_end_) {
+      send_move(session, drag, static_cast<double>(result.moves_sent) / kNominalRateHz);
+    }
+    return;
+  }
+  const double period_s = 1.0 / options_.rate_hz;
+  const auto period =
+      std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(period_s));
+  // Stagger the sessions over one period so that their ticks do not all land together.
+  const Clock::time_point first_tick =
+      go_time_ + std::chrono::duration_cast<Clock::duration>(
+                     std::chrono::duration<double>(period_s * result.index / std::max(count, 1)));
+  const auto tick_time = [&](std::int64_t k) { return first_tick + k * period; };
+  std::int64_t tick = 0;
+  while (has_budget() && tick_time(tick) < run_end_) {
+    std::this_thread::sleep_until(tick_time(tick));
+    ++result.ticks;
+    send_move(session, drag, seconds_between(first_tick, tick_time(tick)));
+    // The first tick at or after the response; the ones before it came while the move was in
+    // flight and are skipped (only those before the end of the run count).
+    const Clock::time_point now = Clock::now();
+    std::int64_t next = tick + 1;
+    if (tick_time(next) < now) {
+      next = std::max(next, static_cast<std::int64_t>((now - first_tick) / period));
+      while (tick_time(next) < now) ++next;
+    }
+    for (std::int64_t k = tick + 1; k < next; ++k) {
+      if (tick_time(k) >= run_end_) break;
+      ++result.ticks;
+      ++result.skipped_ticks;
+    }
+    tick = next;
+  }
+}
+
+void LoadRun::close_session(SessionState& session) {
+  grpc::ClientContext context;
+  context.AddMetadata("x-session-id", session.session_id);
+  set_deadline(context, Clock::now() + kShortCallDeadline);
+  v1::CloseSessionRequest request;
+  request.set_session_id(session.session_id);
+  request.set_token(session.edit_token);
+  v1::CloseSessionResponse response;
+  const grpc::Status status = session.stub->CloseSession(&context, request, &response);
+  session.result.close_status = code_name(status.error_code());
+}
+
+void LoadRun::finish_watchers(SessionState& session) {
+  {
+    std::unique_lock lock(session.mutex);
+    session.changed.wait_for(lock, kWatcherEndWait, [&] {
+      return session.watchers_finished == static_cast<int>(session.watchers.size());
+    });
+  }
+  // Streams the close did not end (e.g. the close failed) are cancelled; TryCancel is a no-op
+  // on a finished call.
+  for (auto& watcher : session.watchers) watcher->context->TryCancel();
+  for (auto& watcher : session.watchers) {
+    if (watcher->thread.joinable()) watcher->thread.join();
+  }
+}
+
+void LoadRun::run_session(SessionState& session) {
+  bool is_set_up = false;
+  try {
+    is_set_up = set_up(session);
+    if (is_set_up) start_watchers(session);
+  } catch (const std::exception& e) {
+    session.result.setup_status = "CLIENT_EXCEPTION";
+    session.result.setup_error = truncated(e.what());
+    is_set_up = false;
+  }
+  session.result.is_set_up = is_set_up;
+  bool is_go = false;
+  {
+    std::unique_lock lock(phase_mutex_);
+    ++setups_done_;
+    phase_changed_.notify_all();
+    // The main thread always sets is_go by run_end_; the bound is a second guard.
+    is_go = phase_changed_.wait_until(lock, run_end_ + kDrain, [&] { return is_go_; });
+  }
+  if (is_set_up && is_go) {
+    try {
+      drive(session);
+    } catch (const std::exception& e) {
+      ++session.result.errors_by_code["CLIENT_EXCEPTION"];
+      session.result.first_error.try_emplace("CLIENT_EXCEPTION", truncated(e.what()));
+    }
+  }
+  {
+    std::unique_lock lock(phase_mutex_);
+    ++drives_done_;
+    phase_changed_.notify_all();
+    phase_changed_.wait_until(lock, hard_end_, [&] { return is_close_; });
+  }
+  try {
+    if (!session.session_id.empty()) close_session(session);
+  } catch (const std::exception&) {
+    session.result.close_status = "CLIENT_EXCEPTION";
+  }
+  finish_watchers(session);
+}
+
+RunResult LoadRun::run() {
+  RunResult run;
+  run.options = options_;
+  run.machine = collect_machine_facts();
+  run.mesh_label = options_.mesh_path.empty() ? options_.sample : upload_.name;
+  start_ = Clock::now();
+  run_end_ = start_ + std::chrono::duration_cast<Clock::duration>(
+                          std::chrono::duration<double>(options_.duration_seconds));
+  hard_end_ = run_end_ + kDrain + kWatchBackstop;
+
+  const int channel_count = options_.channel_count();
+  for (int c = 0; c < channel_count; ++c) {
+    grpc::ChannelArguments arguments;
+    const int limit = options_.max_message_mib * 1024 * 1024;
+    arguments.SetMaxReceiveMessageSize(limit);
+    arguments.SetMaxSendMessageSize(limit);
+    // Separate connections: without these, channels with equal arguments share one subchannel.
+    arguments.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+    arguments.SetInt("meshdeform.loadtest.channel", c);
+    channels_.push_back(
+        grpc::CreateCustomChannel(options_.server, grpc::InsecureChannelCredentials(), arguments));
+    stubs_.push_back(v1::DeformationService::NewStub(channels_.back()));
+  }
+  run.stats_before = fetch_stats();
+
+  std::vector<std::unique_ptr<SessionState>> sessions;
+  for (int i = 0; i < options_.sessions; ++i) {
+    auto session = std::make_unique<SessionState>();
+    session->result.index = i;
+    session->result.channel = i % channel_count;
+    session->stub = stubs_[static_cast<std::size_t>(session->result.channel)].get();
+    sessions.push_back(std::move(session));
+  }
+  std::vector<std::thread> threads;
+  threads.reserve(sessions.size());
+  try {
+    for (auto& session : sessions) {
+      threads.emplace_back([this, raw = session.get()] { run_session(*raw); });
+    }
+  } catch (const std::exception& e) {
+    // Out of threads: the sessions that did start run as usual; the rest report the reason.
+    for (std::size_t i = threads.size(); i < sessions.size(); ++i) {
+      sessions[i]->result.setup_status = "CLIENT_EXCEPTION";
+      sessions[i]->result.setup_error = truncated(std::string("cannot start thread: ") + e.what());
+    }
+  }
+  const int started = static_cast<int>(threads.size());
+  {
+    std::unique_lock lock(phase_mutex_);
+    phase_changed_.wait_until(lock, run_end_, [&] { return setups_done_ == started; });
+    go_time_ = Clock::now();
+    is_go_ = true;
+    phase_changed_.notify_all();
+    // Every drive ends by run_end_ + kDrain (move deadlines are capped); one more second of slack.
+    phase_changed_.wait_until(lock, run_end_ + kDrain + std::chrono::seconds(1),
+                              [&] { return drives_done_ == started; });
+  }
+  const Clock::time_point moves_end = Clock::now();
+  run.setup_phase_seconds = seconds_between(start_, go_time_);
+  run.move_phase_seconds = seconds_between(go_time_, moves_end);
+  run.stats_loaded = fetch_stats();
+  {
+    const std::lock_guard lock(phase_mutex_);
+    is_close_ = true;
+    phase_changed_.notify_all();
+  }
+  for (std::thread& thread : threads) thread.join();
+  run.stats_after_close = fetch_stats();
+  run.total_seconds = seconds_between(start_, Clock::now());
+  run.machine.load_average_end = load_average();
+
+  for (auto& session : sessions) {
+    SessionResult& result = session->result;
+    for (auto& watcher : session->watchers) {
+      for (const Seen& seen : watcher->seen) {
+        if (seen.is_refinement || seen.revision == 0) continue;
+        const auto found = session->move_times.find(seen.revision);
+        if (found == session->move_times.end()) continue;
+        const double delay = ms_between(found->second.second, seen.at);
+        if (delay < 0.0) ++watcher->result.seen_before_response;
+        watcher->result.delays_ms.push_back(delay);
+        watcher->result.delays_after_send_ms.push_back(ms_between(found->second.first, seen.at));
+      }
+      result.watchers.push_back(std::move(watcher->result));
+    }
+    if (result.is_set_up) ++run.sessions_set_up;
+    run.sessions.push_back(std::move(result));
+  }
+  run.completed = true;
+  return run;
+}
+
+}  // namespace
+
+bool load_mesh_upload(const std::string& path, MeshUpload& upload, std::string& error) {
+  std::string extension = std::filesystem::path(path).extension().string();
+  std::transform(extension.begin(), extension.end(), extension.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  static const std::map<std::string, v1::MeshFormat> kFormats = {
+      {".obj", v1::MESH_FORMAT_OBJ}, {".off", v1::MESH_FORMAT_OFF},
+      {".ply", v1::MESH_FORMAT_PLY}, {".stl", v1::MESH_FORMAT_STL},
+      {".glb", v1::MESH_FORMAT_GLB}, {".gltf", v1::MESH_FORMAT_GLTF}};
+  const auto format = kFormats.find(extension);
+  if (format == kFormats.end()) {
+    error = "--mesh " + path + ": unknown extension (use .obj .off .ply .stl .glb or .gltf)";
+    return false;
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    error = "--mesh " + path + ": cannot open";
+    return false;
+  }
+  upload.bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  if (in.bad() || upload.bytes.empty()) {
+    error = "--mesh " + path + ": cannot read, or empty";
+    return false;
+  }
+  upload.format = format->second;
+  upload.name = std::filesystem::path(path).filename().string();
+  return true;
+}
+
+RunResult run_load_test(const Options& options, const MeshUpload& upload) {
+  LoadRun run(options, upload);
+  return run.run();
+}
+
+}  // namespace meshdeform::loadtest

@@ -1,0 +1,241 @@
+#include "client_cpp/loadtest/options.h"
+
+#include <arpa/inet.h>
+
+#include <algorithm>
+#include <cctype>
+#include <charconv>
+#include <cmath>
+#include <cstdlib>
+#include <string>
+
+namespace meshdeform::loadtest {
+namespace {
+
+bool parse_int64(std::string_view text, std::int64_t min, std::int64_t max, std::int64_t& out) {
+  std::int64_t value = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+  if (ec != std::errc() || end != text.data() + text.size() || value < min || value > max) {
+    return false;
+  }
+  out = value;
+  return true;
+}
+
+bool parse_int(std::string_view text, int min, int max, int& out) {
+  std::int64_t value = 0;
+  if (!parse_int64(text, min, max, value)) return false;
+  out = static_cast<int>(value);
+  return true;
+}
+
+// A finite decimal in [min, max] (strtod: from_chars for double is not in every libstdc++).
+bool parse_double(std::string_view text, double min, double max, double& out) {
+  if (text.empty() || text.size() > 64) return false;
+  const std::string copy(text);
+  char* end = nullptr;
+  const double value = std::strtod(copy.c_str(), &end);
+  if (end != copy.c_str() + copy.size() || !std::isfinite(value) || value < min || value > max) {
+    return false;
+  }
+  out = value;
+  return true;
+}
+
+bool parse_method(std::string_view text, Method& out) {
+  for (const Method method : {Method::ScaleAware, Method::Arap, Method::Laplacian}) {
+    if (text == method_name(method)) {
+      out = method;
+      return true;
+    }
+  }
+  return false;
+}
+
+bool starts_with(std::string_view text, std::string_view prefix) {
+  return text.substr(0, prefix.size()) == prefix;
+}
+
+bool is_loopback_host(std::string_view host) {
+  std::string lower(host);
+  std::transform(lower.begin(), lower.end(), lower.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  if (lower == "localhost") return true;
+  unsigned char bytes[16] = {};
+  if (inet_pton(AF_INET, lower.c_str(), bytes) == 1) return bytes[0] == 127;
+  if (inet_pton(AF_INET6, lower.c_str(), bytes) == 1) {
+    static constexpr unsigned char kLoopback6[16] = {0, 0, 0, 0, 0, 0, 0, 0,
+                                                     0, 0, 0, 0, 0, 0, 0, 1};
+    return std::equal(std::begin(bytes), std::end(bytes), std::begin(kLoopback6));
+  }
+  return false;
+}
+
+}  // namespace
+
+std::string_view method_name(Method method) {
+  switch (method) {
+    case Method::ScaleAware:
+      return "scale_aware";
+    case Method::Arap:
+      return "arap";
+    case Method::Laplacian:
+      return "laplacian";
+  }
+  return "scale_aware";
+}
+
+int Options::channel_count() const {
+  return connections == 0 ? sessions : std::min(connections, sessions);
+}
+
+std::string usage_text() {
+  return "usage: meshdeform-loadtest --server HOST:PORT [flags]\n"
+         "Drives a meshdeform-server with scripted interactive clients and reports throughput,\n"
+         "latency, watcher propagation and server memory.\n"
+         "  --server TARGET        gRPC target, e.g. 127.0.0.1:50051 (required)\n"
+         "  --sessions N           concurrent sessions, each with its own mesh (default 1)\n"
+         "  --sample NAME          built-in sample to create each session from (default cylinder)\n"
+         "  --mesh FILE            upload this mesh (.obj .off .ply .stl .glb .gltf) instead; its\n"
+         "                         fixed/handle groups are the lowest/highest 5% along the "
+         "longest\n"
+         "                         bounding-box axis\n"
+         "  --moves M              moves per session (default 0 = until the duration ends)\n"
+         "  --rate HZ              move ticks per second per session (default 10; 0 = back to "
+         "back)\n"
+         "                         Each session keeps ONE move in flight, like a real drag: a "
+         "tick\n"
+         "                         that comes while the previous move is still in flight is "
+         "skipped\n"
+         "                         (counted as a skipped tick) and the next move goes at the "
+         "first\n"
+         "                         tick after the response, aimed at that tick's (newest) target.\n"
+         "  --duration S           hard bound for the whole run, setup included (default 60); "
+         "moves\n"
+         "                         in flight then get at most a 5 s drain\n"
+         "  --watchers W           Watch streams per session (default 0)\n"
+         "  --iterations K         max_iterations per move (default 2)\n"
+         "  --method NAME          scale_aware, arap or laplacian (default scale_aware)\n"
+         "  --connections C        gRPC channels to spread the sessions over (default 0 = one per\n"
+         "                         session); a session's watchers share its channel\n"
+         "  --move-deadline-ms MS  deadline of each move (default 10000)\n"
+         "  --max-message-mib N    client message limit (default 64; raise for huge snapshots)\n"
+         "  --json FILE            write the full report as JSON\n"
+         "  --markdown FILE        write a Markdown summary (for bench/results/)\n"
+         "  --allow-remote         allow a target that is not loopback (127.0.0.0/8, ::1,\n"
+         "                         localhost); refused otherwise\n"
+         "  --fail-on-errors       exit 1 if any move failed (for CI)\n"
+         "  --help                 this text\n"
+         "Exit codes: 0 the run completed (errors are reported); 1 setup failed for every "
+         "session,\n"
+         "or --fail-on-errors and a move failed; 2 usage error.\n";
+}
+
+ParseOutcome parse_options(const std::vector<std::string>& args, Options& options) {
+  const auto usage_error = [](std::string message) {
+    return ParseOutcome{ParseOutcome::Kind::UsageError, std::move(message)};
+  };
+  bool has_sample = false;
+  for (std::size_t i = 0; i < args.size(); ++i) {
+    std::string_view arg = args[i];
+    if (arg == "--help" || arg == "-h") return ParseOutcome{ParseOutcome::Kind::Help, {}};
+    if (arg == "--allow-remote") {
+      options.allow_remote = true;
+      continue;
+    }
+    if (arg == "--fail-on-errors") {
+      options.fail_on_errors = true;
+      continue;
+    }
+    if (!starts_with(arg, "--")) return usage_error("unexpected argument '" + args[i] + "'");
+    std::string_view value;
+    if (const std::size_t eq = arg.find('='); eq != std::string_view::npos) {
+      value = arg.substr(eq + 1);
+      arg = arg.substr(0, eq);
+    } else if (i + 1 < args.size()) {
+      value = args[++i];
+    } else {
+      return usage_error(std::string(arg) + " needs a value");
+    }
+    bool ok = true;
+    if (arg == "--server") {
+      options.server = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--sessions") {
+      ok = parse_int(value, 1, 1024, options.sessions);
+    } else if (arg == "--sample") {
+      options.sample = std::string(value);
+      has_sample = true;
+      ok = !value.empty();
+    } else if (arg == "--mesh") {
+      options.mesh_path = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--moves") {
+      ok = parse_int64(value, 0, 100'000'000, options.moves);
+    } else if (arg == "--rate") {
+      ok = parse_double(value, 0.0, 10'000.0, options.rate_hz);
+    } else if (arg == "--duration") {
+      ok = parse_double(value, 0.1, 7.0 * 24 * 3600, options.duration_seconds);
+    } else if (arg == "--watchers") {
+      ok = parse_int(value, 0, 64, options.watchers);
+    } else if (arg == "--iterations") {
+      ok = parse_int(value, 1, 1000, options.iterations);
+    } else if (arg == "--method") {
+      ok = parse_method(value, options.method);
+    } else if (arg == "--json") {
+      options.json_path = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--markdown") {
+      options.markdown_path = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--connections") {
+      ok = parse_int(value, 0, 1024, options.connections);
+    } else if (arg == "--move-deadline-ms") {
+      ok = parse_int(value, 1, 3'600'000, options.move_deadline_ms);
+    } else if (arg == "--max-message-mib") {
+      ok = parse_int(value, 1, 1024, options.max_message_mib);
+    } else {
+      return usage_error("unknown flag " + std::string(arg));
+    }
+    if (!ok) return usage_error("bad value '" + std::string(value) + "' for " + std::string(arg));
+  }
+  if (options.server.empty()) return usage_error("--server is required");
+  if (has_sample && !options.mesh_path.empty()) {
+    return usage_error("give --sample or --mesh, not both");
+  }
+  if (!options.allow_remote && !is_loopback_target(options.server)) {
+    return usage_error("refusing to load '" + options.server +
+                       "': not a loopback address (127.0.0.0/8, ::1, localhost); pass "
+                       "--allow-remote to load a remote server");
+  }
+  return ParseOutcome{ParseOutcome::Kind::Run, {}};
+}
+
+bool is_loopback_target(std::string_view target) {
+  if (starts_with(target, "unix:") || starts_with(target, "unix-abstract:")) return true;
+  for (const std::string_view scheme : {"dns://", "dns:", "ipv4:", "ipv6:"}) {
+    if (starts_with(target, scheme)) {
+      target.remove_prefix(scheme.size());
+      break;
+    }
+  }
+  std::string_view host;
+  if (starts_with(target, "[")) {
+    const std::size_t close = target.find(']');
+    if (close == std::string_view::npos) return false;
+    host = target.substr(1, close - 1);
+    const std::string_view rest = target.substr(close + 1);
+    if (!rest.empty() && !starts_with(rest, ":")) return false;
+  } else {
+    const std::size_t colon = target.rfind(':');
+    // A bare IPv6 literal has several colons and no port ("::1"); gRPC wants brackets then.
+    if (colon != std::string_view::npos && target.find(':') != colon) {
+      host = target;
+    } else {
+      host = colon == std::string_view::npos ? target : target.substr(0, colon);
+    }
+  }
+  return !host.empty() && is_loopback_host(host);
+}
+
+}  // namespace meshdeform::loadtest

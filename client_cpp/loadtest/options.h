@@ -1,0 +1,67 @@
+#pragma once
+/// @file options.h
+/// Command-line flags of meshdeform-loadtest, their validation, and the loopback check that keeps
+/// the tool from loading a remote server by accident.
+
+#include <cstdint>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace meshdeform::loadtest {
+
+/// Exit codes of meshdeform-loadtest.
+constexpr int kExitOk = 0;         ///< the run completed (move errors, if any, are reported)
+constexpr int kExitRunFailed = 1;  ///< setup failed for every session, or --fail-on-errors saw one
+constexpr int kExitUsage = 2;      ///< bad flag or value, or a remote target without --allow-remote
+
+/// The solver a session uses (MoveHandlesRequest.method and SetHandlesRequest.prepare).
+enum class Method { ScaleAware, Arap, Laplacian };
+
+/// "scale_aware", "arap" or "laplacian".
+std::string_view method_name(Method method);
+
+/// Everything the command line configures. Defaults are the documented ones.
+struct Options {
+  std::string server;               ///< gRPC target, e.g. "127.0.0.1:50051"
+  int sessions = 1;                 ///< concurrent sessions, each with its own mesh
+  std::string sample = "cylinder";  ///< built-in sample (ignored when mesh_path is set)
+  std::string mesh_path;            ///< a mesh file to upload instead of a sample
+  std::int64_t moves = 0;           ///< moves per session; 0 = until the duration ends
+  double rate_hz = 10.0;            ///< moves per second per session; 0 = as fast as possible
+  double duration_seconds = 60.0;   ///< hard bound for the whole run (setup included)
+  int watchers = 0;                 ///< Watch streams per session
+  int iterations = 2;               ///< MoveHandlesRequest.max_iterations
+  Method method = Method::ScaleAware;
+  std::string json_path;          ///< write the JSON report here (empty: do not)
+  std::string markdown_path;      ///< write the Markdown summary here (empty: do not)
+  int connections = 0;            ///< gRPC channels; 0 = one per session
+  bool allow_remote = false;      ///< permit a target that is not loopback
+  bool fail_on_errors = false;    ///< exit kExitRunFailed when any move failed
+  int move_deadline_ms = 10'000;  ///< deadline of each MoveHandles call
+  int max_message_mib = 64;       ///< client send/receive limit (snapshots of big meshes)
+
+  /// Channels actually used: `connections`, or one per session when 0 (never more than sessions).
+  int channel_count() const;
+};
+
+/// What parse_options decided.
+struct ParseOutcome {
+  enum class Kind { Run, Help, UsageError } kind = Kind::UsageError;
+  std::string message;  ///< for UsageError: what was wrong (one line)
+};
+
+/// The --help text.
+std::string usage_text();
+
+/// Parses `args` (argv without the program name) into `options`.
+/// Accepts "--flag value" and "--flag=value". Checks ranges, that --server is given, that
+/// --sample and --mesh are not both given, and that the target is loopback unless --allow-remote.
+/// @return Run, Help, or UsageError with the reason.
+ParseOutcome parse_options(const std::vector<std::string>& args, Options& options);
+
+/// Whether a gRPC target names this machine: 127.0.0.0/8, ::1 or "localhost" (with an optional
+/// "dns:///", "ipv4:" or "ipv6:" scheme and a port), or a unix socket.
+bool is_loopback_target(std::string_view target);
+
+}  // namespace meshdeform::loadtest

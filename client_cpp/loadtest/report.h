@@ -1,0 +1,68 @@
+#pragma once
+/// @file report.h
+/// Turns a RunResult into the three reports: a human-readable summary (stdout), JSON (--json,
+/// the complete record, per session and per watcher) and Markdown (--markdown, for
+/// bench/results/). All three are computed from one Aggregate, so they always agree.
+
+#include <cstdint>
+#include <map>
+#include <string>
+
+#include "client_cpp/loadtest/run_result.h"
+#include "client_cpp/loadtest/stats.h"
+
+namespace meshdeform::loadtest {
+
+/// Run-wide figures.
+struct Aggregate {
+  int sessions = 0;
+  int sessions_set_up = 0;
+  std::map<std::string, int> setup_failures;  ///< by "Call: CODE"
+  Summary setup_ms;                           ///< CreateSession + SetHandles per set-up session
+  Summary create_ms;
+  Summary set_handles_ms;
+  std::uint32_t vertices = 0;  ///< of the first set-up session
+
+  std::int64_t ticks = 0;
+  std::int64_t skipped_ticks = 0;
+  std::int64_t moves_sent = 0;
+  std::int64_t moves_ok = 0;
+  std::int64_t moves_failed = 0;
+  std::map<std::string, std::int64_t> errors_by_code;
+  std::map<std::string, std::string> first_error;
+  double moves_per_second = 0.0;     ///< OK moves / move-phase seconds, all sessions
+  Summary moves_per_second_session;  ///< the same per set-up session
+  Summary latency_ms;                ///< OK moves, client side
+  Summary solve_ms;                  ///< OK moves, the server's solve_seconds
+  double mean_iterations = 0.0;
+  std::int64_t converged = 0;
+  std::int64_t built_deformer = 0;
+  std::int64_t revision_gaps = 0;  ///< revisions the editors did not commit (refinements)
+  std::map<std::string, int> close_status;
+
+  int watchers = 0;
+  int watchers_with_join_snapshot = 0;
+  std::int64_t watcher_updates = 0;
+  std::int64_t watcher_snapshots = 0;
+  std::int64_t watcher_deltas = 0;
+  std::int64_t watcher_refinements = 0;
+  std::int64_t watcher_skipped_revisions = 0;
+  std::int64_t watcher_seen_before_response = 0;
+  double watcher_updates_per_second = 0.0;  ///< all watchers, join snapshots excluded
+  double watcher_updates_per_second_each = 0.0;
+  Summary watcher_delay_ms;             ///< receipt minus the editor's response, editors' revisions
+  Summary watcher_delay_after_send_ms;  ///< receipt minus the editor's send, same revisions
+  Summary watcher_join_ms;
+  std::map<std::string, int> watcher_end_status;
+};
+
+Aggregate aggregate(const RunResult& run);
+
+/// The stdout summary (a few aligned lines).
+std::string summary_text(const RunResult& run, const Aggregate& totals);
+/// The complete JSON report (pretty-printed, keys in a fixed order).
+std::string report_json(const RunResult& run, const Aggregate& totals);
+/// The Markdown summary.
+std::string report_markdown(const RunResult& run, const Aggregate& totals);
+
+}  // namespace meshdeform::loadtest

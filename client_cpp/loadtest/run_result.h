@@ -1,0 +1,113 @@
+#pragma once
+/// @file run_result.h
+/// What one load-test run observed: raw per-session and per-watcher measurements, the server's
+/// own figures, and the facts about where it ran. Plain data; report.h turns it into text.
+
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "client_cpp/loadtest/options.h"
+
+namespace meshdeform::loadtest {
+
+/// One GetServerStats answer (or why there was none).
+struct ServerStatsSample {
+  bool is_available = false;  ///< false: not fetched, UNIMPLEMENTED or failed ("memory unknown")
+  std::string status = "NOT_FETCHED";  ///< "OK" or the gRPC status code name
+  std::string message;                 ///< the error message when not OK
+  std::uint32_t sessions = 0;
+  std::uint64_t estimated_bytes = 0;
+  std::uint64_t resident_bytes = 0;  ///< 0: the server does not know
+  std::uint64_t moves_committed = 0;
+  std::uint64_t moves_cancelled = 0;
+  std::uint64_t refinements_committed = 0;
+  std::uint64_t deformer_constructions = 0;
+  std::uint64_t evicted_lru = 0;
+  std::uint64_t evicted_idle = 0;
+  std::uint32_t workers = 0;
+  double uptime_seconds = 0.0;
+};
+
+/// One Watch stream.
+struct WatcherResult {
+  int index = 0;                   ///< within its session
+  bool has_join_snapshot = false;  ///< the first update was a full snapshot
+  double join_ms = 0.0;            ///< Watch call to the join snapshot (client side)
+  std::int64_t updates = 0;        ///< every message received, the join snapshot included
+  std::int64_t snapshots = 0;      ///< is_snapshot (join, and after a gap)
+  std::int64_t deltas = 0;
+  std::int64_t refinements = 0;        ///< DeformResult.refinement (server background refinement)
+  std::int64_t skipped_revisions = 0;  ///< sum of DeformUpdate.skipped_revisions
+  std::uint64_t last_revision = 0;
+  /// Watcher receipt minus the editor's MoveHandles response, for each revision the editor
+  /// committed and this watcher saw (ms; negative when the watcher saw it first).
+  std::vector<double> delays_ms;
+  std::int64_t seen_before_response = 0;
+  /// Watcher receipt minus the editor's MoveHandles send time, for the same revisions (ms).
+  std::vector<double> delays_after_send_ms;
+  std::string end_status = "NOT_STARTED";  ///< the stream's final status code name
+  std::string end_message;
+};
+
+/// One session: its setup, its scripted drag, its watchers.
+struct SessionResult {
+  int index = 0;
+  int channel = 0;
+  bool is_set_up = false;  ///< CreateSession and SetHandles succeeded
+  std::string
+      setup_status;  ///< "OK" or the failing call and code, e.g. "CreateSession: UNAVAILABLE"
+  std::string setup_error;  ///< its message
+  double create_ms = 0.0;
+  double set_handles_ms = 0.0;
+  std::uint32_t vertices = 0;
+  std::uint32_t faces = 0;
+  std::size_t fixed_vertices = 0;
+  std::size_t handle_vertices = 0;
+
+  std::int64_t ticks = 0;          ///< rate > 0: ticks reached (moves sent + skipped)
+  std::int64_t skipped_ticks = 0;  ///< ticks that came while the previous move was in flight
+  std::int64_t moves_sent = 0;
+  std::int64_t moves_ok = 0;
+  std::map<std::string, std::int64_t> errors_by_code;  ///< failed moves by status code name
+  std::map<std::string, std::string> first_error;      ///< the first message per code
+  std::vector<double> latencies_ms;                    ///< OK moves, send to response, client side
+  std::vector<double> solve_ms;                        ///< OK moves, DeformResult.solve_seconds
+  std::int64_t iterations = 0;                         ///< sum of DeformResult.iterations
+  std::int64_t converged = 0;
+  std::int64_t built_deformer = 0;
+  /// Revisions committed between this editor's own moves (the server's refinements).
+  std::int64_t revision_gaps = 0;
+  std::uint64_t last_revision = 0;
+  std::string close_status = "NOT_CLOSED";
+  std::vector<WatcherResult> watchers;
+};
+
+/// Where and when the run happened.
+struct MachineFacts {
+  std::string date_utc;
+  int hardware_threads = 0;
+  std::string cpu_model = "unknown";
+  std::string load_average_start = "unknown";
+  std::string load_average_end = "unknown";
+  std::string build_type = "unknown";  ///< of the load tester itself
+};
+
+/// The whole run.
+struct RunResult {
+  Options options;
+  MachineFacts machine;
+  std::string mesh_label;  ///< the sample name, or the uploaded file's name
+  bool completed = false;  ///< every phase ran and every thread was joined
+  int sessions_set_up = 0;
+  double setup_phase_seconds = 0.0;  ///< start to the moment every session was set up
+  double move_phase_seconds = 0.0;   ///< the measured phase: all set up -> last move returned
+  double total_seconds = 0.0;
+  std::vector<SessionResult> sessions;
+  ServerStatsSample stats_before;  ///< before the first session was created
+  ServerStatsSample stats_loaded;  ///< after the last move, sessions still open
+  ServerStatsSample stats_after_close;
+};
+
+}  // namespace meshdeform::loadtest

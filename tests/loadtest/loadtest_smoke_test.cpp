@@ -1,0 +1,266 @@
+// Smoke tests of the meshdeform-loadtest binary (MESHDEFORM_LOADTEST_PATH) against the real
+// meshdeform-server (MESHDEFORM_SERVER_PATH) on a loopback port. Each run is a child process with
+// a bounded wait; assertions are on counts and consistency, never on timings.
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "tests/support/server_process.h"
+
+extern char** environ;
+
+namespace meshdeform::loadtest {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+constexpr int kExitOk = 0;
+constexpr int kExitRunFailed = 1;
+constexpr int kExitUsage = 2;
+
+struct ChildResult {
+  int exit_code = -1;  // -1: killed by a signal or timed out
+  bool is_timed_out = false;
+  std::string out;
+  std::string err;
+};
+
+std::string read_text(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  return buffer.str();
+}
+
+class LoadtestTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() /
+           ("meshdeform_loadtest_test_" + std::to_string(::getpid()) + "_" + info->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    if (!HasFailure()) fs::remove_all(dir_);
+  }
+
+  // Runs the load tester with `args` (stdin /dev/null, stdout/stderr to files in the test
+  // directory) and waits at most `timeout`; a child still running then is killed.
+  ChildResult run_loadtest(const std::vector<std::string>& args,
+                           std::chrono::seconds timeout = std::chrono::seconds(120)) const {
+    ChildResult result;
+    const std::string out_path = (dir_ / "stdout.txt").string();
+    const std::string err_path = (dir_ / "stderr.txt").string();
+    std::vector<std::string> words = {MESHDEFORM_LOADTEST_PATH};
+    words.insert(words.end(), args.begin(), args.end());
+    std::vector<char*> argv;
+    for (std::string& word : words) argv.push_back(word.data());
+    argv.push_back(nullptr);
+
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
+    posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, out_path.c_str(),
+                                     O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, err_path.c_str(),
+                                     O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    pid_t pid = -1;
+    const int rc =
+        posix_spawn(&pid, MESHDEFORM_LOADTEST_PATH, &actions, nullptr, argv.data(), environ);
+    posix_spawn_file_actions_destroy(&actions);
+    if (rc != 0) {
+      ADD_FAILURE() << "cannot spawn " << MESHDEFORM_LOADTEST_PATH << ": " << rc;
+      return result;
+    }
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    int status = 0;
+    pid_t waited = 0;
+    while ((waited = waitpid(pid, &status, WNOHANG)) == 0 &&
+           std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    if (waited == 0) {
+      result.is_timed_out = true;
+      kill(pid, SIGKILL);
+      waitpid(pid, &status, 0);
+    } else if (waited == pid && WIFEXITED(status)) {
+      result.exit_code = WEXITSTATUS(status);
+    }
+    result.out = read_text(out_path);
+    result.err = read_text(err_path);
+    return result;
+  }
+
+  static std::unique_ptr<test::ServerProcess> start_server() {
+    std::string error;
+    auto server =
+        test::ServerProcess::start(MESHDEFORM_SERVER_PATH, {"--refine-budget", "0"}, error);
+    EXPECT_NE(server, nullptr) << error;
+    return server;
+  }
+
+  fs::path dir_;
+};
+
+// A latency summary is non-empty, positive and ordered.
+void expect_ordered_positive(const json& summary, const std::string& what) {
+  ASSERT_TRUE(summary.is_object()) << what;
+  ASSERT_TRUE(summary["p50"].is_number()) << what << ": " << summary.dump();
+  const double min = summary["min"].get<double>();
+  const double p50 = summary["p50"].get<double>();
+  const double p95 = summary["p95"].get<double>();
+  const double p99 = summary["p99"].get<double>();
+  const double max = summary["max"].get<double>();
+  EXPECT_GT(min, 0.0) << what;
+  EXPECT_LE(min, p50) << what;
+  EXPECT_LE(p50, p95) << what;
+  EXPECT_LE(p95, p99) << what;
+  EXPECT_LE(p99, max) << what;
+}
+
+TEST_F(LoadtestTest, SmokeRunCompletesEveryMoveWithWatchers) {
+  const auto server = start_server();
+  ASSERT_NE(server, nullptr);
+  const fs::path json_path = dir_ / "report.json";
+  const fs::path markdown_path = dir_ / "report.md";
+  const ChildResult run =
+      run_loadtest({"--server", server->address(), "--sessions", "2", "--moves", "5", "--rate", "0",
+                    "--watchers", "1", "--sample", "cylinder_small", "--duration", "30", "--json",
+                    json_path.string(), "--markdown", markdown_path.string()});
+  ASSERT_FALSE(run.is_timed_out) << run.out << run.err;
+  ASSERT_EQ(run.exit_code, kExitOk) << run.out << run.err;
+  EXPECT_NE(run.out.find("meshdeform-loadtest:"), std::string::npos) << run.out;
+
+  const json report = json::parse(read_text(json_path));
+  EXPECT_TRUE(report["completed"].get<bool>());
+  EXPECT_EQ(report["config"]["sessions"], 2);
+  EXPECT_EQ(report["setup"]["sessions_ok"], 2);
+  expect_ordered_positive(report["setup"]["setup_ms"], "setup");
+
+  const json& moves = report["moves"];
+  EXPECT_EQ(moves["sent"], 10);
+  EXPECT_EQ(moves["ok"], 10);
+  EXPECT_EQ(moves["failed"], 0);
+  EXPECT_TRUE(moves["errors_by_code"].empty()) << moves["errors_by_code"].dump();
+  EXPECT_EQ(moves["skipped_ticks"], 0);  // rate 0: no ticks
+  EXPECT_EQ(moves["latency_ms"]["count"], 10);
+  expect_ordered_positive(moves["latency_ms"], "move latency");
+  EXPECT_GT(moves["per_second_total"].get<double>(), 0.0);
+
+  ASSERT_EQ(report["sessions"].size(), 2u);
+  for (const json& session : report["sessions"]) {
+    EXPECT_TRUE(session["set_up"].get<bool>()) << session.dump();
+    EXPECT_EQ(session["moves_ok"], 5);
+    EXPECT_EQ(session["close_status"], "OK");
+    ASSERT_EQ(session["watchers"].size(), 1u);
+    const json& watcher = session["watchers"][0];
+    EXPECT_TRUE(watcher["join_snapshot"].get<bool>()) << watcher.dump();
+    EXPECT_GE(watcher["updates"].get<int>(), 1) << watcher.dump();
+    EXPECT_GE(watcher["snapshots"].get<int>(), 1) << watcher.dump();
+    EXPECT_EQ(watcher["end_status"], "OK") << watcher.dump();  // the close ends the stream OK
+  }
+  EXPECT_EQ(report["watchers"]["streams"], 2);
+  EXPECT_EQ(report["watchers"]["with_join_snapshot"], 2);
+
+  // The stats block is always there; its memory may be null while GetServerStats is not wired.
+  const json& server_stats = report["server"];
+  ASSERT_TRUE(server_stats.is_object());
+  EXPECT_TRUE(server_stats.contains("stats_available"));
+  EXPECT_TRUE(server_stats.contains("resident_bytes_before"));
+  EXPECT_TRUE(server_stats.contains("resident_bytes_loaded"));
+  EXPECT_TRUE(server_stats["loaded"].contains("status"));
+  if (server_stats["stats_available"].get<bool>()) {
+    EXPECT_GE(server_stats["loaded"]["moves_committed"].get<int>(), 10);
+    EXPECT_EQ(server_stats["loaded"]["sessions"], 2);
+  } else {
+    EXPECT_TRUE(server_stats["resident_bytes_loaded"].is_null());
+  }
+
+  const std::string markdown = read_text(markdown_path);
+  EXPECT_NE(markdown.find("# Load test"), std::string::npos) << markdown;
+  EXPECT_NE(markdown.find("| moves OK | 10 |"), std::string::npos) << markdown;
+}
+
+TEST_F(LoadtestTest, RemoteTargetIsRefusedWithoutAllowRemote) {
+  // Nothing listens there; a refusal must come before any connection attempt.
+  const ChildResult run = run_loadtest(
+      {"--server", "10.255.255.1:1", "--sessions", "1", "--moves", "1", "--duration", "5"},
+      std::chrono::seconds(30));
+  ASSERT_FALSE(run.is_timed_out);
+  EXPECT_EQ(run.exit_code, kExitUsage) << run.out << run.err;
+  EXPECT_NE(run.err.find("--allow-remote"), std::string::npos) << run.err;
+  EXPECT_TRUE(run.out.empty()) << run.out;  // no run, no summary
+}
+
+TEST_F(LoadtestTest, BadFlagsAreUsageErrors) {
+  for (const std::vector<std::string>& args : std::vector<std::vector<std::string>>{
+           {"--server", "127.0.0.1:1", "--bogus", "1"},
+           {"--server", "127.0.0.1:1", "--sessions", "0"},
+           {"--server", "127.0.0.1:1", "--method", "nope"},
+           {"--server", "127.0.0.1:1", "--rate", "-1"},
+           {"--server", "127.0.0.1:1", "--sample", "bar", "--mesh", "x.obj"},
+           {"--sessions", "1"}}) {
+    const ChildResult run = run_loadtest(args, std::chrono::seconds(30));
+    ASSERT_FALSE(run.is_timed_out);
+    std::string joined;
+    for (const std::string& arg : args) joined += arg + " ";
+    EXPECT_EQ(run.exit_code, kExitUsage) << joined << "\n" << run.out << run.err;
+    EXPECT_TRUE(run.out.empty()) << run.out;
+  }
+  const ChildResult help = run_loadtest({"--help"}, std::chrono::seconds(30));
+  EXPECT_EQ(help.exit_code, kExitOk);
+  EXPECT_NE(help.out.find("--allow-remote"), std::string::npos);
+}
+
+TEST_F(LoadtestTest, UnreachableServerFailsSetupAndStillReports) {
+  // Port 1 on loopback: nobody listens (binding it needs root), so every call is UNAVAILABLE.
+  const fs::path json_path = dir_ / "report.json";
+  const ChildResult run = run_loadtest({"--server", "127.0.0.1:1", "--sessions", "2", "--moves",
+                                        "1", "--duration", "10", "--json", json_path.string()},
+                                       std::chrono::seconds(60));
+  ASSERT_FALSE(run.is_timed_out);
+  EXPECT_EQ(run.exit_code, kExitRunFailed) << run.out << run.err;
+  const json report = json::parse(read_text(json_path));
+  EXPECT_EQ(report["setup"]["sessions_ok"], 0);
+  EXPECT_EQ(report["moves"]["sent"], 0);
+  EXPECT_FALSE(report["server"]["stats_available"].get<bool>());
+}
+
+TEST_F(LoadtestTest, FailOnErrorsTurnsMoveErrorsIntoExitOne) {
+  const auto server = start_server();
+  ASSERT_NE(server, nullptr);
+  const fs::path json_path = dir_ / "report.json";
+  // A 1 ms deadline makes failures likely, not certain: the exit code must match the report.
+  const ChildResult run =
+      run_loadtest({"--server", server->address(), "--sessions", "1", "--moves", "3", "--rate", "0",
+                    "--sample", "cylinder", "--move-deadline-ms", "1", "--duration", "30",
+                    "--fail-on-errors", "--json", json_path.string()});
+  ASSERT_FALSE(run.is_timed_out);
+  const json report = json::parse(read_text(json_path));
+  EXPECT_TRUE(report["completed"].get<bool>());
+  EXPECT_EQ(report["moves"]["sent"], 3);
+  const int failed = report["moves"]["failed"].get<int>();
+  EXPECT_EQ(report["moves"]["ok"].get<int>() + failed, 3);
+  EXPECT_EQ(run.exit_code, failed > 0 ? kExitRunFailed : kExitOk) << run.out << run.err;
+  for (const auto& [code, count] : report["moves"]["errors_by_code"].items()) {
+    EXPECT_TRUE(code == "DEADLINE_EXCEEDED" || code == "CANCELLED") << code;
+  }
+}
+
+}  // namespace
+}  // namespace meshdeform::loadtest
