@@ -22,6 +22,7 @@
 
 #include "server/service/deformation_service.h"
 #include "server/service/log.h"
+#include "server/service/persistence.h"
 #include "server/transport/deform_service_impl.h"
 #include "server/transport/http_server.h"
 #include "server/transport/server_setup.h"
@@ -39,6 +40,7 @@ struct Flags {
   int shutdown_grace_seconds = 10;
   int refine_budget = 30;
   std::string http_listen;
+  std::string state_dir;
   std::string log_level = "info";
 };
 
@@ -59,6 +61,9 @@ constexpr const char* kUsage =
     "                              each improvement as a revision (default 30; 0 = off)\n"
     "  --http-listen ADDR          also serve HTTP/1.1 on ADDR (e.g. 127.0.0.1:9464): GET /metrics\n"
     "                              (Prometheus text format) and GET /healthz (default: off)\n"
+    "  --state-dir DIR             keep every session's state in DIR (written atomically before\n"
+    "                              each edit is acknowledged) and resume sessions from it after a\n"
+    "                              restart or on another replica sharing DIR (default: memory only)\n"
     "  --log-level LEVEL           debug, info, warn or error (default info); logs are JSON lines\n"
     "                              on stderr\n";
 
@@ -110,6 +115,9 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
     } else if (arg == "--http-listen") {
       flags.http_listen = std::string(value);
       ok = !value.empty();
+    } else if (arg == "--state-dir") {
+      flags.state_dir = std::string(value);
+      ok = !value.empty();
     } else if (arg == "--log-level") {
       flags.log_level = std::string(value);
       ok = value == "debug" || value == "info" || value == "warn" || value == "error";
@@ -160,6 +168,14 @@ int main(int argc, char** argv) {
   options.idle_ttl = std::chrono::seconds(flags.idle_ttl_seconds);
   options.refine_budget = flags.refine_budget;
   options.memory_budget_bytes = static_cast<std::size_t>(flags.memory_budget_mib) << 20;
+  options.state_dir = flags.state_dir;
+  if (!flags.state_dir.empty()) {
+    if (auto dir = meshdeform::service::StateDirectory::open(flags.state_dir); !dir.ok()) {
+      log_event(LogLevel::Error, "state_dir_unusable",
+                LogFields().add("path", flags.state_dir).add("message", dir.status().message()));
+      return 2;
+    }
+  }
   meshdeform::service::DeformationService service(options);
   meshdeform::transport::DeformServiceImpl impl(service);
 
@@ -221,6 +237,7 @@ int main(int argc, char** argv) {
   // their stop token and end quickly).
   serving.store(false);
   server->GetHealthCheckService()->SetServingStatus(false);
+  service.end_watches();  // Watch streams never end on their own: finish them OK now
   server->Shutdown(std::chrono::system_clock::now() +
                    std::chrono::seconds(flags.shutdown_grace_seconds));
   sweeper.request_stop();

@@ -110,6 +110,10 @@ class DeformationService {
 
   /// Removes sessions idle for longer than the TTL (call from a timer; create_session also does).
   /// @return how many were removed.
+  /// Server shutdown: ends every open watch (streams finish OK) so that draining does not wait
+  /// for streams that would never end on their own. Sessions stay open.
+  void end_watches() { store_.close_all_watchers(); }
+
   std::size_t evict_expired();
   std::size_t evict_expired(std::chrono::steady_clock::time_point now);
 

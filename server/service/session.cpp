@@ -658,6 +658,15 @@ void Session::close() {
   for (const auto& watcher : watchers) watcher->close();
 }
 
+void Session::close_watchers() {
+  std::vector<std::shared_ptr<Watcher>> watchers;
+  {
+    std::lock_guard lock(state_mutex_);
+    watchers.swap(watchers_);
+  }
+  for (const auto& watcher : watchers) watcher->close();
+}
+
 std::chrono::steady_clock::time_point Session::last_used() const {
   std::lock_guard lock(state_mutex_);
   return last_used_;

@@ -125,6 +125,8 @@ class Session : public std::enable_shared_from_this<Session> {
 
   /// Closes the session: later edits fail with NotFound and watchers are closed.
   void close();
+  /// Ends every watch (their streams finish OK) without closing the session: server shutdown.
+  void close_watchers();
   bool is_closed() const { return closed_.load(); }
 
   std::size_t estimated_bytes() const { return estimated_bytes_.load(); }

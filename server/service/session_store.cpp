@@ -160,6 +160,15 @@ void SessionStore::clear() {
   for (auto& [id, session] : sessions) session->close();
 }
 
+void SessionStore::close_all_watchers() {
+  std::vector<std::shared_ptr<Session>> sessions;
+  {
+    std::lock_guard lock(mutex_);
+    for (const auto& [id, session] : sessions_) sessions.push_back(session);
+  }
+  for (const auto& session : sessions) session->close_watchers();
+}
+
 int SessionStore::watcher_count() const {
   std::lock_guard lock(mutex_);
   int count = 0;

@@ -40,6 +40,8 @@ class SessionStore {
   std::size_t total_bytes() const;
   /// Open Watch subscriptions over all sessions.
   int watcher_count() const;
+  /// Ends every session's watches (Session::close_watchers).
+  void close_all_watchers();
   std::uint64_t evicted_lru() const;
   std::uint64_t evicted_idle() const;
   std::chrono::steady_clock::time_point now() const { return clock_(); }
