@@ -429,6 +429,9 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   options.tolerance = request.tolerance;
   options.lambda = settings_.lambda;
   options.ora = request.ora;
+  // commit() measures E_theta / E_phi once; per-iteration tracking would measure the mesh three
+  // more times per interactive move (rest, guess, each iteration).
+  options.track_metrics = false;
   // Deadlines are checked after every outer iteration; the solver itself polls the token.
   auto progress = [&](const core::IterationInfo&) {
     if (deadline_passed()) local.request_stop();
@@ -547,6 +550,7 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
   options.tolerance = state.tolerance;
   options.lambda = settings_.lambda;
   options.ora = state.ora;
+  options.track_metrics = false;  // as in move(): commit() measures once
   Result<core::SolveReport> report =
       local.stop_requested()
           ? Result<core::SolveReport>(Error(ErrorCode::Cancelled, "refinement preempted"))

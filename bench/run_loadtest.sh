@@ -1,0 +1,53 @@
+#!/usr/bin/env bash
+# Runs the service load benchmarks of issue 4 against a fresh meshdeform-server on loopback and
+# writes bench/results/loadtest*.{md,json}:
+#   1. the issue's figure: 16 sessions x cylinder (4,802 vertices) x 10 Hz x 2 watchers x 60 s,
+#      with 2 and with 1 outer iteration per move;
+#   2. what this machine sustains: the same with the rate lowered to 4 Hz;
+#   3. one warm move on the 40,401-vertex bumpy plane (1 session, 20 moves back to back).
+# Usage: bench/run_loadtest.sh [BUILD_DIR] (default ./build; build it with ./scripts/build.sh).
+# Takes about 4 minutes. Run it on a quiet machine: the figures are latencies.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+build="${1:-build}"
+server="$build/server/transport/meshdeform-server"
+loadtest="$build/client_cpp/loadtest/meshdeform-loadtest"
+out=bench/results
+for binary in "$server" "$loadtest"; do
+  [[ -x "$binary" ]] || { echo "missing $binary: run ./scripts/build.sh first" >&2; exit 2; }
+done
+mkdir -p "$out"
+
+log=$(mktemp)
+pid=""
+cleanup() { [[ -n "$pid" ]] && kill "$pid" 2>/dev/null || true; rm -f "$log"; }
+trap cleanup EXIT
+
+start_server() {  # fresh server per run: memory figures start from zero
+  "$server" --listen 127.0.0.1:0 "$@" 2>"$log" &
+  pid=$!
+  for _ in $(seq 1 100); do
+    port=$(grep -o '"event":"listening".*"port":[0-9]*' "$log" | grep -o '[0-9]*$' || true)
+    [[ -n "$port" ]] && return 0
+    sleep 0.1
+  done
+  echo "server did not start:" >&2; cat "$log" >&2; exit 1
+}
+stop_server() { kill -TERM "$pid"; wait "$pid" || true; pid=""; }
+
+run() {  # run NAME SERVER_FLAGS... -- LOADTEST_FLAGS...
+  local name=$1; shift
+  local server_flags=()
+  while [[ $1 != -- ]]; do server_flags+=("$1"); shift; done
+  shift
+  start_server "${server_flags[@]}"
+  echo "== $name"
+  "$loadtest" --server "127.0.0.1:$port" "$@" --json "$out/$name.json" --markdown "$out/$name.md"
+  stop_server
+}
+
+run loadtest_16x10hz_it2 -- --sessions 16 --sample cylinder --rate 10 --iterations 2 --watchers 2 --duration 60
+run loadtest_16x10hz_it1 -- --sessions 16 --sample cylinder --rate 10 --iterations 1 --watchers 2 --duration 60
+run loadtest_16x4hz_it1 -- --sessions 16 --sample cylinder --rate 4 --iterations 1 --watchers 2 --duration 60
+run loadtest_plane_warm_move --refine-budget 0 -- --sessions 1 --sample bumpy_plane --rate 0 --moves 20 --iterations 2 --watchers 0 --duration 120
+echo "wrote $out/loadtest_*.{md,json}"
