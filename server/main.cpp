@@ -15,15 +15,18 @@
 #include <iostream>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <stop_token>
 #include <string>
 #include <string_view>
 #include <thread>
+#include <vector>
 
 #include "server/service/deformation_service.h"
 #include "server/service/log.h"
 #include "server/service/persistence.h"
 #include "server/transport/deform_service_impl.h"
+#include "server/transport/grpc_web_gateway.h"
 #include "server/transport/http_server.h"
 #include "server/transport/server_setup.h"
 
@@ -40,6 +43,8 @@ struct Flags {
   int shutdown_grace_seconds = 10;
   int refine_budget = 30;
   std::string http_listen;
+  std::string web_root;
+  std::vector<std::string> cors_origins;
   std::string state_dir;
   std::string log_level = "info";
 };
@@ -59,8 +64,12 @@ constexpr const char* kUsage =
     "  --refine-budget N           outer iterations the server keeps refining a session in the\n"
     "                              background after a move while its handles rest, publishing\n"
     "                              each improvement as a revision (default 30; 0 = off)\n"
-    "  --http-listen ADDR          also serve HTTP/1.1 on ADDR (e.g. 127.0.0.1:9464): GET /metrics\n"
-    "                              (Prometheus text format) and GET /healthz (default: off)\n"
+    "  --http-listen ADDR          also serve HTTP/1.1 on ADDR (e.g. 127.0.0.1:8080): the service\n"
+    "                              over gRPC-Web (for browsers), GET /metrics (Prometheus text\n"
+    "                              format), GET /healthz, and --web-root files (default: off)\n"
+    "  --web-root DIR              static files (the built viewer) served on --http-listen\n"
+    "  --cors-origin ORIGIN        allow gRPC-Web calls from this browser origin (repeatable;\n"
+    "                              '*' for any; default: same origin only)\n"
     "  --state-dir DIR             keep every session's state in DIR (written atomically before\n"
     "                              each edit is acknowledged) and resume sessions from it after a\n"
     "                              restart or on another replica sharing DIR (default: memory only)\n"
@@ -114,6 +123,12 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
       ok = parse_int(value, 0, 100'000, flags.refine_budget);
     } else if (arg == "--http-listen") {
       flags.http_listen = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--web-root") {
+      flags.web_root = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--cors-origin") {
+      flags.cors_origins.emplace_back(value);
       ok = !value.empty();
     } else if (arg == "--state-dir") {
       flags.state_dir = std::string(value);
@@ -197,13 +212,36 @@ int main(int argc, char** argv) {
                 .add("refine_budget", flags.refine_budget));
 
   std::atomic<bool> serving{true};
+  // Declared in this order so that the gateway and the files outlive the listener using them.
+  std::unique_ptr<meshdeform::transport::GrpcWebGateway> gateway;
+  std::optional<meshdeform::transport::StaticFileServer> files;
   std::unique_ptr<meshdeform::transport::HttpServer> http;
   if (!flags.http_listen.empty()) {
-    auto started = meshdeform::transport::HttpServer::start(
+    meshdeform::transport::GrpcWebGatewayOptions web_options;
+    web_options.allowed_origins = flags.cors_origins;
+    gateway = std::make_unique<meshdeform::transport::GrpcWebGateway>(
+        *server, static_cast<std::size_t>(flags.max_message_mib) << 20, web_options,
+        &service.metrics());
+    if (!flags.web_root.empty()) {
+      auto opened = meshdeform::transport::StaticFileServer::open(flags.web_root);
+      if (!opened.ok()) {
+        log_event(LogLevel::Error, "web_root_unusable",
+                  LogFields().add("path", flags.web_root).add("message", opened.status().message()));
+        return 2;
+      }
+      files.emplace(std::move(opened).value());
+    }
+    meshdeform::transport::HttpServerOptions http_options;
+    http_options.threads = 2;
+    http_options.body_limit = meshdeform::transport::make_body_limit(*gateway);
+    auto started = meshdeform::transport::HttpServer::start_async(
         flags.http_listen,
-        [&service, &serving](const meshdeform::transport::HttpRequest& request) {
-          return meshdeform::transport::handle_ops_request(request, service, serving.load());
-        });
+        meshdeform::transport::make_http_router(
+            *gateway, files ? &*files : nullptr,
+            [&service, &serving](const meshdeform::transport::HttpRequest& request) {
+              return meshdeform::transport::handle_ops_request(request, service, serving.load());
+            }),
+        http_options);
     if (!started.ok()) {
       log_event(LogLevel::Error, "listen_failed",
                 LogFields().add("address", flags.http_listen).add("message", started.status().message()));
@@ -211,7 +249,8 @@ int main(int argc, char** argv) {
     }
     http = std::move(started).value();
     log_event(LogLevel::Info, "http_listening",
-              LogFields().add("address", flags.http_listen).add("port", http->port()));
+              LogFields().add("address", flags.http_listen).add("port", http->port())
+                  .add("web_root", flags.web_root));
   }
 
   // Sweeps idle sessions (create_session also sweeps, but a quiet server should free memory too).
@@ -241,6 +280,7 @@ int main(int argc, char** argv) {
   server->Shutdown(std::chrono::system_clock::now() +
                    std::chrono::seconds(flags.shutdown_grace_seconds));
   sweeper.request_stop();
+  if (gateway) gateway->stop();  // quick by now: the gRPC server has drained
   if (http) http->stop();
   log_event(LogLevel::Info, "stopped");
   return 0;

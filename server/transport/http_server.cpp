@@ -5,16 +5,26 @@
 #include <boost/asio/dispatch.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/tcp.hpp>
+#include <boost/asio/post.hpp>
+#include <boost/asio/steady_timer.hpp>
 #include <boost/asio/strand.hpp>
+#include <boost/asio/write.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
 
+#include <algorithm>
+#include <array>
+#include <atomic>
 #include <charconv>
 #include <chrono>
+#include <cstring>
+#include <deque>
+#include <limits>
 #include <mutex>
 #include <optional>
 #include <set>
 #include <thread>
+#include <utility>
 
 namespace meshdeform::transport {
 namespace {
@@ -57,6 +67,77 @@ Result<tcp::endpoint> parse_endpoint(const std::string& address) {
   return tcp::endpoint(ip, static_cast<unsigned short>(port));
 }
 
+std::string_view to_std(beast::string_view text) { return {text.data(), text.size()}; }
+
+bool iequals(std::string_view a, std::string_view b) {
+  return a.size() == b.size() && std::equal(a.begin(), a.end(), b.begin(), [](char x, char y) {
+           const auto lower = [](char c) { return c >= 'A' && c <= 'Z' ? char(c - 'A' + 'a') : c; };
+           return lower(x) == lower(y);
+         });
+}
+
+/// Header values never carry CR or LF (no response splitting, whatever a handler passes).
+std::string header_safe(std::string_view value) {
+  std::string out;
+  out.reserve(value.size());
+  for (const char c : value) {
+    if (c != '\r' && c != '\n') out.push_back(c);
+  }
+  return out;
+}
+
+std::string status_line_and_headers(unsigned version, int status, std::string_view content_type,
+                                    const HttpHeaders& headers, bool keep_alive) {
+  std::string out = version >= 11 ? "HTTP/1.1 " : "HTTP/1.0 ";
+  out += std::to_string(status);
+  out += ' ';
+  out += to_std(http::obsolete_reason(static_cast<http::status>(status)));
+  out += "\r\nServer: meshdeform\r\n";
+  if (!content_type.empty()) out += "Content-Type: " + header_safe(content_type) + "\r\n";
+  for (const auto& [name, value] : headers) {
+    out += header_safe(name) + ": " + header_safe(value) + "\r\n";
+  }
+  if (!keep_alive) {
+    out += "Connection: close\r\n";
+  } else if (version < 11) {
+    out += "Connection: keep-alive\r\n";
+  }
+  return out;
+}
+
+/// Lets exchanges post work into the listener's io_context only while it exists and runs:
+/// HttpServer::stop() clears `is_alive` (under the mutex) before the io_context can go away.
+struct Lifeline {
+  std::mutex mutex;
+  bool is_alive = true;
+};
+
+/// A chunk's completion, run exactly once: with the write's result, or with false when it is
+/// dropped unrun (the connection or the server went away first).
+class Completion {
+ public:
+  Completion() = default;
+  explicit Completion(std::function<void(bool)> fn) : fn_(std::move(fn)) {}
+  Completion(Completion&& other) noexcept : fn_(std::exchange(other.fn_, nullptr)) {}
+  Completion& operator=(Completion&& other) noexcept {
+    if (this != &other) {
+      run(false);
+      fn_ = std::exchange(other.fn_, nullptr);
+    }
+    return *this;
+  }
+  Completion(const Completion&) = delete;
+  Completion& operator=(const Completion&) = delete;
+  ~Completion() { run(false); }
+
+  void run(bool ok) {
+    if (std::function<void(bool)> fn = std::exchange(fn_, nullptr)) fn(ok);
+  }
+
+ private:
+  std::function<void(bool)> fn_;
+};
+
 class Connection;
 
 }  // namespace
@@ -64,122 +145,486 @@ class Connection;
 struct HttpServer::Impl {
   asio::io_context io;
   tcp::acceptor acceptor{io};
-  HttpHandler handler;
+  AsyncHttpHandler handler;
   HttpServerOptions options;
   std::vector<std::thread> threads;
   std::mutex mutex;
   std::set<std::shared_ptr<Connection>> connections;
   bool stopped = false;
+  std::shared_ptr<Lifeline> lifeline = std::make_shared<Lifeline>();
 
   void accept();
 };
 
 namespace {
 
+/// One keep-alive connection; everything runs on its strand. Per request: read the header (with
+/// the read timeout), pick the route's body limit, read the body, hand the request to the handler
+/// with an exchange tagged by the request's sequence number, and meanwhile keep one read open
+/// ("monitor") so that a client closing its socket is seen at once. Responses are a queue of
+/// byte strings written one at a time, each with the write timeout.
 class Connection : public std::enable_shared_from_this<Connection> {
  public:
   Connection(tcp::socket socket, HttpServer::Impl& server)
-      : stream_(std::move(socket)), server_(server) {}
+      : stream_(std::move(socket)), linger_timer_(stream_.get_executor()), server_(server) {}
 
   void start() {
     asio::dispatch(stream_.get_executor(),
                    beast::bind_front_handler(&Connection::read, shared_from_this()));
   }
 
-  void close() {
-    asio::dispatch(stream_.get_executor(), [self = shared_from_this()] {
-      beast::error_code ignored;
-      self->stream_.socket().shutdown(tcp::socket::shutdown_both, ignored);
-      self->stream_.close();
-    });
+  auto executor() { return stream_.get_executor(); }
+
+  /// Closes at once, from the thread stopping the server once the listener threads are joined
+  /// (nothing else touches this object then).
+  void abort() { drop(); }
+
+  // The exchange's operations, on the strand. A stale sequence number (an exchange of an earlier
+  // request on this connection) is ignored.
+  void do_respond(std::uint64_t seq, HttpResponse response) {
+    if (seq != seq_ || is_closed_ || is_answered_) return;
+    is_answered_ = true;
+    is_complete_ = true;
+    std::string bytes =
+        status_line_and_headers(version_, response.status, response.content_type, response.headers,
+                                keep_alive_);
+    if (response.status == 204 || response.status == 304 || response.status < 200) {
+      bytes += "\r\n";  // no body, and no Content-Length (RFC 9110 8.6)
+      enqueue(std::move(bytes), Completion());
+      return;
+    }
+    bytes += "Content-Length: " + std::to_string(response.body.size()) + "\r\n\r\n";
+    if (response.body.size() < 64 * 1024) {
+      bytes += response.body;
+      enqueue(std::move(bytes), Completion());
+    } else {
+      enqueue(std::move(bytes), Completion());  // a big body (a mesh) is not copied again
+      enqueue(std::move(response.body), Completion());
+    }
+  }
+
+  void do_start_stream(std::uint64_t seq, int status, std::string content_type,
+                       HttpHeaders headers) {
+    if (seq != seq_ || is_closed_ || is_answered_) return;
+    is_answered_ = true;
+    is_streaming_ = true;
+    if (version_ < 11) keep_alive_ = false;  // HTTP/1.0: the body ends when the connection does
+    std::string bytes =
+        status_line_and_headers(version_, status, content_type, headers, keep_alive_);
+    if (version_ >= 11) bytes += "Transfer-Encoding: chunked\r\n";
+    bytes += "\r\n";
+    enqueue(std::move(bytes), Completion());
+  }
+
+  void do_write_chunk(std::uint64_t seq, std::string data, Completion done) {
+    if (seq != seq_ || is_closed_ || !is_streaming_ || is_complete_) {
+      done.run(false);
+      return;
+    }
+    if (data.empty()) {
+      done.run(true);  // an empty chunk would end the body
+      return;
+    }
+    if (version_ >= 11) {
+      char size[32];
+      const auto [end, ec] = std::to_chars(size, size + sizeof size, data.size(), 16);
+      (void)ec;
+      std::string bytes(size, end);
+      bytes.reserve(bytes.size() + data.size() + 4);
+      bytes += "\r\n";
+      bytes += data;
+      bytes += "\r\n";
+      enqueue(std::move(bytes), std::move(done));
+    } else {
+      enqueue(std::move(data), std::move(done));
+    }
+  }
+
+  void do_end_stream(std::uint64_t seq) {
+    if (seq != seq_ || is_closed_ || !is_streaming_ || is_complete_) return;
+    is_complete_ = true;
+    if (version_ >= 11) {
+      enqueue("0\r\n\r\n", Completion());
+    } else if (!is_writing_ && queue_.empty()) {
+      on_response_written();
+    }
+  }
+
+  void do_on_close(std::uint64_t seq, std::function<void()> callback) {
+    if (seq != seq_ || is_response_done_) return;
+    if (is_closed_) {
+      if (callback) callback();
+      return;
+    }
+    close_callback_ = std::move(callback);
   }
 
  private:
   void read() {
+    if (is_closed_) return;
+    wants_next_ = false;
+    is_answered_ = false;
+    is_streaming_ = false;
+    is_complete_ = false;
+    is_response_done_ = false;
+    close_callback_ = nullptr;
     parser_.emplace();
-    parser_->body_limit(server_.options.max_request_bytes);
     parser_->header_limit(64 * 1024);
+    // Checked per route once the request line is known. (Not boost::none: Beast 1.74 compares
+    // Content-Length against the optional, and anything is greater than none.)
+    parser_->body_limit(std::numeric_limits<std::uint64_t>::max());
     stream_.expires_after(std::chrono::seconds(server_.options.read_timeout_seconds));
+    http::async_read_header(stream_, buffer_, *parser_,
+                            beast::bind_front_handler(&Connection::on_header, shared_from_this()));
+  }
+
+  void on_header(beast::error_code error, std::size_t) {
+    if (error) {
+      drop();
+      return;
+    }
+    const auto& header = parser_->get();
+    const std::size_t limit =
+        server_.options.body_limit
+            ? server_.options.body_limit(to_std(header.method_string()), to_std(header.target()))
+            : server_.options.max_request_bytes;
+    limit_ = limit;
+    if (const auto length = parser_->content_length(); length && *length > limit) {
+      // The body is not read: the handler answers from the header alone, then we close.
+      HttpRequest in = make_request();
+      in.is_body_over_limit = true;
+      in.declared_body_bytes = *length;
+      dispatch(std::move(in), /*keep_alive=*/false, header.version());
+      return;
+    }
+    parser_->body_limit(static_cast<std::uint64_t>(limit));
+    if (iequals(to_std(header[http::field::expect]), "100-continue")) {
+      auto reply = std::make_shared<std::string>(
+          header.version() >= 11 ? "HTTP/1.1 100 Continue\r\n\r\n" : "HTTP/1.0 100 Continue\r\n\r\n");
+      asio::async_write(stream_, asio::buffer(*reply),
+                        [self = shared_from_this(), reply](beast::error_code e, std::size_t) {
+                          if (e) {
+                            self->drop();
+                            return;
+                          }
+                          self->read_body();
+                        });
+      return;
+    }
+    read_body();
+  }
+
+  void read_body() {
     http::async_read(stream_, buffer_, *parser_,
                      beast::bind_front_handler(&Connection::on_read, shared_from_this()));
   }
 
   void on_read(beast::error_code error, std::size_t) {
     if (error == http::error::body_limit) {
-      HttpResponse response;
-      response.status = 413;
-      response.body = "request body over " + std::to_string(server_.options.max_request_bytes) +
-                      " bytes\n";
-      write(response, /*keep_alive=*/false, 11);
+      ++seq_;
+      version_ = parser_->get().version();
+      keep_alive_ = false;
+      is_response_done_ = false;
+      do_respond(seq_, HttpResponse{413, "text/plain; charset=utf-8",
+                                    "request body over " + std::to_string(limit_) + " bytes\n",
+                                    {}});
       return;
     }
     if (error) {
-      finish();
+      drop();
       return;
     }
-    const http::request<http::string_body>& request = parser_->get();
+    HttpRequest in = make_request();
+    in.body = std::move(parser_->get().body());
+    dispatch(std::move(in), parser_->get().keep_alive(), parser_->get().version());
+  }
+
+  HttpRequest make_request() const {
+    const auto& request = parser_->get();
     HttpRequest in;
     in.method = std::string(request.method_string());
     in.target = std::string(request.target());
     for (const auto& field : request) {
       in.headers.emplace_back(std::string(field.name_string()), std::string(field.value()));
     }
-    in.body = request.body();
-    HttpResponse response;
-    try {
-      response = server_.handler(in);
-    } catch (const std::exception&) {
-      response = HttpResponse{500, "text/plain; charset=utf-8", "internal error\n", {}};
+    return in;
+  }
+
+  void dispatch(HttpRequest in, bool keep_alive, unsigned version);
+
+  /// Keeps one read open while a response is pending, to see the client leave.
+  void start_monitor() {
+    if (is_monitoring_ || is_closed_ || buffer_.size() >= server_.options.max_pipelined_bytes) {
+      return;
     }
-    write(response, request.keep_alive(), request.version());
+    is_monitoring_ = true;
+    stream_.async_read_some(asio::buffer(monitor_buffer_),
+                            beast::bind_front_handler(&Connection::on_monitor, shared_from_this()));
   }
 
-  void write(const HttpResponse& response, bool keep_alive, unsigned version) {
-    auto message = std::make_shared<http::response<http::string_body>>(
-        static_cast<http::status>(response.status), version);
-    message->set(http::field::server, "meshdeform");
-    message->set(http::field::content_type, response.content_type);
-    for (const auto& [name, value] : response.headers) message->set(name, value);
-    message->keep_alive(keep_alive);
-    message->body() = response.body;
-    message->prepare_payload();
-    http::async_write(stream_, *message,
-                      [self = shared_from_this(), message](beast::error_code error, std::size_t) {
-                        if (error || !message->keep_alive()) {
-                          beast::error_code ignored;
-                          self->stream_.socket().shutdown(tcp::socket::shutdown_send, ignored);
-                          self->finish();
-                          return;
-                        }
-                        self->read();
-                      });
+  void on_monitor(beast::error_code error, std::size_t n) {
+    is_monitoring_ = false;
+    if (is_lingering_) {
+      buffer_.clear();
+      if (error) {
+        drop();
+      } else {
+        start_monitor();
+      }
+      return;
+    }
+    if (n > 0) {
+      // Bytes of a pipelined next request: kept for the next read.
+      const auto target = buffer_.prepare(n);
+      std::memcpy(target.data(), monitor_buffer_.data(), n);
+      buffer_.commit(n);
+    }
+    if (is_closed_) return;
+    if (error == asio::error::operation_aborted && wants_next_) {
+      read();  // cancelled by on_response_written to read the next request
+      return;
+    }
+    if (error) {
+      // EOF, reset, or the socket was closed by a write timeout (operation_aborted).
+      drop();
+      return;
+    }
+    if (wants_next_) {
+      read();
+    } else {
+      start_monitor();
+    }
   }
 
-  void finish() {
+  void enqueue(std::string bytes, Completion done) {
+    queue_.push_back(Pending{std::move(bytes), std::move(done)});
+    write_next();
+  }
+
+  void write_next() {
+    if (is_writing_ || queue_.empty() || is_closed_) return;
+    is_writing_ = true;
+    // With the monitor read pending this arms the write timer only.
+    stream_.expires_after(std::chrono::seconds(server_.options.write_timeout_seconds));
+    asio::async_write(stream_, asio::buffer(queue_.front().bytes),
+                      beast::bind_front_handler(&Connection::on_write, shared_from_this()));
+  }
+
+  void on_write(beast::error_code error, std::size_t) {
+    is_writing_ = false;
+    Pending written = std::move(queue_.front());
+    queue_.pop_front();
+    if (error || is_closed_) {
+      written.done.run(false);
+      drop();
+      return;
+    }
+    written.done.run(true);
+    if (!queue_.empty()) {
+      write_next();
+    } else if (is_complete_) {
+      on_response_written();
+    }
+  }
+
+  void on_response_written() {
+    is_response_done_ = true;
+    close_callback_ = nullptr;
+    if (!keep_alive_) {
+      beast::error_code ignored;
+      stream_.socket().shutdown(tcp::socket::shutdown_send, ignored);
+      linger();
+      return;
+    }
+    if (is_monitoring_) {
+      wants_next_ = true;
+      stream_.cancel();  // on_monitor (operation_aborted, or data already read) reads next
+    } else {
+      read();
+    }
+  }
+
+  /// After the last response of a connection: the client may still be sending (a body over the
+  /// limit that we did not read). Closing now would reset the connection and could destroy the
+  /// response in flight, so read and discard until the client closes, for at most 2 s.
+  void linger() {
+    is_lingering_ = true;
+    buffer_.clear();
+    linger_timer_.expires_after(std::chrono::seconds(2));
+    linger_timer_.async_wait([self = shared_from_this()](beast::error_code error) {
+      if (!error) self->drop();
+    });
+    start_monitor();
+  }
+
+  /// Closes the connection: the pending exchange learns it (on_close), queued chunk callbacks
+  /// get false, and the server forgets this connection.
+  void drop() {
+    if (is_closed_) return;
+    is_closed_ = true;
+    if (std::function<void()> callback = std::move(close_callback_); callback && !is_response_done_) {
+      callback();
+    }
+    close_callback_ = nullptr;
+    // The in-flight write (if any) stays queued: it completes with an error and reports itself.
+    std::deque<Pending> failed;
+    while (queue_.size() > (is_writing_ ? 1U : 0U)) {
+      failed.push_back(std::move(queue_.back()));
+      queue_.pop_back();
+    }
+    for (Pending& pending : failed) pending.done.run(false);
+    beast::error_code ignored;
+    linger_timer_.cancel();
+    stream_.socket().shutdown(tcp::socket::shutdown_both, ignored);
+    stream_.close();
     const std::lock_guard lock(server_.mutex);
     server_.connections.erase(shared_from_this());
   }
 
+  struct Pending {
+    std::string bytes;
+    Completion done;
+  };
+
   beast::tcp_stream stream_;
+  asio::steady_timer linger_timer_;
   beast::flat_buffer buffer_;
   std::optional<http::request_parser<http::string_body>> parser_;
   HttpServer::Impl& server_;
+  std::size_t limit_ = 0;
+  std::uint64_t seq_ = 0;          // the current request's number
+  unsigned version_ = 11;
+  bool keep_alive_ = true;
+  bool is_answered_ = false;       // respond() or start_stream() seen
+  bool is_streaming_ = false;
+  bool is_complete_ = false;       // the whole response is queued
+  bool is_response_done_ = false;  // ... and written
+  bool is_closed_ = false;
+  bool is_monitoring_ = false;
+  bool wants_next_ = false;        // read the next request when the monitor read ends
+  bool is_writing_ = false;
+  bool is_lingering_ = false;      // the last response is written; discarding input
+  std::deque<Pending> queue_;
+  std::function<void()> close_callback_;
+  std::array<char, 4096> monitor_buffer_{};
 };
 
+class ConnectionExchange final : public HttpExchange {
+ public:
+  ConnectionExchange(const std::shared_ptr<Connection>& connection,
+                     std::shared_ptr<Lifeline> lifeline, std::uint64_t seq)
+      : connection_(connection), lifeline_(std::move(lifeline)), seq_(seq) {}
+
+  ~ConnectionExchange() override {
+    if (!is_answered_.exchange(true)) {
+      post([seq = seq_](Connection& c) {
+        c.do_respond(seq, HttpResponse{500, "text/plain; charset=utf-8", "no response\n", {}});
+      });
+    }
+  }
+
+  void respond(HttpResponse response) override {
+    is_answered_.store(true);
+    post([seq = seq_, response = std::move(response)](Connection& c) mutable {
+      c.do_respond(seq, std::move(response));
+    });
+  }
+
+  void start_stream(int status, std::string content_type, HttpHeaders headers) override {
+    is_answered_.store(true);
+    post([seq = seq_, status, content_type = std::move(content_type),
+          headers = std::move(headers)](Connection& c) mutable {
+      c.do_start_stream(seq, status, std::move(content_type), std::move(headers));
+    });
+  }
+
+  void write_chunk(std::string data, std::function<void(bool)> done) override {
+    // Shared so that the posted handler stays copyable; if it is destroyed unrun (the server
+    // stopped), the Completion reports false.
+    auto completion = std::make_shared<Completion>(std::move(done));
+    const bool posted = post([seq = seq_, data = std::move(data), completion](Connection& c) mutable {
+      c.do_write_chunk(seq, std::move(data), std::move(*completion));
+    });
+    if (!posted) completion->run(false);
+  }
+
+  void end_stream() override {
+    post([seq = seq_](Connection& c) { c.do_end_stream(seq); });
+  }
+
+  void on_close(std::function<void()> callback) override {
+    auto shared = std::make_shared<std::function<void()>>(std::move(callback));
+    const bool posted = post([seq = seq_, shared](Connection& c) mutable {
+      c.do_on_close(seq, std::move(*shared));
+    });
+    if (!posted && *shared) (*shared)();  // the connection or the server is already gone
+  }
+
+ private:
+  /// @return false when the server has stopped or the connection is gone.
+  template <typename Fn>
+  bool post(Fn&& fn) {
+    const std::lock_guard lock(lifeline_->mutex);
+    if (!lifeline_->is_alive) return false;
+    std::shared_ptr<Connection> connection = connection_.lock();
+    if (!connection) return false;
+    auto executor = connection->executor();
+    asio::post(executor, [connection = std::move(connection), fn = std::forward<Fn>(fn)]() mutable {
+      fn(*connection);
+    });
+    return true;
+  }
+
+  std::weak_ptr<Connection> connection_;
+  std::shared_ptr<Lifeline> lifeline_;
+  std::uint64_t seq_;
+  std::atomic<bool> is_answered_{false};
+};
+
+void Connection::dispatch(HttpRequest in, bool keep_alive, unsigned version) {
+  ++seq_;
+  keep_alive_ = keep_alive;
+  version_ = version;
+  // No read timeout while the handler works (the gateway bounds its calls with deadlines); the
+  // monitor read watches for the client leaving.
+  stream_.expires_never();
+  start_monitor();
+  auto exchange = std::make_shared<ConnectionExchange>(shared_from_this(), server_.lifeline, seq_);
+  try {
+    server_.handler(std::move(in), exchange);
+  } catch (const std::exception&) {
+    exchange->respond(HttpResponse{500, "text/plain; charset=utf-8", "internal error\n", {}});
+  }
+}
+
 }  // namespace
+
+std::string_view HttpRequest::find_header(std::string_view name) const {
+  for (const auto& [key, value] : headers) {
+    if (iequals(key, name)) return value;
+  }
+  return {};
+}
 
 void HttpServer::Impl::accept() {
   acceptor.async_accept(asio::make_strand(io), [this](beast::error_code error, tcp::socket socket) {
     if (error) {
       if (error == asio::error::operation_aborted) return;  // stopping
     } else {
+      // Chunks of a stream are small and must leave at once (no Nagle delay).
+      beast::error_code ignored;
+      socket.set_option(tcp::no_delay(true), ignored);
       auto connection = std::make_shared<Connection>(std::move(socket), *this);
       {
         const std::lock_guard lock(mutex);
         if (stopped) return;
-        connections.insert(connection);
+        if (connections.size() >= options.max_connections) {
+          connection.reset();  // closes the socket
+        } else {
+          connections.insert(connection);
+        }
       }
-      connection->start();
+      if (connection) connection->start();
     }
     accept();
   });
@@ -188,10 +633,33 @@ void HttpServer::Impl::accept() {
 Result<std::unique_ptr<HttpServer>> HttpServer::start(const std::string& address,
                                                       HttpHandler handler,
                                                       HttpServerOptions options) {
+  AsyncHttpHandler adapted = [handler = std::move(handler)](
+                                 HttpRequest request, std::shared_ptr<HttpExchange> exchange) {
+    if (request.is_body_over_limit) {
+      exchange->respond(HttpResponse{
+          413, "text/plain; charset=utf-8",
+          "request body of " + std::to_string(request.declared_body_bytes) + " bytes over the limit\n",
+          {}});
+      return;
+    }
+    HttpResponse response;
+    try {
+      response = handler(request);
+    } catch (const std::exception&) {
+      response = HttpResponse{500, "text/plain; charset=utf-8", "internal error\n", {}};
+    }
+    exchange->respond(std::move(response));
+  };
+  return start_async(address, std::move(adapted), std::move(options));
+}
+
+Result<std::unique_ptr<HttpServer>> HttpServer::start_async(const std::string& address,
+                                                            AsyncHttpHandler handler,
+                                                            HttpServerOptions options) {
   MD_ASSIGN_OR_RETURN(tcp::endpoint endpoint, parse_endpoint(address));
   auto impl = std::make_unique<Impl>();
   impl->handler = std::move(handler);
-  impl->options = options;
+  impl->options = std::move(options);
   beast::error_code error;
   impl->acceptor.open(endpoint.protocol(), error);
   if (!error) impl->acceptor.set_option(asio::socket_base::reuse_address(true), error);
@@ -202,7 +670,7 @@ Result<std::unique_ptr<HttpServer>> HttpServer::start(const std::string& address
   }
   const int port = impl->acceptor.local_endpoint().port();
   impl->accept();
-  for (int i = 0; i < std::max(1, options.threads); ++i) {
+  for (int i = 0; i < std::max(1, impl->options.threads); ++i) {
     impl->threads.emplace_back([raw = impl.get()] { raw->io.run(); });
   }
   return std::unique_ptr<HttpServer>(new HttpServer(std::move(impl), port));
@@ -212,21 +680,28 @@ HttpServer::HttpServer(std::unique_ptr<Impl> impl, int port) : impl_(std::move(i
 
 void HttpServer::stop() {
   if (!impl_) return;
-  std::set<std::shared_ptr<Connection>> connections;
   {
     const std::lock_guard lock(impl_->mutex);
     if (impl_->stopped) return;
     impl_->stopped = true;
-    connections = impl_->connections;
   }
-  asio::dispatch(impl_->acceptor.get_executor(), [impl = impl_.get()] {
-    beast::error_code ignored;
-    impl->acceptor.close(ignored);
-  });
-  for (const auto& connection : connections) connection->close();
+  // Stop the threads first; then no handler runs concurrently with the closes below, which may
+  // run exchanges' on_close callbacks on this thread.
   impl_->io.stop();
   for (std::thread& thread : impl_->threads) thread.join();
   impl_->threads.clear();
+  {
+    const std::lock_guard lock(impl_->lifeline->mutex);
+    impl_->lifeline->is_alive = false;
+  }
+  beast::error_code ignored;
+  impl_->acceptor.close(ignored);
+  std::set<std::shared_ptr<Connection>> connections;
+  {
+    const std::lock_guard lock(impl_->mutex);
+    connections = impl_->connections;
+  }
+  for (const auto& connection : connections) connection->abort();
   const std::lock_guard lock(impl_->mutex);
   impl_->connections.clear();
 }
