@@ -69,12 +69,39 @@ class CallRecord {
     return mapped;
   }
 
+  std::string_view rpc() const { return rpc_; }
+
  private:
   service::DeformationService* service_;
   std::string_view rpc_;
   std::string session_;
   std::chrono::steady_clock::time_point start_;
 };
+
+/// The completion of a call handed to the service's workers: `fill(value)` writes the response
+/// (or the result's error passes on), then the reactor finishes with the recorded status.
+template <typename T, typename Fill>
+auto finish_with(StoppableUnaryReactor* reactor, CallRecord call, Fill fill) {
+  return [reactor, call = std::move(call), fill = std::move(fill)](Result<T> result) {
+    const Status status = run_guarded(call.rpc(), [&]() -> Status {
+      if (!result.ok()) return result.status();
+      fill(std::move(result).value());
+      return Status::success();
+    });
+    reactor->Finish(call.finish(status));
+  };
+}
+
+/// Starts a call whose work runs on the service's workers: `start(reactor)` converts the request
+/// and hands it over (the completion from finish_with then finishes the call exactly once). Only
+/// an error before the hand-over (a conversion error, an exception) finishes the call here.
+template <typename Start>
+grpc::ServerUnaryReactor* start_async(const CallRecord& call, Start&& start) {
+  auto* reactor = new StoppableUnaryReactor();
+  const Status started = run_guarded(call.rpc(), [&]() -> Status { return start(reactor); });
+  if (!started.ok()) reactor->Finish(call.finish(started));
+  return reactor;
+}
 
 grpc::ServerUnaryReactor* finish_now(grpc::CallbackServerContext* context, const CallRecord& call,
                                      const Status& status) {
@@ -190,78 +217,53 @@ grpc::ServerUnaryReactor* DeformServiceImpl::CreateSession(grpc::CallbackServerC
                                                            v1::CreateSessionResponse* response) {
   (void)context;
   // Parsing and cleaning an upload run on the service's workers, not on this gRPC thread.
-  auto* reactor = new StoppableUnaryReactor();
   const CallRecord call(service_, "CreateSession", {});
-  const Status started = run_guarded("CreateSession", [&]() -> Status {
+  return start_async(call, [&](StoppableUnaryReactor* reactor) -> Status {
     MD_ASSIGN_OR_RETURN(service::CreateSessionRequest converted,
                         create_request_from_proto(*request));
     service_.create_session_async(
         std::move(converted), reactor->stop_token(),
-        [reactor, response, call](Result<service::CreatedSession> created) {
-          const Status status = run_guarded("CreateSession", [&]() -> Status {
-            if (!created.ok()) return created.status();
-            created_to_proto(*created, response);
-            return Status::success();
-          });
-          reactor->Finish(call.finish(status));
-        });
+        finish_with<service::CreatedSession>(
+            reactor, call,
+            [response](service::CreatedSession created) { created_to_proto(created, response); }));
     return Status::success();
   });
-  if (!started.ok()) reactor->Finish(call.finish(started));
-  return reactor;
 }
 
 grpc::ServerUnaryReactor* DeformServiceImpl::SetHandles(grpc::CallbackServerContext* context,
                                                         const v1::SetHandlesRequest* request,
                                                         v1::SetHandlesResponse* response) {
   (void)context;
-  auto* reactor = new StoppableUnaryReactor();
   const CallRecord call(service_, "SetHandles", request->session_id());
-  const Status started = run_guarded("SetHandles", [&]() -> Status {
+  return start_async(call, [&](StoppableUnaryReactor* reactor) -> Status {
     MD_ASSIGN_OR_RETURN(service::SetHandlesRequest converted, set_handles_from_proto(*request));
     service_.set_handles_async(
         service::SessionId{request->session_id()}, service::Token{request->token()},
         std::move(converted), reactor->stop_token(),
-        [reactor, response, call](Result<service::SessionInfo> result) {
-          const Status status = run_guarded("SetHandles", [&]() -> Status {
-            if (!result.ok()) return result.status();
-            session_info_to_proto(*result, response->mutable_info());
-            return Status::success();
-          });
-          reactor->Finish(call.finish(status));
-        });
+        finish_with<service::SessionInfo>(reactor, call, [response](service::SessionInfo info) {
+          session_info_to_proto(info, response->mutable_info());
+        }));
     return Status::success();
   });
-  if (!started.ok()) reactor->Finish(call.finish(started));
-  return reactor;
 }
 
 grpc::ServerUnaryReactor* DeformServiceImpl::MoveHandles(grpc::CallbackServerContext* context,
                                                          const v1::MoveHandlesRequest* request,
                                                          v1::MoveHandlesResponse* response) {
-  auto* reactor = new StoppableUnaryReactor();
   const CallRecord call(service_, "MoveHandles", request->session_id());
-  const Status started = run_guarded("MoveHandles", [&]() -> Status {
+  return start_async(call, [&](StoppableUnaryReactor* reactor) -> Status {
     MD_ASSIGN_OR_RETURN(service::MoveRequest converted, move_from_proto(*request));
     converted.deadline = steady_deadline(*context);
     const bool full_positions = request->full_positions();
     service_.move_handles_async(
         service::SessionId{request->session_id()}, service::Token{request->token()},
         std::move(converted), reactor->stop_token(),
-        [reactor, response, full_positions, call](Result<service::DeformResult> result) {
-          const Status status = run_guarded("MoveHandles", [&]() -> Status {
-            if (!result.ok()) return result.status();
-            result_to_proto(*result, full_positions, response->mutable_result());
-            return Status::success();
-          });
-          reactor->Finish(call.finish(status));
-        });
+        finish_with<service::DeformResult>(
+            reactor, call, [response, full_positions](service::DeformResult result) {
+              result_to_proto(result, full_positions, response->mutable_result());
+            }));
     return Status::success();
   });
-  // Only a conversion error (or an exception before the async call took over) lands here: once
-  // move_handles_async is called, `done` always runs exactly once and finishes.
-  if (!started.ok()) reactor->Finish(call.finish(started));
-  return reactor;
 }
 
 grpc::ServerWriteReactor<v1::DeformUpdate>* DeformServiceImpl::Watch(
@@ -283,28 +285,20 @@ grpc::ServerUnaryReactor* DeformServiceImpl::GetMesh(grpc::CallbackServerContext
                                                      v1::GetMeshResponse* response) {
   (void)context;
   // Serialising (GLB/OBJ/...) runs on the service's workers.
-  auto* reactor = new StoppableUnaryReactor();
   const CallRecord call(service_, "GetMesh", request->session_id());
-  const Status started = run_guarded("GetMesh", [&]() -> Status {
+  return start_async(call, [&](StoppableUnaryReactor* reactor) -> Status {
     MD_ASSIGN_OR_RETURN(io::MeshFormat format, format_from_proto(request->format(), true));
     std::optional<std::uint64_t> revision;
     if (request->has_revision()) revision = request->revision();
     service_.get_mesh_async(
         service::SessionId{request->session_id()}, service::Token{request->token()}, format,
         revision, reactor->stop_token(),
-        [reactor, response, call, format](Result<std::string> bytes) {
-          const Status status = run_guarded("GetMesh", [&]() -> Status {
-            if (!bytes.ok()) return bytes.status();
-            response->set_mesh_bytes(std::move(bytes).value());
-            response->set_format(format_to_proto(format));
-            return Status::success();
-          });
-          reactor->Finish(call.finish(status));
-        });
+        finish_with<std::string>(reactor, call, [response, format](std::string bytes) {
+          response->set_mesh_bytes(std::move(bytes));
+          response->set_format(format_to_proto(format));
+        }));
     return Status::success();
   });
-  if (!started.ok()) reactor->Finish(call.finish(started));
-  return reactor;
 }
 
 grpc::ServerUnaryReactor* DeformServiceImpl::GetSessionInfo(
