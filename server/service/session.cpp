@@ -6,6 +6,7 @@
 #include <string>
 #include <unordered_map>
 
+#include "core/ora.h"
 #include "core/validate.h"
 #include "server/service/log.h"
 #include "server/service/tokens.h"
@@ -205,6 +206,25 @@ Status Session::check_pinnable(core::Method method, const std::vector<int>& cons
   return Status::success();
 }
 
+Result<Eigen::VectorXd> Session::magnify_scales(const MoveRequest& request) const {
+  if (request.magnify.empty()) return Eigen::VectorXd();
+  if (request.method != core::Method::ScaleAware) {
+    return Error(ErrorCode::InvalidArgument,
+                 std::string("magnify regions need the scale-aware method, not ") +
+                     core::method_name(request.method));
+  }
+  std::vector<core::MagnifyRegion> regions;
+  regions.reserve(request.magnify.size());
+  for (const MagnifyRegion& region : request.magnify) {
+    core::MagnifyRegion converted;
+    converted.vertices = Eigen::Map<const Eigen::VectorXi>(
+        region.vertices.data(), static_cast<Eigen::Index>(region.vertices.size()));
+    converted.scale = region.scale;
+    regions.push_back(std::move(converted));
+  }
+  return core::face_scales_from_regions(regions, rest_.F, static_cast<int>(rest_.V.rows()));
+}
+
 void Session::update_estimate() {
   cached_deformers_.store(static_cast<int>(deformers_.size()));
   estimated_bytes_.store(estimate_session_bytes(static_cast<int>(rest_.V.rows()),
@@ -402,6 +422,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     targets.row(row_of(target.vertex)) = target.position.transpose();
   }
   MD_RETURN_IF_ERROR(check_pinnable(request.method, constrained));
+  MD_ASSIGN_OR_RETURN(Eigen::VectorXd face_scale, magnify_scales(request));
 
   // One stop source for the client's token and the deadline: the solver sees a single token.
   std::stop_source local;
@@ -429,6 +450,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   options.tolerance = request.tolerance;
   options.lambda = settings_.lambda;
   options.ora = request.ora;
+  options.face_scale = face_scale;
   // commit() measures E_theta / E_phi once; per-iteration tracking would measure the mesh three
   // more times per interactive move (rest, guess, each iteration).
   options.track_metrics = false;
@@ -450,7 +472,8 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
                                built, request.editor, /*refinement=*/false, entry);
   counters_->moves_committed.fetch_add(1);
   if (options_.refine_budget > 0 && !result.converged) {
-    refine_ = RefineState{request.method, request.ora, request.tolerance, options_.refine_budget};
+    refine_ = RefineState{request.method, request.ora, std::move(face_scale), request.tolerance,
+                          options_.refine_budget};
   } else {
     refine_.reset();
   }
@@ -550,6 +573,7 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
   options.tolerance = state.tolerance;
   options.lambda = settings_.lambda;
   options.ora = state.ora;
+  options.face_scale = state.face_scale;
   options.track_metrics = false;  // as in move(): commit() measures once
   Result<core::SolveReport> report =
       local.stop_requested()

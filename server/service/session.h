@@ -153,6 +153,10 @@ class Session : public std::enable_shared_from_this<Session> {
 
   Session() = default;
   Status check_pinnable(core::Method method, const std::vector<int>& constrained) const;
+  /// The #F face scales of the request's magnify regions (empty when it has none).
+  /// @return InvalidArgument for regions with a method other than scale-aware, a bad scale, an
+  ///         index out of range, or a region covering no whole face (naming the region).
+  Result<Eigen::VectorXd> magnify_scales(const MoveRequest& request) const;
   Result<CachedDeformer*> get_or_build(core::Method method, const std::vector<int>& constrained,
                                        bool* built);
   void update_estimate();
@@ -166,6 +170,7 @@ class Session : public std::enable_shared_from_this<Session> {
   struct RefineState {
     core::Method method = core::Method::ScaleAware;
     bool ora = false;
+    Eigen::VectorXd face_scale;  ///< magnification of the move being refined (empty: none)
     double tolerance = 1e-4;
     int remaining = 0;  ///< outer iterations left in the budget
   };

@@ -73,6 +73,13 @@ struct VertexTarget {
   Eigen::Vector3d position = Eigen::Vector3d::Zero();
 };
 
+/// A region grown by `scale` (paper Section 5.3, region magnification): the faces whose three
+/// vertices are all in `vertices` get scale^2 times their rest area.
+struct MagnifyRegion {
+  std::vector<int> vertices;
+  double scale = 1.0;  ///< > 0 and finite
+};
+
 /// One edit: new handle targets (vertices not mentioned keep their previous targets) and how to
 /// solve for them.
 struct MoveRequest {
@@ -80,6 +87,9 @@ struct MoveRequest {
   std::vector<VertexTarget> targets;
   core::Method method = core::Method::ScaleAware;
   bool ora = false;        ///< optimal rigidity approximation (scale-aware only)
+  /// Regions to magnify in this move and its background refinement (scale-aware only); absolute
+  /// like the moves: an empty list magnifies nothing. A face in several regions takes the last.
+  std::vector<MagnifyRegion> magnify;
   int max_iterations = 2;  ///< outer-iteration budget; small for interactive drags, 1..1000
   double tolerance = 1e-4; ///< relative energy change that stops the solve early, >= 0
   /// Stop the solve (DeadlineExceeded) once steady_clock passes this point.

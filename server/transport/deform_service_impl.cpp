@@ -114,9 +114,10 @@ grpc::ServerUnaryReactor* finish_now(grpc::CallbackServerContext* context, const
 /// weak_ptr, so a notify racing with OnDone keeps the object alive but does nothing.
 class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
  public:
-  static WatchReactor* start(service::Subscription subscription, CallRecord call) {
+  static WatchReactor* start(service::Subscription subscription, v1::PositionEncoding encoding,
+                             CallRecord call) {
     auto reactor = std::shared_ptr<WatchReactor>(
-        new WatchReactor(std::move(subscription), std::move(call)));
+        new WatchReactor(std::move(subscription), encoding, std::move(call)));
     reactor->self_ = reactor;
     std::weak_ptr<WatchReactor> weak = reactor;
     // The join snapshot is already pending, so this starts the first write at once (allowed
@@ -158,8 +159,8 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
   }
 
  private:
-  WatchReactor(service::Subscription subscription, CallRecord call)
-      : subscription_(std::move(subscription)), call_(std::move(call)) {}
+  WatchReactor(service::Subscription subscription, v1::PositionEncoding encoding, CallRecord call)
+      : subscription_(std::move(subscription)), encoding_(encoding), call_(std::move(call)) {}
 
   /// Starts the next write or the finish, if neither a write is in flight nor we are finished.
   /// gRPC operations are started outside the lock.
@@ -171,7 +172,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
       if (is_cancelled_) {
         next = Next::FinishCancelled;
       } else if (std::optional<service::DeformUpdate> update = subscription_->try_take()) {
-        update_to_proto(*update, &message_);
+        update_to_proto(*update, encoding_, &message_);
         next = Next::Write;
       } else if (subscription_->closed()) {
         next = Next::FinishOk;  // the session was closed or evicted
@@ -196,6 +197,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
 
   std::mutex mutex_;
   service::Subscription subscription_;
+  const v1::PositionEncoding encoding_;
   v1::DeformUpdate message_;  // owned by gRPC while is_writing_
   bool is_writing_ = false;
   bool is_cancelled_ = false;
@@ -254,13 +256,14 @@ grpc::ServerUnaryReactor* DeformServiceImpl::MoveHandles(grpc::CallbackServerCon
   return start_async(call, [&](StoppableUnaryReactor* reactor) -> Status {
     MD_ASSIGN_OR_RETURN(service::MoveRequest converted, move_from_proto(*request));
     converted.deadline = steady_deadline(*context);
+    MD_ASSIGN_OR_RETURN(v1::PositionEncoding encoding, encoding_from_proto(request->encoding()));
     const bool full_positions = request->full_positions();
     service_.move_handles_async(
         service::SessionId{request->session_id()}, service::Token{request->token()},
         std::move(converted), reactor->stop_token(),
         finish_with<service::DeformResult>(
-            reactor, call, [response, full_positions](service::DeformResult result) {
-              result_to_proto(result, full_positions, response->mutable_result());
+            reactor, call, [response, full_positions, encoding](service::DeformResult result) {
+              result_to_proto(result, full_positions, encoding, response->mutable_result());
             }));
     return Status::success();
   });
@@ -270,6 +273,8 @@ grpc::ServerWriteReactor<v1::DeformUpdate>* DeformServiceImpl::Watch(
     grpc::CallbackServerContext* context, const v1::WatchRequest* request) {
   (void)context;
   CallRecord call(service_, "Watch", request->session_id());
+  const Result<v1::PositionEncoding> encoding = encoding_from_proto(request->encoding());
+  if (!encoding.ok()) return new FailedWriteReactor(call.finish(encoding.status()));
   Result<service::Subscription> subscription = run_guarded("Watch", [&] {
     return service_.watch(service::SessionId{request->session_id()},
                           service::Token{request->token()});
@@ -277,7 +282,7 @@ grpc::ServerWriteReactor<v1::DeformUpdate>* DeformServiceImpl::Watch(
   if (!subscription.ok()) {
     return new FailedWriteReactor(call.finish(subscription.status()));
   }
-  return WatchReactor::start(std::move(subscription).value(), std::move(call));
+  return WatchReactor::start(std::move(subscription).value(), *encoding, std::move(call));
 }
 
 grpc::ServerUnaryReactor* DeformServiceImpl::GetMesh(grpc::CallbackServerContext* context,

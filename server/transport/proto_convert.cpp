@@ -1,9 +1,14 @@
 #include "server/transport/proto_convert.h"
 
 #include <algorithm>
+#include <bit>
 #include <climits>
 #include <cmath>
+#include <cstring>
 #include <string>
+#include <vector>
+
+#include <meshoptimizer.h>
 
 namespace meshdeform::transport {
 namespace {
@@ -247,8 +252,63 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
     if (!std::isfinite(request.tolerance())) return invalid("tolerance is non-finite");
     out.tolerance = request.tolerance();
   }
+  if (request.magnify_size() > kMaxMagnifyRegions) {
+    return invalid(std::to_string(request.magnify_size()) + " magnify regions (at most " +
+                   std::to_string(kMaxMagnifyRegions) + ")");
+  }
+  for (int r = 0; r < request.magnify_size(); ++r) {
+    const v1::MagnifyRegion& region = request.magnify(r);
+    const std::string where = "magnify[" + std::to_string(r) + "]";
+    service::MagnifyRegion converted;
+    if (!std::isfinite(region.scale())) return invalid(where + ".scale is non-finite");
+    converted.scale = region.scale();
+    converted.vertices.reserve(static_cast<std::size_t>(region.vertices_size()));
+    for (int i = 0; i < region.vertices_size(); ++i) {
+      MD_ASSIGN_OR_RETURN(int v, index_from_proto(region.vertices(i), where + ".vertices[" +
+                                                                          std::to_string(i) + "]"));
+      converted.vertices.push_back(v);
+    }
+    out.magnify.push_back(std::move(converted));
+  }
   out.editor = request.editor().substr(0, 256);
   return out;
+}
+
+Result<v1::PositionEncoding> encoding_from_proto(int value) {
+  switch (value) {
+    case v1::POSITION_ENCODING_UNSPECIFIED:
+    case v1::POSITION_ENCODING_FLOAT32:
+    case v1::POSITION_ENCODING_MESHOPT:
+      return static_cast<v1::PositionEncoding>(value);
+    default:
+      return invalid("unknown position encoding " + std::to_string(value));
+  }
+}
+
+void pack_positions(const Positions& rows, v1::PositionEncoding encoding, std::string* out) {
+  static_assert(sizeof(float) == 4);
+  std::vector<float> floats(static_cast<std::size_t>(rows.rows()) * 3);
+  for (Eigen::Index r = 0; r < rows.rows(); ++r) {
+    for (int c = 0; c < 3; ++c) {
+      floats[static_cast<std::size_t>(3 * r + c)] = static_cast<float>(rows(r, c));
+    }
+  }
+  // The wire is little-endian; so is every machine this builds for (x86-64, aarch64).
+  static_assert(std::endian::native == std::endian::little);
+  constexpr std::size_t kStride = 3 * sizeof(float);
+  if (encoding == v1::POSITION_ENCODING_MESHOPT) {
+    const std::size_t count = static_cast<std::size_t>(rows.rows());
+    const std::size_t offset = out->size();
+    out->resize(offset + meshopt_encodeVertexBufferBound(count, kStride));
+    const std::size_t written = meshopt_encodeVertexBuffer(
+        reinterpret_cast<unsigned char*>(out->data() + offset), out->size() - offset,
+        floats.data(), count, kStride);
+    out->resize(offset + written);
+    return;
+  }
+  const std::size_t offset = out->size();
+  out->resize(offset + floats.size() * sizeof(float));
+  std::memcpy(out->data() + offset, floats.data(), floats.size() * sizeof(float));
 }
 
 void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* out) {
@@ -293,29 +353,48 @@ void result_metrics_to_proto(const service::DeformResult& result, v1::DeformResu
   out->set_refinement(result.refinement);
   out->set_pcg_iterations(static_cast<std::uint32_t>(std::max(result.pcg_iterations, 0)));
 }
+
+
+void positions_to_proto(const Positions& rows, v1::PositionEncoding encoding,
+                        google::protobuf::RepeatedField<double>* doubles, std::string* packed) {
+  if (encoding == v1::POSITION_ENCODING_UNSPECIFIED) {
+    rows_to_proto(rows, doubles);
+  } else {
+    pack_positions(rows, encoding, packed);
+  }
+}
 }  // namespace
 
 void result_to_proto(const service::DeformResult& result, bool full_positions,
-                     v1::DeformResult* out) {
+                     v1::PositionEncoding encoding, v1::DeformResult* out) {
   result_metrics_to_proto(result, out);
+  out->set_encoding(encoding);
   out->mutable_changed_indices()->Reserve(static_cast<int>(result.changed.size()));
   for (int v : result.changed) out->add_changed_indices(static_cast<std::uint32_t>(v));
-  rows_to_proto(result.changed_positions, out->mutable_changed_positions());
-  if (full_positions && result.positions) rows_to_proto(*result.positions, out->mutable_positions());
+  positions_to_proto(result.changed_positions, encoding, out->mutable_changed_positions(),
+                     out->mutable_packed_changed_positions());
+  if (full_positions && result.positions) {
+    positions_to_proto(*result.positions, encoding, out->mutable_positions(),
+                       out->mutable_packed_positions());
+  }
 }
 
-void update_to_proto(const service::DeformUpdate& update, v1::DeformUpdate* out) {
+void update_to_proto(const service::DeformUpdate& update, v1::PositionEncoding encoding,
+                     v1::DeformUpdate* out) {
   out->Clear();
   out->set_is_snapshot(update.is_snapshot);
   out->set_skipped_revisions(update.skipped_revisions);
   if (!update.result) return;
   if (update.is_snapshot) {
-    result_metrics_to_proto(*update.result, out->mutable_result());
+    v1::DeformResult* result = out->mutable_result();
+    result_metrics_to_proto(*update.result, result);
+    result->set_encoding(encoding);
     if (update.result->positions) {
-      rows_to_proto(*update.result->positions, out->mutable_result()->mutable_positions());
+      positions_to_proto(*update.result->positions, encoding, result->mutable_positions(),
+                         result->mutable_packed_positions());
     }
   } else {
-    result_to_proto(*update.result, false, out->mutable_result());
+    result_to_proto(*update.result, false, encoding, out->mutable_result());
   }
 }
 

@@ -30,16 +30,32 @@ v1::Method method_to_proto(core::Method method);
 [[nodiscard]] Result<service::SetHandlesRequest> set_handles_from_proto(
     const v1::SetHandlesRequest& request);
 /// @return the move; InvalidArgument for non-finite numbers, an all-zero quaternion, targets whose
-///         positions are not 3 per vertex, indices > INT_MAX, max_iterations > 1000.
+///         positions are not 3 per vertex, indices > INT_MAX, max_iterations > 1000, more than
+///         kMaxMagnifyRegions regions or a non-finite magnify scale.
 [[nodiscard]] Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& request);
+
+/// At most this many magnify regions per move (each is resolved over every face).
+inline constexpr int kMaxMagnifyRegions = 64;
+
+/// @return the encoding; InvalidArgument for a value this server does not know.
+[[nodiscard]] Result<v1::PositionEncoding> encoding_from_proto(int value);
+
+/// Appends #rows x 3 positions to `out` in a compact encoding: FLOAT32 (little-endian float32
+/// x, y, z per row) or MESHOPT (those float32 rows, 12 bytes each, through meshoptimizer's
+/// lossless vertex codec). Rows beyond float's range become +-inf (FLOAT32 is the client's choice
+/// of precision). @pre encoding is FLOAT32 or MESHOPT.
+void pack_positions(const Positions& rows, v1::PositionEncoding encoding, std::string* out);
 
 void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* out);
 void created_to_proto(const service::CreatedSession& created, v1::CreateSessionResponse* out);
 /// @param[in] full_positions  also fill out->positions with all #V x 3 positions.
+/// @param[in] encoding        UNSPECIFIED: doubles in the repeated fields; FLOAT32 / MESHOPT:
+///                            the same positions in the packed_* bytes (see pack_positions).
 void result_to_proto(const service::DeformResult& result, bool full_positions,
-                     v1::DeformResult* out);
+                     v1::PositionEncoding encoding, v1::DeformResult* out);
 /// Snapshots carry all positions and no changed lists; deltas the changed lists only.
-void update_to_proto(const service::DeformUpdate& update, v1::DeformUpdate* out);
+void update_to_proto(const service::DeformUpdate& update, v1::PositionEncoding encoding,
+                     v1::DeformUpdate* out);
 void server_stats_to_proto(const service::ServiceStats& stats, double uptime_seconds,
                            v1::GetServerStatsResponse* out);
 

@@ -13,11 +13,14 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <future>
 #include <memory>
 #include <string>
 #include <thread>
 #include <vector>
+
+#include <meshoptimizer.h>
 
 #include "core/io/mesh_io.h"
 #include "meshdeform/v1/deformation.grpc.pb.h"
@@ -707,6 +710,229 @@ TEST_F(DeformServiceTest, HealthIsServingInProcessAndOnLoopback) {
   ASSERT_TRUE(made.ok()) << describe(made);
   EXPECT_EQ(created.info().vertices(), 554u);
   server->Shutdown(std::chrono::system_clock::now() + seconds(10));
+}
+
+// --- compact position encodings (issue 5: bytes per browser update) ----------------------------
+
+/// Decodes packed positions of `count` vertices in `encoding` back to float32 xyz.
+std::vector<float> unpack(const std::string& bytes, v1::PositionEncoding encoding,
+                          std::size_t count) {
+  std::vector<float> out(3 * count);
+  if (encoding == v1::POSITION_ENCODING_FLOAT32) {
+    EXPECT_EQ(bytes.size(), out.size() * sizeof(float));
+    if (bytes.size() == out.size() * sizeof(float)) std::memcpy(out.data(), bytes.data(), bytes.size());
+  } else {
+    EXPECT_EQ(meshopt_decodeVertexBuffer(out.data(), count, 3 * sizeof(float),
+                                         reinterpret_cast<const unsigned char*>(bytes.data()),
+                                         bytes.size()),
+              0);
+  }
+  return out;
+}
+
+TEST_F(DeformServiceTest, CompactEncodingsCarryTheSamePositions) {
+  // The same deterministic edit on three sessions, one per encoding: the packed forms must decode
+  // to exactly the float32 rounding of the doubles (MESHOPT is lossless over FLOAT32), with the
+  // same changed indices; MESHOPT must be the smallest.
+  std::vector<v1::MoveHandlesResponse> responses;
+  for (v1::PositionEncoding encoding :
+       {v1::POSITION_ENCODING_UNSPECIFIED, v1::POSITION_ENCODING_FLOAT32,
+        v1::POSITION_ENCODING_MESHOPT}) {
+    const v1::CreateSessionResponse s = create_with_handles("cylinder_small");
+    v1::MoveHandlesRequest request = bend_request(s, 30);
+    request.set_full_positions(true);
+    request.set_encoding(encoding);
+    v1::MoveHandlesResponse response;
+    const grpc::Status status = move(request, &response);
+    ASSERT_TRUE(status.ok()) << describe(status);
+    EXPECT_EQ(response.result().encoding(), encoding);
+    responses.push_back(response);
+  }
+  const v1::DeformResult& exact = responses[0].result();
+  ASSERT_EQ(exact.positions_size(), 3 * 420);
+  ASSERT_GT(exact.changed_indices_size(), 100);
+  EXPECT_TRUE(exact.packed_positions().empty());
+  for (int e = 1; e <= 2; ++e) {
+    const v1::DeformResult& packed = responses[static_cast<std::size_t>(e)].result();
+    EXPECT_EQ(packed.positions_size(), 0);
+    EXPECT_EQ(packed.changed_positions_size(), 0);
+    ASSERT_EQ(packed.changed_indices_size(), exact.changed_indices_size());
+    for (int j = 0; j < exact.changed_indices_size(); ++j) {
+      ASSERT_EQ(packed.changed_indices(j), exact.changed_indices(j));
+    }
+    const std::vector<float> all = unpack(packed.packed_positions(), packed.encoding(), 420);
+    for (int j = 0; j < exact.positions_size(); ++j) {
+      ASSERT_EQ(all[static_cast<std::size_t>(j)], static_cast<float>(exact.positions(j))) << j;
+    }
+    const std::vector<float> changed =
+        unpack(packed.packed_changed_positions(), packed.encoding(),
+               static_cast<std::size_t>(packed.changed_indices_size()));
+    for (int j = 0; j < exact.changed_positions_size(); ++j) {
+      ASSERT_EQ(changed[static_cast<std::size_t>(j)], static_cast<float>(exact.changed_positions(j)));
+    }
+  }
+  const std::size_t doubles = responses[0].ByteSizeLong();
+  const std::size_t floats = responses[1].ByteSizeLong();
+  const std::size_t meshopt = responses[2].ByteSizeLong();
+  EXPECT_LT(floats, doubles * 6 / 10) << doubles << " vs " << floats;
+  EXPECT_LT(meshopt, floats) << floats << " vs " << meshopt;
+}
+
+TEST_F(DeformServiceTest, WatchSnapshotsAndDeltasInMeshopt) {
+  const v1::CreateSessionResponse s = create_with_handles("cylinder_small");
+  grpc::ClientContext context;
+  bound(context);
+  v1::WatchRequest watch;
+  watch.set_session_id(s.session_id());
+  watch.set_token(s.view_token());
+  watch.set_encoding(v1::POSITION_ENCODING_MESHOPT);
+  auto reader = stub_->Watch(&context, watch);
+  v1::DeformUpdate snapshot;
+  ASSERT_TRUE(reader->Read(&snapshot));
+  ASSERT_TRUE(snapshot.is_snapshot());
+  EXPECT_EQ(snapshot.result().encoding(), v1::POSITION_ENCODING_MESHOPT);
+  std::vector<float> mirror = unpack(snapshot.result().packed_positions(),
+                                     v1::POSITION_ENCODING_MESHOPT, 420);
+  v1::MoveHandlesRequest request = bend_request(s, 25);
+  request.set_full_positions(true);  // doubles: the reference
+  v1::MoveHandlesResponse response;
+  ASSERT_TRUE(move(request, &response).ok());
+  v1::DeformUpdate update;
+  ASSERT_TRUE(reader->Read(&update));
+  ASSERT_FALSE(update.is_snapshot());
+  const std::vector<float> changed =
+      unpack(update.result().packed_changed_positions(), v1::POSITION_ENCODING_MESHOPT,
+             static_cast<std::size_t>(update.result().changed_indices_size()));
+  for (int j = 0; j < update.result().changed_indices_size(); ++j) {
+    const std::size_t v = update.result().changed_indices(j);
+    for (int c = 0; c < 3; ++c) mirror[3 * v + c] = changed[static_cast<std::size_t>(3 * j + c)];
+  }
+  // Snapshot + deltas reproduce the new revision (to float32 rounding of the doubles).
+  for (int j = 0; j < response.result().positions_size(); ++j) {
+    ASSERT_EQ(mirror[static_cast<std::size_t>(j)], static_cast<float>(response.result().positions(j)));
+  }
+  context.TryCancel();
+}
+
+TEST_F(DeformServiceTest, UnknownEncodingIsInvalidArgument) {
+  const v1::CreateSessionResponse s = create_with_handles("cylinder_small");
+  v1::MoveHandlesRequest request = bend_request(s, 10);
+  request.set_encoding(static_cast<v1::PositionEncoding>(42));
+  v1::MoveHandlesResponse response;
+  const grpc::Status moved = move(request, &response);
+  EXPECT_EQ(moved.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(moved.error_message().find("42"), std::string::npos) << moved.error_message();
+  grpc::ClientContext context;
+  bound(context);
+  v1::WatchRequest watch;
+  watch.set_session_id(s.session_id());
+  watch.set_token(s.view_token());
+  watch.set_encoding(static_cast<v1::PositionEncoding>(-1));
+  auto reader = stub_->Watch(&context, watch);
+  v1::DeformUpdate update;
+  EXPECT_FALSE(reader->Read(&update));
+  EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+}
+
+// --- magnify regions (paper Section 5.3) --------------------------------------------------------
+
+/// Total area of the faces whose three vertices are all in `region`.
+double region_area(const MeshData& mesh, const google::protobuf::RepeatedField<double>& flat,
+                   const std::vector<bool>& region) {
+  double area = 0;
+  for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
+    if (!region[mesh.F(f, 0)] || !region[mesh.F(f, 1)] || !region[mesh.F(f, 2)]) continue;
+    Eigen::Vector3d p[3];
+    for (int k = 0; k < 3; ++k) {
+      const int v = mesh.F(f, k);
+      p[k] = Eigen::Vector3d(flat[3 * v], flat[3 * v + 1], flat[3 * v + 2]);
+    }
+    area += 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).norm();
+  }
+  return area;
+}
+
+TEST_F(DeformServiceTest, MagnifyGrowsTheRegionWithScaleAwareOnly) {
+  const v1::CreateSessionResponse s = create_with_handles("cylinder_small");
+  // The mesh itself, to find the region: the upper half of the tube, handles excluded.
+  v1::GetMeshResponse mesh_bytes;
+  {
+    grpc::ClientContext context;
+    bound(context);
+    v1::GetMeshRequest request;
+    request.set_session_id(s.session_id());
+    request.set_token(s.view_token());
+    request.set_format(v1::MESH_FORMAT_OBJ);
+    ASSERT_TRUE(stub_->GetMesh(&context, request, &mesh_bytes).ok());
+  }
+  Result<MeshData> mesh = io::read_mesh_from_memory(mesh_bytes.mesh_bytes(), io::MeshFormat::Obj);
+  ASSERT_TRUE(mesh.ok());
+  std::vector<bool> constrained(static_cast<std::size_t>(mesh->V.rows()), false);
+  for (const v1::HandleGroup& g : s.suggested_groups()) {
+    for (std::uint32_t v : g.vertices()) constrained[v] = true;
+  }
+  // Height axis: the longest side of the bounding box.
+  const Eigen::Vector3d extent = mesh->V.colwise().maxCoeff() - mesh->V.colwise().minCoeff();
+  Eigen::Index axis = 0;
+  extent.maxCoeff(&axis);
+  const double lo = mesh->V.col(axis).minCoeff();
+  std::vector<bool> region(static_cast<std::size_t>(mesh->V.rows()), false);
+  v1::MagnifyRegion magnify;
+  magnify.set_scale(1.5);
+  for (Eigen::Index v = 0; v < mesh->V.rows(); ++v) {
+    const double t = (mesh->V(v, axis) - lo) / extent(axis);
+    if (t > 0.55 && !constrained[static_cast<std::size_t>(v)]) {
+      region[static_cast<std::size_t>(v)] = true;
+      magnify.add_vertices(static_cast<std::uint32_t>(v));
+    }
+  }
+  ASSERT_GT(magnify.vertices_size(), 50);
+
+  auto still = [&](bool with_magnify, v1::Method method) {
+    v1::MoveHandlesRequest request;
+    request.set_session_id(s.session_id());
+    request.set_token(s.edit_token());
+    request.set_method(method);
+    request.set_max_iterations(10);
+    request.set_full_positions(true);
+    if (with_magnify) *request.add_magnify() = magnify;
+    return request;
+  };
+  v1::MoveHandlesResponse plain, grown;
+  ASSERT_TRUE(move(still(false, v1::METHOD_SCALE_AWARE), &plain).ok());
+  const grpc::Status status = move(still(true, v1::METHOD_SCALE_AWARE), &grown);
+  ASSERT_TRUE(status.ok()) << describe(status);
+  Positions rest_flat = mesh->V;
+  google::protobuf::RepeatedField<double> rest;
+  for (Eigen::Index v = 0; v < rest_flat.rows(); ++v)
+    for (int c = 0; c < 3; ++c) rest.Add(rest_flat(v, c));
+  const double a0 = region_area(*mesh, rest, region);
+  const double a_plain = region_area(*mesh, plain.result().positions(), region);
+  const double a_grown = region_area(*mesh, grown.result().positions(), region);
+  EXPECT_NEAR(a_plain / a0, 1.0, 1e-3);  // handles at rest: the rest pose, nothing grows
+  // k = 1.5 asks for 2.25x the area; the constrained rims hold the tube, so it gets part of it.
+  EXPECT_GT(a_grown / a0, 1.3) << a_grown / a0;
+
+  // Wrong method, bad scale, bad index: InvalidArgument, nothing committed.
+  v1::SessionInfo before;
+  ASSERT_TRUE(info(s.session_id(), s.view_token(), &before).ok());
+  v1::MoveHandlesResponse response;
+  EXPECT_EQ(move(still(true, v1::METHOD_ARAP), &response).error_code(),
+            grpc::StatusCode::INVALID_ARGUMENT);
+  v1::MoveHandlesRequest bad = still(true, v1::METHOD_SCALE_AWARE);
+  bad.mutable_magnify(0)->set_scale(0);
+  EXPECT_EQ(move(bad, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  bad.mutable_magnify(0)->set_scale(std::nan(""));
+  EXPECT_EQ(move(bad, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  bad = still(true, v1::METHOD_SCALE_AWARE);
+  bad.mutable_magnify(0)->add_vertices(100000);
+  const grpc::Status out_of_range = move(bad, &response);
+  EXPECT_EQ(out_of_range.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(out_of_range.error_message().find("100000"), std::string::npos)
+      << out_of_range.error_message();
+  v1::SessionInfo after;
+  ASSERT_TRUE(info(s.session_id(), s.view_token(), &after).ok());
+  EXPECT_EQ(after.revision(), before.revision());
 }
 
 }  // namespace
