@@ -123,6 +123,7 @@ DeformationService::DeformationService(ServiceOptions options)
         return options;
       }()),
       counters_(std::make_shared<ServiceCounters>()),
+      limiter_(options_.create_rate, options_.move_rate, options_.clock),
       store_(options_),
       pool_(options_.workers) {
   if (options_.state_dir.empty()) return;
@@ -470,6 +471,22 @@ std::size_t DeformationService::evict_expired(std::chrono::steady_clock::time_po
   return store_.evict_expired(now);
 }
 
+Status DeformationService::admit(std::string_view client, RateLimitedCall call,
+                                 std::chrono::milliseconds* retry_after) {
+  const std::optional<std::chrono::milliseconds> wait = limiter_.admit(client, call);
+  if (retry_after != nullptr) *retry_after = wait.value_or(std::chrono::milliseconds(0));
+  if (!wait) return Status::success();
+  const bool create = call == RateLimitedCall::CreateSession;
+  (create ? rate_limited_creates_ : rate_limited_moves_).fetch_add(1);
+  const RateLimit& limit = create ? options_.create_rate : options_.move_rate;
+  char rate[64];
+  std::snprintf(rate, sizeof rate, "%g per second, bursts of %g", limit.per_second, limit.burst);
+  return Error(ErrorCode::ResourceExhausted,
+               std::string("rate limit: ") + (create ? "session creations" : "moves") +
+                   " from this client exceed " + rate + "; retry in " +
+                   std::to_string(wait->count()) + " ms");
+}
+
 ServiceStats DeformationService::stats() const {
   ServiceStats stats;
   stats.deformer_constructions = counters_->deformer_constructions.load();
@@ -486,6 +503,8 @@ ServiceStats DeformationService::stats() const {
   stats.watchers = store_.watcher_count();
   stats.evicted_lru = store_.evicted_lru();
   stats.evicted_idle = store_.evicted_idle();
+  stats.rate_limited_creates = rate_limited_creates_.load();
+  stats.rate_limited_moves = rate_limited_moves_.load();
   stats.sessions = store_.size();
   stats.estimated_bytes = store_.total_bytes();
   stats.workers = pool_.size();

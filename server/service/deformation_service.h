@@ -23,11 +23,13 @@
 #include <optional>
 #include <stop_token>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "core/io/mesh_io.h"
 #include "core/status.h"
 #include "server/service/persistence.h"
+#include "server/service/rate_limiter.h"
 #include "server/service/session.h"
 #include "server/service/session_store.h"
 #include "server/service/types.h"
@@ -118,6 +120,15 @@ class DeformationService {
   std::size_t evict_expired(std::chrono::steady_clock::time_point now);
 
   ServiceStats stats() const;
+
+  /// Admits one call of `client` under ServiceOptions::create_rate / move_rate. Front ends call
+  /// it before they hand the call to the service; `client` is their name for the caller (a
+  /// network address such as "ipv4:10.1.2.3"; empty is one anonymous client).
+  /// @param[out] retry_after  if not null, set to the wait when refused (0 when admitted).
+  /// @return success; ResourceExhausted naming the limit and the wait when the client is over it.
+  Status admit(std::string_view client, RateLimitedCall call,
+               std::chrono::milliseconds* retry_after = nullptr);
+
   /// Where front ends record their calls (MetricsRegistry::record_rpc).
   MetricsRegistry& metrics() { return counters_->metrics; }
   /// The Prometheus text exposition of stats() and the recorded metrics (for GET /metrics).
@@ -143,6 +154,9 @@ class DeformationService {
   std::mutex restore_mutex_;  ///< one restore at a time, so a session is loaded once
   std::atomic<std::uint64_t> sessions_restored_{0};
   std::atomic<std::uint64_t> state_files_corrupt_{0};
+  RateLimiter limiter_;
+  std::atomic<std::uint64_t> rate_limited_creates_{0};
+  std::atomic<std::uint64_t> rate_limited_moves_{0};
   SessionStore store_;
   WorkerPool pool_;  // declared last: destroyed (drained, joined) before the store
 };

@@ -172,6 +172,12 @@ std::string MetricsRegistry::render(const ServiceStats& stats) const {
          "reason=\"memory_budget\"");
   sample(out, "meshdeform_sessions_evicted_total", static_cast<double>(stats.evicted_idle),
          "reason=\"idle_ttl\"");
+  header(out, "meshdeform_rate_limited_total", "counter",
+         "Calls refused by the per-client rate limits, by call.");
+  sample(out, "meshdeform_rate_limited_total", static_cast<double>(stats.rate_limited_creates),
+         "call=\"CreateSession\"");
+  sample(out, "meshdeform_rate_limited_total", static_cast<double>(stats.rate_limited_moves),
+         "call=\"MoveHandles\"");
   return out;
 }
 

@@ -165,6 +165,15 @@ struct CreatedSession {
   std::vector<HandleGroup> suggested_groups;  ///< samples: the benchmark's fixed and handle sets
 };
 
+/// The calls limited per client (DeformationService::admit).
+enum class RateLimitedCall { CreateSession, MoveHandles };
+
+/// One kind of call's limit per client. per_second <= 0 means unlimited.
+struct RateLimit {
+  double per_second = 0;  ///< sustained rate
+  double burst = 1;       ///< bucket size: calls allowed at once after a quiet spell (>= 1)
+};
+
 /// Limits and sizes; every one has a sane default.
 struct ServiceOptions {
   int workers = 0;                 ///< solver threads; 0 = std::thread::hardware_concurrency()
@@ -183,6 +192,11 @@ struct ServiceOptions {
   /// file is younger than idle_ttl are restored on their first request after a restart (or on
   /// another replica sharing the directory).
   std::string state_dir;
+  /// Per-client limits (a client is what the front end names it: its network address). The
+  /// defaults stop a runaway script without touching interactive use or a 16-session load test:
+  /// 2 sessions per second (bursts of 30) and 200 moves per second (bursts of 400).
+  RateLimit create_rate{2.0, 30.0};
+  RateLimit move_rate{200.0, 400.0};
   Clock clock;                     ///< default: std::chrono::steady_clock::now
 };
 
@@ -200,6 +214,8 @@ struct ServiceStats {
   std::uint64_t persist_failures = 0;        ///< state writes that failed (logged)
   std::uint64_t evicted_lru = 0;             ///< sessions evicted for the memory budget
   std::uint64_t evicted_idle = 0;            ///< sessions evicted by the idle TTL
+  std::uint64_t rate_limited_creates = 0;    ///< CreateSession calls refused by create_rate
+  std::uint64_t rate_limited_moves = 0;      ///< MoveHandles calls refused by move_rate
   std::size_t sessions = 0;
   std::size_t estimated_bytes = 0;
   std::size_t resident_bytes = 0;            ///< the process's resident set (Linux), 0 if unknown

@@ -5,6 +5,8 @@
 #include <mutex>
 #include <optional>
 #include <stop_token>
+#include <string>
+#include <string_view>
 #include <utility>
 
 #include "server/service/log.h"
@@ -108,6 +110,23 @@ grpc::ServerUnaryReactor* finish_now(grpc::CallbackServerContext* context, const
   grpc::ServerUnaryReactor* reactor = context->DefaultReactor();
   reactor->Finish(call.finish(status));
   return reactor;
+}
+
+/// The first value of metadata `key`, or empty.
+std::string metadata_value(const grpc::CallbackServerContext& context, std::string_view key) {
+  const auto& metadata = context.client_metadata();
+  const auto it = metadata.find(grpc::string_ref(key.data(), key.size()));
+  if (it == metadata.end()) return {};
+  return std::string(it->second.data(), it->second.size());
+}
+
+/// A client name fit for a map key and a log: printable ASCII, at most 64 bytes.
+std::string sanitize_client(std::string_view text) {
+  std::string out;
+  for (char c : text.substr(0, 64)) {
+    if (c > ' ' && c < 127) out += c;
+  }
+  return out;
 }
 
 /// Streams a subscription. Owned by itself (self_) until OnDone; the watcher's notify holds only a
@@ -214,12 +233,49 @@ class FailedWriteReactor final : public grpc::ServerWriteReactor<v1::DeformUpdat
 
 }  // namespace
 
+std::string client_identity(const grpc::CallbackServerContext& context,
+                            const ClientIdentityOptions& options) {
+  const std::string peer = context.peer();
+  if (peer.rfind("ipv4:", 0) != 0 && peer.rfind("ipv6:", 0) != 0 && peer.rfind("unix:", 0) != 0) {
+    // In-process: the gateway forwarding a browser's call names the browser.
+    if (std::string browser = metadata_value(context, "x-meshdeform-peer"); !browser.empty()) {
+      return sanitize_client(browser);
+    }
+    return sanitize_client(peer);
+  }
+  if (options.trust_forwarded_for) {
+    std::string forwarded = metadata_value(context, "x-forwarded-for");
+    forwarded = forwarded.substr(0, forwarded.find(','));
+    if (std::string name = sanitize_client(forwarded); !name.empty()) return "fwd:" + name;
+  }
+  if (peer.rfind("unix:", 0) == 0) return sanitize_client(peer);
+  // Strip the port: "ipv4:1.2.3.4:5678" -> "ipv4:1.2.3.4", "ipv6:[::1]:5678" -> "ipv6:[::1]".
+  const std::size_t colon = peer.rfind(':');
+  return sanitize_client(colon > 5 ? std::string_view(peer).substr(0, colon) : peer);
+}
+
+/// Refuses a call over its client's rate limit (ResourceExhausted, with the wait in the message
+/// and in the `retry-after-ms` trailer). @return the refusal, or success.
+Status admit_call(service::DeformationService& service, grpc::CallbackServerContext* context,
+                  const ClientIdentityOptions& identity, service::RateLimitedCall kind) {
+  std::chrono::milliseconds retry_after{0};
+  Status admitted = service.admit(client_identity(*context, identity), kind, &retry_after);
+  if (!admitted.ok()) {
+    context->AddTrailingMetadata("retry-after-ms", std::to_string(retry_after.count()));
+  }
+  return admitted;
+}
+
 grpc::ServerUnaryReactor* DeformServiceImpl::CreateSession(grpc::CallbackServerContext* context,
                                                            const v1::CreateSessionRequest* request,
                                                            v1::CreateSessionResponse* response) {
-  (void)context;
   // Parsing and cleaning an upload run on the service's workers, not on this gRPC thread.
   const CallRecord call(service_, "CreateSession", {});
+  if (Status admitted = admit_call(service_, context, identity_,
+                                   service::RateLimitedCall::CreateSession);
+      !admitted.ok()) {
+    return finish_now(context, call, admitted);
+  }
   return start_async(call, [&](StoppableUnaryReactor* reactor) -> Status {
     MD_ASSIGN_OR_RETURN(service::CreateSessionRequest converted,
                         create_request_from_proto(*request));
@@ -253,6 +309,11 @@ grpc::ServerUnaryReactor* DeformServiceImpl::MoveHandles(grpc::CallbackServerCon
                                                          const v1::MoveHandlesRequest* request,
                                                          v1::MoveHandlesResponse* response) {
   const CallRecord call(service_, "MoveHandles", request->session_id());
+  if (Status admitted = admit_call(service_, context, identity_,
+                                   service::RateLimitedCall::MoveHandles);
+      !admitted.ok()) {
+    return finish_now(context, call, admitted);
+  }
   return start_async(call, [&](StoppableUnaryReactor* reactor) -> Status {
     MD_ASSIGN_OR_RETURN(service::MoveRequest converted, move_from_proto(*request));
     converted.deadline = steady_deadline(*context);

@@ -9,16 +9,34 @@
 /// timed in the service's MetricsRegistry and logged as one JSON line (never with its token).
 
 #include <chrono>
+#include <string>
 
 #include "meshdeform/v1/deformation.grpc.pb.h"
 #include "server/service/deformation_service.h"
 
 namespace meshdeform::transport {
 
+/// How the adapter names the client of a call for the service's per-client rate limits.
+struct ClientIdentityOptions {
+  /// Use the first address of the `x-forwarded-for` metadata when a call carries one. Only for a
+  /// server reachable solely through a proxy that sets that header itself (nginx:
+  /// `grpc_set_header X-Forwarded-For $remote_addr;`): anyone else could pick their own name.
+  bool trust_forwarded_for = false;
+};
+
+/// The rate-limit name of a call's client: the peer address without its port ("ipv4:10.0.0.7",
+/// "ipv6:[::1]"); for calls forwarded in-process by the gRPC-Web gateway, the browser's address
+/// the gateway passes as `x-meshdeform-peer` (trusted only in-process: a network peer cannot
+/// set it); with trust_forwarded_for, the first `x-forwarded-for` address.
+std::string client_identity(const grpc::CallbackServerContext& context,
+                            const ClientIdentityOptions& options);
+
 class DeformServiceImpl final : public v1::DeformationService::CallbackService {
  public:
   /// @param[in] service  must outlive the grpc::Server this is registered with.
-  explicit DeformServiceImpl(service::DeformationService& service) : service_(service) {}
+  explicit DeformServiceImpl(service::DeformationService& service,
+                             ClientIdentityOptions identity = {})
+      : service_(service), identity_(identity) {}
 
   grpc::ServerUnaryReactor* CreateSession(grpc::CallbackServerContext* context,
                                           const v1::CreateSessionRequest* request,
@@ -48,6 +66,7 @@ class DeformServiceImpl final : public v1::DeformationService::CallbackService {
   double uptime_seconds() const;
 
   service::DeformationService& service_;
+  ClientIdentityOptions identity_;
   std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
 };
 

@@ -935,5 +935,87 @@ TEST_F(DeformServiceTest, MagnifyGrowsTheRegionWithScaleAwareOnly) {
   EXPECT_EQ(after.revision(), before.revision());
 }
 
+// --- per-client rate limits ------------------------------------------------------------------
+
+TEST_F(DeformServiceTest, RateLimitsAreResourceExhaustedWithARetryHintPerClient) {
+  stop();
+  service::ServiceOptions options;
+  options.create_rate = {0.001, 2.0};  // two sessions, then one every ~17 minutes
+  options.move_rate = {0.001, 3.0};
+  start(options);
+  auto create_as = [&](const std::string& browser, grpc::Status* status) {
+    grpc::ClientContext context;
+    bound(context);
+    // In-process calls come from the gRPC-Web gateway, which names the browser this way.
+    if (!browser.empty()) context.AddMetadata("x-meshdeform-peer", browser);
+    v1::CreateSessionResponse created;
+    *status = stub_->CreateSession(&context, sample_request("cylinder_small"), &created);
+    const auto& trailers = context.GetServerTrailingMetadata();
+    const auto it = trailers.find("retry-after-ms");
+    return it == trailers.end() ? std::string() : std::string(it->second.data(), it->second.size());
+  };
+  grpc::Status status;
+  EXPECT_EQ(create_as("ipv4:10.0.0.1", &status), "");
+  EXPECT_TRUE(status.ok()) << describe(status);
+  EXPECT_EQ(create_as("ipv4:10.0.0.1", &status), "");
+  EXPECT_TRUE(status.ok()) << describe(status);
+  const std::string retry = create_as("ipv4:10.0.0.1", &status);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(status.error_message().find("retry in"), std::string::npos) << status.error_message();
+  ASSERT_FALSE(retry.empty());
+  EXPECT_GT(std::stoll(retry), 60'000);  // 1 / 0.001 s, about 1000 s
+  // Another browser is not held back by the first one.
+  EXPECT_EQ(create_as("ipv4:10.0.0.2", &status), "");
+  EXPECT_TRUE(status.ok()) << describe(status);
+
+  // Moves: three, then refused with nothing committed; reads are never limited.
+  const v1::CreateSessionResponse s = create_with_handles("cylinder_small");  // anonymous client
+  for (int i = 1; i <= 3; ++i) {
+    v1::MoveHandlesResponse response;
+    const grpc::Status moved = move(bend_request(s, 5.0 * i), &response);
+    ASSERT_TRUE(moved.ok()) << i << " " << describe(moved);
+  }
+  v1::MoveHandlesResponse response;
+  EXPECT_EQ(move(bend_request(s, 20), &response).error_code(),
+            grpc::StatusCode::RESOURCE_EXHAUSTED);
+  v1::SessionInfo after;
+  ASSERT_TRUE(info(s.session_id(), s.view_token(), &after).ok());
+  EXPECT_EQ(after.revision(), 3u);
+  const service::ServiceStats stats = service_->stats();
+  EXPECT_EQ(stats.rate_limited_creates, 1u);
+  EXPECT_EQ(stats.rate_limited_moves, 1u);
+  EXPECT_NE(service_->render_metrics().find(
+                "meshdeform_rate_limited_total{call=\"MoveHandles\"} 1"),
+            std::string::npos);
+}
+
+TEST(ClientIdentityTest, NetworkPeersCannotNameThemselves) {
+  // Over TCP the peer address names the client, whatever metadata it sends.
+  service::ServiceOptions options;
+  options.create_rate = {0.001, 1.0};
+  service::DeformationService service(options);
+  DeformServiceImpl impl(service);
+  grpc::ServerBuilder builder;
+  int port = 0;
+  builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
+  configure_builder(builder, impl, kMaxMessageMib);
+  std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
+  ASSERT_NE(server, nullptr);
+  auto stub = v1::DeformationService::NewStub(grpc::CreateChannel(
+      "127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials()));
+  std::vector<grpc::StatusCode> codes;
+  for (const char* name : {"ipv4:10.9.9.1", "ipv4:10.9.9.2"}) {
+    grpc::ClientContext context;
+    bound(context);
+    context.AddMetadata("x-meshdeform-peer", name);
+    context.AddMetadata("x-forwarded-for", name);
+    v1::CreateSessionResponse created;
+    codes.push_back(stub->CreateSession(&context, sample_request("bar_small"), &created).error_code());
+  }
+  EXPECT_EQ(codes[0], grpc::StatusCode::OK);
+  EXPECT_EQ(codes[1], grpc::StatusCode::RESOURCE_EXHAUSTED);
+  server->Shutdown(std::chrono::system_clock::now() + seconds(10));
+}
+
 }  // namespace
 }  // namespace meshdeform::transport
