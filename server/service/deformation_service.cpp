@@ -445,7 +445,10 @@ Result<std::string> DeformationService::get_mesh(const SessionId& id, const Toke
 Result<SessionInfo> DeformationService::session_info(const SessionId& id, const Token& token) {
   return run_guarded([&]() -> Result<SessionInfo> {
     MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, find_for_view(id, token));
-    return session->info();
+    SessionInfo info = session->info();
+    info.token_can_edit = session->can_edit(token);
+    if (info.token_can_edit) info.view_token = session->view_token().value;
+    return info;
   });
 }
 

@@ -98,7 +98,8 @@ class DeformationService {
                       std::optional<std::uint64_t> revision, std::stop_token stop,
                       std::function<void(Result<std::string>)> done);
 
-  /// @return the summary; NotFound; PermissionDenied.
+  /// @return the summary, with token_can_edit (and then view_token) telling the caller what its
+  ///         token allows; NotFound; PermissionDenied.
   [[nodiscard]] Result<SessionInfo> session_info(const SessionId& id, const Token& token);
 
   /// Closes a session: queued edits end with NotFound, watchers are closed.

@@ -72,6 +72,8 @@ class Session : public std::enable_shared_from_this<Session> {
   bool can_edit(const Token& token) const;
   /// True for the view token or the edit token.
   bool can_view(const Token& token) const;
+  /// The view token (handed to editors, who may share it; never logged).
+  const Token& view_token() const { return view_token_; }
 
   /// Sets the handle groups, anchors them at the current positions (targets = anchors) and builds
   /// (or reuses) the factorization of `request.prepare` for the constrained set.

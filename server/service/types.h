@@ -143,6 +143,10 @@ struct SessionInfo {
   std::size_t estimated_bytes = 0;          ///< what the memory budget charges this session
   int cached_deformers = 0;
   int watchers = 0;
+  /// Filled by DeformationService::session_info only: whether the token asked with is the edit
+  /// token, and then the view token (so that an editor opened from a link can share a watch link).
+  bool token_can_edit = false;
+  std::string view_token;
 };
 
 /// CreateSession input: exactly one of mesh bytes or a built-in sample name.

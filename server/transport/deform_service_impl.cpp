@@ -376,6 +376,8 @@ grpc::ServerUnaryReactor* DeformServiceImpl::GetSessionInfo(
                         service_.session_info(service::SessionId{request->session_id()},
                                               service::Token{request->token()}));
     session_info_to_proto(info, response->mutable_info());
+    response->set_can_edit(info.token_can_edit);
+    response->set_view_token(info.view_token);
     return Status::success();
   }));
 }

@@ -1017,5 +1017,20 @@ TEST(ClientIdentityTest, NetworkPeersCannotNameThemselves) {
   server->Shutdown(std::chrono::system_clock::now() + seconds(10));
 }
 
+TEST_F(DeformServiceTest, SessionInfoTellsWhatTheTokenAllows) {
+  const v1::CreateSessionResponse s = create_with_handles("cylinder_small");
+  for (const bool edit : {true, false}) {
+    grpc::ClientContext context;
+    bound(context);
+    v1::GetSessionInfoRequest request;
+    request.set_session_id(s.session_id());
+    request.set_token(edit ? s.edit_token() : s.view_token());
+    v1::GetSessionInfoResponse response;
+    ASSERT_TRUE(stub_->GetSessionInfo(&context, request, &response).ok());
+    EXPECT_EQ(response.can_edit(), edit);
+    EXPECT_EQ(response.view_token(), edit ? s.view_token() : "");  // never the edit token
+  }
+}
+
 }  // namespace
 }  // namespace meshdeform::transport
