@@ -17,6 +17,7 @@ const char* error_code_name(ErrorCode code) {
     case ErrorCode::DeadlineExceeded: return "DeadlineExceeded";
     case ErrorCode::NumericalFailure: return "NumericalFailure";
     case ErrorCode::Internal: return "Internal";
+    case ErrorCode::Aborted: return "Aborted";
   }
   return "Unknown";
 }

@@ -24,6 +24,8 @@ enum class ErrorCode {
   DeadlineExceeded,
   NumericalFailure,
   Internal,
+  /// A concurrent change won (e.g. another replica edited the session): retrying may succeed.
+  Aborted,
 };
 
 /// Human-readable name of an error code ("InvalidArgument").

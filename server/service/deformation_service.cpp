@@ -244,17 +244,29 @@ void DeformationService::get_mesh_async(SessionId id, Token token, io::MeshForma
 }
 
 std::shared_ptr<Session> DeformationService::find_or_restore(const SessionId& id) {
-  if (std::shared_ptr<Session> session = store_.find(id)) return session;
+  std::shared_ptr<Session> cached = store_.find(id);
+  // With a shared state directory another replica may have served the session since this copy
+  // last wrote or read its file (a failover and back, or the replica that created it): one stat
+  // tells, and a stale copy is dropped for the file's newer state (or for NotFound when the file
+  // is gone: closed or expired elsewhere).
+  if (cached && cached->is_fresh()) return cached;
   if (!state_dir_ || !is_valid_session_id(id.value)) return nullptr;
   const std::lock_guard lock(restore_mutex_);
-  if (std::shared_ptr<Session> session = store_.find(id)) return session;  // restored meanwhile
+  cached = store_.find(id);
+  if (cached && cached->is_fresh()) return cached;  // restored meanwhile
+  if (cached) {
+    store_.erase(id);
+    stale_copies_dropped_.fetch_add(1);
+    log_event(LogLevel::Info, "session_stale_dropped", LogFields().add("session", id.value));
+  }
   const std::optional<double> age = state_dir_->age_seconds(id);
   if (!age) return nullptr;
   if (*age > std::chrono::duration<double>(options_.idle_ttl).count()) {
     state_dir_->remove(id);  // expired while no server held it
     return nullptr;
   }
-  Result<PersistedSession> state = state_dir_->read(id);
+  FileStamp stamp;
+  Result<PersistedSession> state = state_dir_->read(id, &stamp);
   if (!state.ok()) {
     if (state.status().code() != ErrorCode::NotFound) {
       state_files_corrupt_.fetch_add(1);
@@ -278,6 +290,7 @@ std::shared_ptr<Session> DeformationService::find_or_restore(const SessionId& id
   }
   std::shared_ptr<Session> session = std::move(restored).value();
   session->set_state_directory(&*state_dir_);
+  session->set_persisted_stamp(stamp);
   if (const Status inserted = store_.insert(session); !inserted.ok()) {
     log_event(LogLevel::Warn, "state_restore_refused",
               LogFields().add("session", id.value).add("message", inserted.message()));
@@ -508,6 +521,7 @@ ServiceStats DeformationService::stats() const {
   stats.evicted_idle = store_.evicted_idle();
   stats.rate_limited_creates = rate_limited_creates_.load();
   stats.rate_limited_moves = rate_limited_moves_.load();
+  stats.stale_copies_dropped = stale_copies_dropped_.load();
   stats.sessions = store_.size();
   stats.estimated_bytes = store_.total_bytes();
   stats.workers = pool_.size();

@@ -158,6 +158,7 @@ class DeformationService {
   RateLimiter limiter_;
   std::atomic<std::uint64_t> rate_limited_creates_{0};
   std::atomic<std::uint64_t> rate_limited_moves_{0};
+  std::atomic<std::uint64_t> stale_copies_dropped_{0};
   SessionStore store_;
   WorkerPool pool_;  // declared last: destroyed (drained, joined) before the store
 };

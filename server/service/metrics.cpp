@@ -172,6 +172,9 @@ std::string MetricsRegistry::render(const ServiceStats& stats) const {
          "reason=\"memory_budget\"");
   sample(out, "meshdeform_sessions_evicted_total", static_cast<double>(stats.evicted_idle),
          "reason=\"idle_ttl\"");
+  counter("meshdeform_stale_copies_dropped_total",
+          "Cached sessions dropped because another replica changed their state file.",
+          static_cast<double>(stats.stale_copies_dropped));
   header(out, "meshdeform_rate_limited_total", "counter",
          "Calls refused by the per-client rate limits, by call.");
   sample(out, "meshdeform_rate_limited_total", static_cast<double>(stats.rate_limited_creates),

@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <array>
+#include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <cstring>
@@ -239,14 +240,26 @@ std::string StateDirectory::file_of(const SessionId& id) const {
   return path_ + "/" + id.value + ".state";
 }
 
-Status StateDirectory::write(const PersistedSession& state) const {
+namespace {
+FileStamp stamp_of(const struct stat& info) {
+  return FileStamp{static_cast<std::uint64_t>(info.st_dev), static_cast<std::uint64_t>(info.st_ino),
+                   static_cast<std::uint64_t>(info.st_size),
+                   static_cast<std::int64_t>(info.st_mtim.tv_sec) * 1'000'000'000 +
+                       info.st_mtim.tv_nsec};
+}
+}  // namespace
+
+Result<FileStamp> StateDirectory::write(const PersistedSession& state) const {
   if (!is_valid_session_id(state.id.value)) {
     return Error(ErrorCode::InvalidArgument, "not a session id this server issues");
   }
   const std::string bytes = encode_session(state);
   const std::string final_path = file_of(state.id);
-  const std::string temp_path = final_path + ".tmp";
-  const int fd = ::open(temp_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+  // A temporary name of this process and write alone (replicas may share the directory).
+  static std::atomic<std::uint64_t> serial{0};
+  const std::string temp_path = final_path + ".tmp." + std::to_string(::getpid()) + "." +
+                                std::to_string(serial.fetch_add(1));
+  const int fd = ::open(temp_path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
   if (fd < 0) return os_error("cannot create", temp_path);
   std::size_t written = 0;
   while (written < bytes.size()) {
@@ -261,7 +274,8 @@ Status StateDirectory::write(const PersistedSession& state) const {
     written += static_cast<std::size_t>(n);
   }
   // Data durable before the rename makes it visible; the directory entry durable after.
-  if (::fsync(fd) != 0) {
+  struct stat info {};
+  if (::fsync(fd) != 0 || ::fstat(fd, &info) != 0) {
     const Status error = os_error("cannot fsync", temp_path);
     ::close(fd);
     ::unlink(temp_path.c_str());
@@ -278,16 +292,27 @@ Status StateDirectory::write(const PersistedSession& state) const {
     ::fsync(dir);
     ::close(dir);
   }
-  return Status::success();
+  return stamp_of(info);  // rename keeps the inode, size and mtime of the file written
 }
 
-Result<PersistedSession> StateDirectory::read(const SessionId& id) const {
+std::optional<FileStamp> StateDirectory::stamp(const SessionId& id) const {
+  if (!is_valid_session_id(id.value)) return std::nullopt;
+  struct stat info {};
+  if (::stat(file_of(id).c_str(), &info) != 0) return std::nullopt;
+  return stamp_of(info);
+}
+
+Result<PersistedSession> StateDirectory::read(const SessionId& id, FileStamp* stamp) const {
   if (!is_valid_session_id(id.value)) return Error(ErrorCode::NotFound, "no such session file");
   const std::string path = file_of(id);
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) {
     if (errno == ENOENT) return Error(ErrorCode::NotFound, "no such session file");
     return os_error("cannot open", path);
+  }
+  if (stamp != nullptr) {
+    struct stat info {};
+    if (::fstat(fd, &info) == 0) *stamp = stamp_of(info);
   }
   std::string bytes;
   char buffer[1 << 16];

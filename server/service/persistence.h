@@ -49,6 +49,16 @@ std::string encode_session(const PersistedSession& state);
 /// True for the ids this server issues (32 lower-case hex digits): only those name files.
 bool is_valid_session_id(std::string_view id);
 
+/// One version of a state file: every atomic replace (a rename of a new file) gives a new inode,
+/// so a replica can tell whether a file is still the one it wrote or read.
+struct FileStamp {
+  std::uint64_t device = 0;
+  std::uint64_t inode = 0;
+  std::uint64_t size = 0;
+  std::int64_t mtime_ns = 0;
+  bool operator==(const FileStamp&) const = default;
+};
+
 /// A directory of session files `<id>.state`.
 class StateDirectory {
  public:
@@ -57,11 +67,16 @@ class StateDirectory {
   ///         OS error when it cannot be created or written.
   [[nodiscard]] static Result<StateDirectory> open(std::string path);
 
-  /// Atomically replaces the session's file. @return Internal naming the OS error.
-  [[nodiscard]] Status write(const PersistedSession& state) const;
+  /// Atomically replaces the session's file (through a temporary file of its own, so that
+  /// replicas sharing the directory never write into each other's).
+  /// @return the stamp of the file written; Internal naming the OS error.
+  [[nodiscard]] Result<FileStamp> write(const PersistedSession& state) const;
+  /// @param[out] stamp  if not null, the stamp of the very file read.
   /// @return the state; NotFound when there is no file (or the id is not one of ours);
   ///         InvalidArgument when the file is corrupt (see decode_session).
-  [[nodiscard]] Result<PersistedSession> read(const SessionId& id) const;
+  [[nodiscard]] Result<PersistedSession> read(const SessionId& id, FileStamp* stamp = nullptr) const;
+  /// The stamp of the session's file now; nullopt without a file.
+  std::optional<FileStamp> stamp(const SessionId& id) const;
   /// Seconds since the file was last written; nullopt without a file.
   std::optional<double> age_seconds(const SessionId& id) const;
   /// Removes the session's file (missing is fine).

@@ -169,15 +169,40 @@ void Session::persist() {
   }
   if (state.anchors.rows() == 0) state.anchors.resize(0, 3);
   if (state.targets.rows() == 0) state.targets.resize(0, 3);
-  const Status written = state_dir_->write(state);
+  const Result<FileStamp> written = state_dir_->write(state);
   if (written.ok()) {
     counters_->persisted_writes.fetch_add(1);
+    set_persisted_stamp(*written);
     return;
   }
   counters_->persist_failures.fetch_add(1);
   log_event(LogLevel::Error, "persist_failed",
-            LogFields().add("session", id_.value).add("message", written.message()));
+            LogFields().add("session", id_.value).add("message", written.status().message()));
 }
+
+std::optional<FileStamp> Session::persisted_stamp() const {
+  const std::lock_guard lock(stamp_mutex_);
+  return stamp_;
+}
+
+void Session::set_persisted_stamp(const FileStamp& stamp) {
+  const std::lock_guard lock(stamp_mutex_);
+  stamp_ = stamp;
+}
+
+bool Session::is_fresh() const {
+  if (state_dir_ == nullptr) return true;
+  const std::optional<FileStamp> mine = persisted_stamp();
+  if (!mine) return true;
+  return state_dir_->stamp(id_) == mine;
+}
+
+namespace {
+Status stale_copy(const SessionId& id) {
+  return Error(ErrorCode::Aborted, "session " + id.value.substr(0, 8) +
+                                       "... was changed by another replica; retry the call");
+}
+}  // namespace
 
 bool Session::can_edit(const Token& token) const {
   return constant_time_equal(token.value, edit_token_.value);
@@ -270,6 +295,7 @@ Result<Session::CachedDeformer*> Session::get_or_build(core::Method method,
 
 Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request) {
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
+  if (!is_fresh()) return stale_copy(id_);  // never overwrite a newer revision of another replica
   refine_.reset();  // new anchors: the old solve is not worth continuing
   const int nv = static_cast<int>(rest_.V.rows());
   if (request.groups.empty()) {
@@ -322,6 +348,7 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request) {
 
 Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token stop) {
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
+  if (!is_fresh()) return stale_copy(id_);  // never overwrite a newer revision of another replica
   std::vector<HandleGroup> groups;
   std::vector<int> constrained;
   Positions anchors, targets;
@@ -530,7 +557,7 @@ DeformResult Session::commit(core::SolveReport report, core::Method method,
 }
 
 Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
-  if (!refine_ || is_closed()) {
+  if (!refine_ || is_closed() || !is_fresh()) {
     refine_.reset();
     return std::optional<DeformResult>{};
   }

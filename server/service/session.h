@@ -65,6 +65,14 @@ class Session : public std::enable_shared_from_this<Session> {
   /// Writes the current state now (creation). Errors are logged and counted, not returned:
   /// the edit stands in memory either way.
   void persist();
+  /// The version of the state file this copy last wrote or was restored from (nullopt before
+  /// the first write, or without a state directory).
+  std::optional<FileStamp> persisted_stamp() const;
+  void set_persisted_stamp(const FileStamp& stamp);
+  /// False when the session's state file is no longer the one this copy wrote or read: another
+  /// replica sharing the directory changed (or removed) it, so this copy is stale. True without
+  /// a state directory or before the first write.
+  bool is_fresh() const;
 
   const SessionId& id() const { return id_; }
   const MeshData& rest() const { return rest_; }
@@ -208,6 +216,8 @@ class Session : public std::enable_shared_from_this<Session> {
   std::chrono::steady_clock::time_point last_used_{};
 
   const StateDirectory* state_dir_ = nullptr;
+  mutable std::mutex stamp_mutex_;
+  std::optional<FileStamp> stamp_;  ///< guarded by stamp_mutex_
 
   std::mutex refine_mutex_;
   std::stop_source refine_stop_;  ///< of the running refinement slice; guarded by refine_mutex_

@@ -220,6 +220,9 @@ struct ServiceStats {
   std::uint64_t evicted_idle = 0;            ///< sessions evicted by the idle TTL
   std::uint64_t rate_limited_creates = 0;    ///< CreateSession calls refused by create_rate
   std::uint64_t rate_limited_moves = 0;      ///< MoveHandles calls refused by move_rate
+  /// In-memory sessions dropped because another replica sharing the state directory had changed
+  /// (or removed) their file since (find_or_restore restores the newer state instead).
+  std::uint64_t stale_copies_dropped = 0;
   std::size_t sessions = 0;
   std::size_t estimated_bytes = 0;
   std::size_t resident_bytes = 0;            ///< the process's resident set (Linux), 0 if unknown

@@ -27,6 +27,8 @@ grpc::StatusCode to_grpc_code(ErrorCode code) {
       return grpc::StatusCode::INTERNAL;  // solver breakdown
     case ErrorCode::Internal:
       return grpc::StatusCode::INTERNAL;
+    case ErrorCode::Aborted:
+      return grpc::StatusCode::ABORTED;
   }
   return grpc::StatusCode::UNKNOWN;  // an out-of-range enum value
 }

@@ -227,5 +227,46 @@ TEST(PersistenceTest, UnusableStateDirectoryIsAClearError) {
   EXPECT_FALSE(StateDirectory::open("").ok());
 }
 
+TEST(PersistenceTest, ReplicasSharingTheDirectoryNeverServeAStaleCopy) {
+  // Two services on one state directory play two replicas behind a balancer: A creates and
+  // edits, the session fails over to B, B edits, then it comes back to A, which still holds its
+  // old copy in memory. A must serve (and continue) B's newer revision, never its own stale one.
+  TempDir dir;
+  DeformationService a(options_with(dir.str()));
+  DeformationService b(options_with(dir.str()));
+  CreateSessionRequest request;
+  request.sample = "cylinder_small";
+  Result<CreatedSession> made = a.create_session(request);
+  ASSERT_TRUE(made.ok());
+  const CreatedSession created = *made;
+  ASSERT_TRUE(a.set_handles(created.id, created.edit_token,
+                            SetHandlesRequest{created.suggested_groups, core::Method::ScaleAware})
+                  .ok());
+  ASSERT_TRUE(a.move_handles(created.id, created.edit_token, lift(0.1)).ok());
+
+  Result<DeformResult> on_b = b.move_handles(created.id, created.edit_token, lift(0.2));
+  ASSERT_TRUE(on_b.ok()) << on_b.status().to_string();
+  EXPECT_EQ(on_b->revision, 2u);
+  on_b = b.move_handles(created.id, created.edit_token, lift(0.3));
+  ASSERT_TRUE(on_b.ok());
+  EXPECT_EQ(on_b->revision, 3u);
+
+  // Back on A: reads and edits see B's revision 3.
+  Result<SessionInfo> info = a.session_info(created.id, created.view_token);
+  ASSERT_TRUE(info.ok()) << info.status().to_string();
+  EXPECT_EQ(info->revision, 3u);
+  EXPECT_EQ(positions_at(a, created), *on_b->positions);
+  EXPECT_EQ(a.stats().stale_copies_dropped, 1u);
+  Result<DeformResult> on_a = a.move_handles(created.id, created.edit_token, lift(0.4));
+  ASSERT_TRUE(on_a.ok()) << on_a.status().to_string();
+  EXPECT_EQ(on_a->revision, 4u);
+
+  // B's copy is stale now; closing it on A removes the file, and B answers NotFound.
+  ASSERT_TRUE(a.close_session(created.id, created.edit_token).ok());
+  EXPECT_EQ(b.session_info(created.id, created.view_token).status().code(), ErrorCode::NotFound);
+  EXPECT_EQ(b.move_handles(created.id, created.edit_token, lift(0.5)).status().code(),
+            ErrorCode::NotFound);
+}
+
 }  // namespace
 }  // namespace meshdeform::service
