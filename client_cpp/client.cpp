@@ -340,9 +340,11 @@ ErrorCode to_error_code(int grpc_code) {
     // version, for UNIMPLEMENTED): retrying unchanged does not help.
     case grpc::StatusCode::FAILED_PRECONDITION:
     case grpc::StatusCode::ALREADY_EXISTS:
-    case grpc::StatusCode::ABORTED:
     case grpc::StatusCode::UNIMPLEMENTED:
       return ErrorCode::FailedPrecondition;
+    // A concurrent change won (another replica edited the session): retrying may succeed.
+    case grpc::StatusCode::ABORTED:
+      return ErrorCode::Aborted;
     // Transport failures and server faults: not the caller's input. The message keeps the gRPC
     // name (e.g. "UNAVAILABLE") for callers that retry.
     case grpc::StatusCode::UNKNOWN:
@@ -422,6 +424,28 @@ Result<Client> Client::connect(const ClientOptions& options) {
     return invalid("max_message_mib " + std::to_string(options.max_message_mib) +
                    " is outside [1, 2047]");
   }
+  std::string root_certs;
+  if (options.tls) {
+    if (options.tls->client_cert_chain_pem.empty() != options.tls->client_private_key_pem.empty()) {
+      return invalid("set both TLS client_cert_chain_pem and client_private_key_pem, or neither");
+    }
+    root_certs = options.tls->root_certs_pem;
+    if (!options.tls->root_certs_file.empty()) {
+      if (!root_certs.empty()) {
+        return invalid("set TLS root_certs_pem or root_certs_file, not both");
+      }
+      std::ifstream in(options.tls->root_certs_file, std::ios::binary);
+      root_certs.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+      if (!in.good() && !in.eof()) {
+        return invalid("cannot read TLS root certificates " +
+                       options.tls->root_certs_file.string());
+      }
+      if (root_certs.empty()) {
+        return invalid("TLS root certificates " + options.tls->root_certs_file.string() +
+                       " are missing or empty");
+      }
+    }
+  }
   return guard_exceptions("connect", ErrorCode::Internal, [&]() -> Result<Client> {
     auto impl = std::make_shared<Impl>();
     impl->options = options;
@@ -432,8 +456,18 @@ Result<Client> Client::connect(const ClientOptions& options) {
     // BDP probing grows each stream's receive window (to megabytes on a fast link); without it
     // the window stays at gRPC's default 64 KiB and a slow reader pushes back on the server.
     if (!options.adaptive_receive_window) args.SetInt(GRPC_ARG_HTTP2_BDP_PROBE, 0);
-    impl->channel =
-        grpc::CreateCustomChannel(options.target, grpc::InsecureChannelCredentials(), args);
+    std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::InsecureChannelCredentials();
+    if (options.tls) {
+      grpc::SslCredentialsOptions ssl;
+      ssl.pem_root_certs = root_certs;  // empty: gRPC's default roots
+      ssl.pem_cert_chain = options.tls->client_cert_chain_pem;
+      ssl.pem_private_key = options.tls->client_private_key_pem;
+      credentials = grpc::SslCredentials(ssl);
+      if (!options.tls->server_name.empty()) {
+        args.SetSslTargetNameOverride(options.tls->server_name);
+      }
+    }
+    impl->channel = grpc::CreateCustomChannel(options.target, credentials, args);
     if (!impl->channel) return Error(ErrorCode::Internal, "cannot create a channel");
     impl->stub = v1::DeformationService::NewStub(impl->channel);
     return Client(std::move(impl));

@@ -35,10 +35,30 @@ namespace meshdeform::client {
 
 // ------------------------------------------------------------------------------------ options
 
+/// TLS towards a server started with --tls-cert (gRPC's SslCredentials).
+struct TlsOptions {
+  /// PEM root certificates that the server's certificate must chain to. When this and
+  /// root_certs_file are both empty, gRPC's default roots (the system's) are used.
+  std::string root_certs_pem;
+  /// A PEM file to read root_certs_pem from at connect(); only when root_certs_pem is empty.
+  std::filesystem::path root_certs_file;
+  /// The name checked against the server's certificate instead of the target's host (gRPC's
+  /// grpc.ssl_target_name_override), e.g. "localhost" when dialling 127.0.0.1 with a certificate
+  /// for localhost only; empty: the target's host.
+  std::string server_name;
+  /// A client certificate chain and its unencrypted key (PEM text), both or neither: for a server
+  /// that requires client certificates (--tls-client-ca).
+  std::string client_cert_chain_pem;
+  std::string client_private_key_pem;
+};
+
 /// How to reach the server.
 struct ClientOptions {
-  /// "host:port" (plaintext; the server speaks no TLS).
+  /// "host:port"; plaintext unless `tls` is set.
   std::string target = "127.0.0.1:50051";
+  /// Set: connect with TLS (the server runs with --tls-cert); unset: plaintext. A plaintext
+  /// client of a TLS server (or the reverse) gets Unavailable on its first call.
+  std::optional<TlsOptions> tls;
   /// Deadline of every unary call that does not set CallOptions::timeout; > 0.
   std::chrono::milliseconds default_timeout{30'000};
   /// Deadline of a Watch stream that does not set CallOptions::timeout (a stream lasts as long as
@@ -214,8 +234,10 @@ class Client {
   /// Creates the channel (lazily connected: an unreachable server shows up as an error of the
   /// first call).
   /// @param[in] options  see ClientOptions.
-  /// @return the client; InvalidArgument for an empty target, a timeout <= 0 or max_message_mib
-  ///         outside [1, 2047].
+  /// @return the client; InvalidArgument for an empty target, a timeout <= 0, max_message_mib
+  ///         outside [1, 2047], or TlsOptions with both root_certs_pem and root_certs_file set
+  ///         or a root_certs_file that cannot be read (its path in the message), or only one
+  ///         of client_cert_chain_pem and client_private_key_pem.
   [[nodiscard]] static Result<Client> connect(const ClientOptions& options);
 
   const ClientOptions& options() const;

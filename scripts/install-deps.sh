@@ -11,7 +11,8 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libcgal-dev
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
-  libboost-dev libmeshoptimizer-dev
+  libboost-dev libmeshoptimizer-dev libssl-dev openssl
+  nginx  # tests/scaleout: nginx in front of replicas (no daemon is started without systemd)
   "$@"
 )
 

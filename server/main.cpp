@@ -46,13 +46,21 @@ struct Flags {
   std::string web_root;
   std::vector<std::string> cors_origins;
   std::string state_dir;
+  std::string tls_cert;       // PEM files; both or neither
+  std::string tls_key;
+  std::string tls_client_ca;  // optional: require client certificates (mTLS)
   std::string log_level = "info";
+  double create_rate = 2.0;   // per client, sessions per second (0 = unlimited)
+  double create_burst = 30;
+  double move_rate = 200.0;   // per client, moves per second (0 = unlimited)
+  double move_burst = 400;
+  bool trust_forwarded_for = false;
 };
 
 constexpr const char* kUsage =
     "usage: meshdeform-server [flags]\n"
     "  --listen ADDR               host:port to serve on (default 127.0.0.1:50051; 0.0.0.0:PORT\n"
-    "                              for every interface; the connection is plaintext)\n"
+    "                              for every interface; plaintext unless --tls-cert is given)\n"
     "  --max-sessions N            open sessions (default 64)\n"
     "  --max-vertices N            vertices per mesh (default 250000)\n"
     "  --idle-ttl-seconds N        sessions idle for longer are closed (default 1800)\n"
@@ -73,8 +81,33 @@ constexpr const char* kUsage =
     "  --state-dir DIR             keep every session's state in DIR (written atomically before\n"
     "                              each edit is acknowledged) and resume sessions from it after a\n"
     "                              restart or on another replica sharing DIR (default: memory only)\n"
+    "  --tls-cert FILE             serve TLS (1.2+) on --listen and HTTPS on --http-listen with\n"
+    "                              this PEM certificate chain (needs --tls-key; default: off)\n"
+    "  --tls-key FILE              the certificate's PEM private key (unencrypted)\n"
+    "  --tls-client-ca FILE        with --tls-cert: require client certificates issued by these\n"
+    "                              PEM CAs on both ports (mutual TLS; default: not requested)\n"
     "  --log-level LEVEL           debug, info, warn or error (default info); logs are JSON lines\n"
-    "                              on stderr\n";
+    "                              on stderr\n"
+    "  --create-rate R             sessions each client may create per second, sustained\n"
+    "                              (default 2; 0 = unlimited); over it: RESOURCE_EXHAUSTED with\n"
+    "                              the wait in the message and the retry-after-ms trailer\n"
+    "  --create-burst N            ... and at once after a quiet spell (default 30)\n"
+    "  --move-rate R               moves each client may make per second (default 200; 0 =\n"
+    "                              unlimited)\n"
+    "  --move-burst N              ... and at once (default 400)\n"
+    "  --trust-forwarded-for       name clients by the x-forwarded-for header for those limits;\n"
+    "                              only behind a proxy that sets it (nginx: grpc_set_header\n"
+    "                              X-Forwarded-For $remote_addr), else clients pick their name\n";
+
+bool parse_double(std::string_view text, double min, double max, double& out) {
+  double value = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+  if (ec != std::errc() || end != text.data() + text.size() || !(value >= min && value <= max)) {
+    return false;
+  }
+  out = value;
+  return true;
+}
 
 bool parse_int(std::string_view text, int min, int max, int& out) {
   int value = 0;
@@ -93,6 +126,10 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
     if (arg == "--help" || arg == "-h") {
       help = true;
       return true;
+    }
+    if (arg == "--trust-forwarded-for") {  // the one flag without a value
+      flags.trust_forwarded_for = true;
+      continue;
     }
     if (const std::size_t eq = arg.find('='); eq != std::string_view::npos) {
       value = arg.substr(eq + 1);
@@ -133,9 +170,26 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
     } else if (arg == "--state-dir") {
       flags.state_dir = std::string(value);
       ok = !value.empty();
+    } else if (arg == "--tls-cert") {
+      flags.tls_cert = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--tls-key") {
+      flags.tls_key = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--tls-client-ca") {
+      flags.tls_client_ca = std::string(value);
+      ok = !value.empty();
     } else if (arg == "--log-level") {
       flags.log_level = std::string(value);
       ok = value == "debug" || value == "info" || value == "warn" || value == "error";
+    } else if (arg == "--create-rate") {
+      ok = parse_double(value, 0, 1e6, flags.create_rate);
+    } else if (arg == "--create-burst") {
+      ok = parse_double(value, 1, 1e6, flags.create_burst);
+    } else if (arg == "--move-rate") {
+      ok = parse_double(value, 0, 1e6, flags.move_rate);
+    } else if (arg == "--move-burst") {
+      ok = parse_double(value, 1, 1e6, flags.move_burst);
     } else if (arg == "--shutdown-grace-seconds") {
       ok = parse_int(value, 0, 3600, flags.shutdown_grace_seconds);
     } else {
@@ -184,6 +238,8 @@ int main(int argc, char** argv) {
   options.refine_budget = flags.refine_budget;
   options.memory_budget_bytes = static_cast<std::size_t>(flags.memory_budget_mib) << 20;
   options.state_dir = flags.state_dir;
+  options.create_rate = {flags.create_rate, flags.create_burst};
+  options.move_rate = {flags.move_rate, flags.move_burst};
   if (!flags.state_dir.empty()) {
     if (auto dir = meshdeform::service::StateDirectory::open(flags.state_dir); !dir.ok()) {
       log_event(LogLevel::Error, "state_dir_unusable",
@@ -191,13 +247,44 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
+  // TLS files are checked before anything listens, so that a typo stops the server with a
+  // message naming the file (gRPC itself would only report a failed listen).
+  std::optional<meshdeform::transport::TlsConfig> tls;
+  if (flags.tls_cert.empty() != flags.tls_key.empty() ||
+      (!flags.tls_client_ca.empty() && flags.tls_cert.empty())) {
+    log_event(LogLevel::Error, "tls_unusable",
+              LogFields().add("message", flags.tls_cert.empty() && flags.tls_key.empty()
+                                             ? "--tls-client-ca needs --tls-cert and --tls-key"
+                                             : "--tls-cert and --tls-key go together"));
+    return 2;
+  }
+  if (!flags.tls_cert.empty()) {
+    auto loaded =
+        meshdeform::transport::load_tls_config(flags.tls_cert, flags.tls_key, flags.tls_client_ca);
+    if (!loaded.ok()) {
+      log_event(LogLevel::Error, "tls_unusable",
+                LogFields().add("message", loaded.status().message()));
+      return 2;
+    }
+    tls = std::move(loaded).value();
+  }
   meshdeform::service::DeformationService service(options);
-  meshdeform::transport::DeformServiceImpl impl(service);
+  meshdeform::transport::DeformServiceImpl impl(
+      service, meshdeform::transport::ClientIdentityOptions{flags.trust_forwarded_for});
 
   meshdeform::transport::enable_health_and_reflection();
   grpc::ServerBuilder builder;
   int port = 0;
-  builder.AddListeningPort(flags.listen, grpc::InsecureServerCredentials(), &port);
+  std::shared_ptr<grpc::ServerCredentials> credentials = grpc::InsecureServerCredentials();
+  if (tls) {
+    grpc::SslServerCredentialsOptions ssl(
+        tls->client_ca_pem.empty() ? GRPC_SSL_DONT_REQUEST_CLIENT_CERTIFICATE
+                                   : GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY);
+    ssl.pem_root_certs = tls->client_ca_pem;
+    ssl.pem_key_cert_pairs.push_back({tls->private_key_pem, tls->cert_chain_pem});
+    credentials = grpc::SslServerCredentials(ssl);
+  }
+  builder.AddListeningPort(flags.listen, credentials, &port);
   meshdeform::transport::configure_builder(builder, impl, flags.max_message_mib);
   std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
   if (!server || port == 0) {
@@ -208,6 +295,7 @@ int main(int argc, char** argv) {
             LogFields()
                 .add("address", flags.listen)
                 .add("port", port)
+                .add("tls", tls.has_value())
                 .add("workers", service.stats().workers)
                 .add("refine_budget", flags.refine_budget));
 
@@ -234,6 +322,7 @@ int main(int argc, char** argv) {
     meshdeform::transport::HttpServerOptions http_options;
     http_options.threads = 2;
     http_options.body_limit = meshdeform::transport::make_body_limit(*gateway);
+    http_options.tls = tls;
     auto started = meshdeform::transport::HttpServer::start_async(
         flags.http_listen,
         meshdeform::transport::make_http_router(
@@ -250,7 +339,7 @@ int main(int argc, char** argv) {
     http = std::move(started).value();
     log_event(LogLevel::Info, "http_listening",
               LogFields().add("address", flags.http_listen).add("port", http->port())
-                  .add("web_root", flags.web_root));
+                  .add("tls", tls.has_value()).add("web_root", flags.web_root));
   }
 
   // Sweeps idle sessions (create_session also sweeps, but a quiet server should free memory too).

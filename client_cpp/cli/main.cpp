@@ -47,6 +47,12 @@ Global options (anywhere on the line):
   --server HOST:PORT     the server (default 127.0.0.1:50051)
   --timeout SECONDS      deadline of each call (default 30; watch: see --seconds)
   --max-message-mib N    the channel's message limit (default 64; match the server's)
+  --tls-ca FILE          connect with TLS (a server with --tls-cert), trusting the PEM root
+                         certificates in FILE (default: plaintext)
+  --tls-server-name NAME with TLS: the name the server's certificate must carry, instead of
+                         the --server host (alone: TLS with the system's root certificates)
+  --tls-cert FILE        with TLS: present this PEM client certificate (and --tls-key FILE, its
+                         key) to a server that requires one (--tls-client-ca)
   --help                 this text
 
 Commands (the token may also come from the MESHDEFORM_TOKEN environment variable, which keeps
@@ -98,7 +104,9 @@ struct Args {
   }
 };
 
-const std::set<std::string> kGlobalValues = {"server", "timeout", "max-message-mib"};
+const std::set<std::string> kGlobalValues = {"server",   "timeout",         "max-message-mib",
+                                             "tls-ca",   "tls-server-name", "tls-cert",
+                                             "tls-key"};
 const std::map<std::string, std::set<std::string>> kCommandValues = {
     {"create", {"mesh", "sample", "lambda"}},
     {"handles", {"session", "token", "sel", "groups", "prepare"}},
@@ -664,6 +672,21 @@ int run(int argc, char** argv) {
   if (auto mib = args.get("max-message-mib")) {
     options.max_message_mib =
         static_cast<int>(parse_int_or_throw("max-message-mib", *mib, 1, 2047));
+  }
+  if (args.has("tls-ca") || args.has("tls-server-name")) {
+    options.tls.emplace();
+    if (auto ca = args.get("tls-ca")) options.tls->root_certs_file = *ca;
+    if (auto name = args.get("tls-server-name")) options.tls->server_name = *name;
+  }
+  if (args.has("tls-cert") || args.has("tls-key")) {
+    if (!options.tls) {
+      throw UsageError{"--tls-cert and --tls-key need --tls-ca or --tls-server-name"};
+    }
+    if (!args.has("tls-cert") || !args.has("tls-key")) {
+      throw UsageError{"--tls-cert and --tls-key go together"};
+    }
+    options.tls->client_cert_chain_pem = read_text_file(*args.get("tls-cert"));
+    options.tls->client_private_key_pem = read_text_file(*args.get("tls-key"));
   }
   const mc::Client client = value_or_usage(mc::Client::connect(options));
   if (args.command == "create") return cmd_create(client, args);

@@ -653,6 +653,12 @@ RunResult LoadRun::run() {
                           std::chrono::duration<double>(options_.duration_seconds));
   hard_end_ = run_end_ + kDrain + kWatchBackstop;
 
+  std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::InsecureChannelCredentials();
+  if (!options_.tls_root_certs.empty()) {
+    grpc::SslCredentialsOptions ssl;
+    ssl.pem_root_certs = options_.tls_root_certs;
+    credentials = grpc::SslCredentials(ssl);
+  }
   const int channel_count = options_.channel_count();
   for (int c = 0; c < channel_count; ++c) {
     grpc::ChannelArguments arguments;
@@ -662,8 +668,10 @@ RunResult LoadRun::run() {
     // Separate connections: without these, channels with equal arguments share one subchannel.
     arguments.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
     arguments.SetInt("meshdeform.loadtest.channel", c);
-    channels_.push_back(
-        grpc::CreateCustomChannel(options_.server, grpc::InsecureChannelCredentials(), arguments));
+    if (!options_.tls_server_name.empty()) {
+      arguments.SetSslTargetNameOverride(options_.tls_server_name);
+    }
+    channels_.push_back(grpc::CreateCustomChannel(options_.server, credentials, arguments));
     stubs_.push_back(v1::DeformationService::NewStub(channels_.back()));
   }
   run.stats_before = fetch_stats();

@@ -7,6 +7,8 @@
 #include <charconv>
 #include <cmath>
 #include <cstdlib>
+#include <fstream>
+#include <iterator>
 #include <string>
 
 namespace meshdeform::loadtest {
@@ -120,6 +122,10 @@ std::string usage_text() {
          "                         session); a session's watchers share its channel\n"
          "  --move-deadline-ms MS  deadline of each move (default 10000)\n"
          "  --max-message-mib N    client message limit (default 64; raise for huge snapshots)\n"
+         "  --tls-ca FILE          connect with TLS (a server with --tls-cert), trusting the PEM\n"
+         "                         root certificates in FILE (default: plaintext)\n"
+         "  --tls-server-name NAME with --tls-ca: the name the server's certificate must carry\n"
+         "                         instead of the --server host\n"
          "  --json FILE            write the full report as JSON\n"
          "  --markdown FILE        write a Markdown summary (for bench/results/)\n"
          "  --allow-remote         allow a target that is not loopback (127.0.0.0/8, ::1,\n"
@@ -194,12 +200,30 @@ ParseOutcome parse_options(const std::vector<std::string>& args, Options& option
       ok = parse_int(value, 1, 3'600'000, options.move_deadline_ms);
     } else if (arg == "--max-message-mib") {
       ok = parse_int(value, 1, 1024, options.max_message_mib);
+    } else if (arg == "--tls-ca") {
+      options.tls_ca_path = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--tls-server-name") {
+      options.tls_server_name = std::string(value);
+      ok = !value.empty();
     } else {
       return usage_error("unknown flag " + std::string(arg));
     }
     if (!ok) return usage_error("bad value '" + std::string(value) + "' for " + std::string(arg));
   }
   if (options.server.empty()) return usage_error("--server is required");
+  if (!options.tls_server_name.empty() && options.tls_ca_path.empty()) {
+    return usage_error("--tls-server-name needs --tls-ca");
+  }
+  if (!options.tls_ca_path.empty()) {
+    std::ifstream in(options.tls_ca_path, std::ios::binary);
+    options.tls_root_certs.assign(std::istreambuf_iterator<char>(in),
+                                  std::istreambuf_iterator<char>());
+    if (options.tls_root_certs.empty()) {
+      return usage_error("cannot read --tls-ca file '" + options.tls_ca_path +
+                         "' (missing or empty)");
+    }
+  }
   if (has_sample && !options.mesh_path.empty()) {
     return usage_error("give --sample or --mesh, not both");
   }

@@ -40,6 +40,9 @@ struct Options {
   bool fail_on_errors = false;    ///< exit kExitRunFailed when any move failed
   int move_deadline_ms = 10'000;  ///< deadline of each MoveHandles call
   int max_message_mib = 64;       ///< client send/receive limit (snapshots of big meshes)
+  std::string tls_ca_path;        ///< --tls-ca: TLS trusting these PEM roots (empty: plaintext)
+  std::string tls_root_certs;     ///< the text of tls_ca_path, read by parse_options
+  std::string tls_server_name;    ///< --tls-server-name: the name the certificate must carry
 
   /// Channels actually used: `connections`, or one per session when 0 (never more than sessions).
   int channel_count() const;

@@ -1,29 +1,39 @@
 #include "server/transport/http_server.h"
 
 #include "server/service/deformation_service.h"
+#include "server/service/log.h"
 
 #include <boost/asio/dispatch.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/post.hpp>
+#include <boost/asio/ssl.hpp>
 #include <boost/asio/steady_timer.hpp>
 #include <boost/asio/strand.hpp>
 #include <boost/asio/write.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
+#include <boost/beast/ssl.hpp>
+#include <openssl/err.h>
+#include <openssl/pem.h>
+#include <openssl/ssl.h>
 
 #include <algorithm>
 #include <array>
 #include <atomic>
 #include <charconv>
 #include <chrono>
+#include <cerrno>
 #include <cstring>
 #include <deque>
+#include <fstream>
+#include <iterator>
 #include <limits>
 #include <mutex>
 #include <optional>
 #include <set>
 #include <thread>
+#include <type_traits>
 #include <utility>
 
 namespace meshdeform::transport {
@@ -65,6 +75,76 @@ Result<tcp::endpoint> parse_endpoint(const std::string& address) {
                  "bad host '" + host + "' in address '" + address + "' (want a numeric IP)");
   }
   return tcp::endpoint(ip, static_cast<unsigned short>(port));
+}
+
+/// How make_ssl_context names the three parts in its errors.
+struct TlsLabels {
+  std::string cert = "the TLS certificate";
+  std::string key = "the TLS key";
+  std::string client_ca = "the TLS client CA";
+};
+
+/// An OpenSSL error as text, e.g. "no start line (PEM routines)".
+std::string ssl_message(const beast::error_code& error) {
+  std::string message = error.message();
+  return message.empty() ? "rejected by OpenSSL" : message;
+}
+
+bool is_pem_private_key(const std::string& pem) {
+  BIO* bio = BIO_new_mem_buf(pem.data(), static_cast<int>(pem.size()));
+  if (bio == nullptr) return false;
+  EVP_PKEY* key = PEM_read_bio_PrivateKey(bio, nullptr, nullptr, nullptr);
+  BIO_free(bio);
+  ERR_clear_error();  // a failed parse leaves errors queued for later, unrelated calls
+  if (key == nullptr) return false;
+  EVP_PKEY_free(key);
+  return true;
+}
+
+/// A TLS 1.2+ server context with `tls`'s identity (and client verification with its CAs).
+/// @return InvalidArgument naming the part OpenSSL rejects.
+Result<std::unique_ptr<asio::ssl::context>> make_ssl_context(const TlsConfig& tls,
+                                                             const TlsLabels& labels = {}) {
+  auto context = std::make_unique<asio::ssl::context>(asio::ssl::context::tls_server);
+  SSL_CTX* native = context->native_handle();
+  // TLS 1.0 and 1.1 are deprecated (RFC 8996); every browser and gRPC client speaks 1.2+.
+  SSL_CTX_set_min_proto_version(native, TLS1_2_VERSION);
+  context->set_options(asio::ssl::context::default_workarounds |
+                       asio::ssl::context::no_compression | asio::ssl::context::single_dh_use);
+  beast::error_code error;
+  context->use_certificate_chain(asio::buffer(tls.cert_chain_pem), error);
+  if (error) {
+    return Error(ErrorCode::InvalidArgument,
+                 labels.cert + " is not a PEM certificate: " + ssl_message(error));
+  }
+  // OpenSSL checks the key against the certificate while loading it: tell the two failures apart.
+  if (!is_pem_private_key(tls.private_key_pem)) {
+    return Error(ErrorCode::InvalidArgument, labels.key + " is not a PEM private key");
+  }
+  context->use_private_key(asio::buffer(tls.private_key_pem), asio::ssl::context::pem, error);
+  if (error || SSL_CTX_check_private_key(native) != 1) {
+    return Error(ErrorCode::InvalidArgument, labels.key + " does not belong to " + labels.cert);
+  }
+  if (!tls.client_ca_pem.empty()) {
+    context->add_certificate_authority(asio::buffer(tls.client_ca_pem), error);
+    if (error) {
+      return Error(ErrorCode::InvalidArgument,
+                   labels.client_ca + " is not a PEM certificate: " + ssl_message(error));
+    }
+    context->set_verify_mode(asio::ssl::verify_peer | asio::ssl::verify_fail_if_no_peer_cert);
+  }
+  return context;
+}
+
+/// @return the file's bytes, or InvalidArgument naming it (`what`) with the system's reason.
+Result<std::string> read_file(const std::string& path, const std::string& what) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    return Error(ErrorCode::InvalidArgument, "cannot read " + what + ": " + std::strerror(errno));
+  }
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (in.bad()) return Error(ErrorCode::InvalidArgument, "cannot read " + what);
+  return bytes;
 }
 
 std::string_view to_std(beast::string_view text) { return {text.data(), text.size()}; }
@@ -138,18 +218,21 @@ class Completion {
   std::function<void(bool)> fn_;
 };
 
-class Connection;
+class ConnectionBase;
 
 }  // namespace
 
 struct HttpServer::Impl {
+  /// Set: HTTPS. First, so that it outlives every connection's stream (and the io_context's
+  /// handlers holding them).
+  std::unique_ptr<asio::ssl::context> ssl;
   asio::io_context io;
   tcp::acceptor acceptor{io};
   AsyncHttpHandler handler;
   HttpServerOptions options;
   std::vector<std::thread> threads;
   std::mutex mutex;
-  std::set<std::shared_ptr<Connection>> connections;
+  std::set<std::shared_ptr<ConnectionBase>> connections;
   bool stopped = false;
   std::shared_ptr<Lifeline> lifeline = std::make_shared<Lifeline>();
 
@@ -158,30 +241,77 @@ struct HttpServer::Impl {
 
 namespace {
 
+/// What the server's connection set and the exchanges need of a connection, whatever its stream
+/// (plain TCP or TLS over TCP). The do_* operations run on the connection's strand (executor()).
+class ConnectionBase : public std::enable_shared_from_this<ConnectionBase> {
+ public:
+  virtual ~ConnectionBase() = default;
+  virtual void start() = 0;
+  virtual asio::any_io_executor executor() = 0;
+  /// Closes at once; only from the thread stopping the server, once the listener threads are
+  /// joined.
+  virtual void abort() = 0;
+  virtual void do_respond(std::uint64_t seq, HttpResponse response) = 0;
+  virtual void do_start_stream(std::uint64_t seq, int status, std::string content_type,
+                               HttpHeaders headers) = 0;
+  virtual void do_write_chunk(std::uint64_t seq, std::string data, Completion done) = 0;
+  virtual void do_end_stream(std::uint64_t seq) = 0;
+  virtual void do_on_close(std::uint64_t seq, std::function<void()> callback) = 0;
+};
+
+/// The remote address in gRPC's peer() form without the port ("ipv4:1.2.3.4", "ipv6:[::1]"), so
+/// that per-client policies can key HTTP and gRPC clients alike; empty when unknown.
+std::string peer_of(const tcp::socket& socket) {
+  beast::error_code error;
+  const tcp::endpoint remote = socket.remote_endpoint(error);
+  if (error) return {};
+  asio::ip::address address = remote.address();
+  // A dual-stack listener sees IPv4 clients as ::ffff:a.b.c.d; gRPC reports those as IPv4 too.
+  if (address.is_v6() && address.to_v6().is_v4_mapped()) {
+    address = asio::ip::make_address_v4(asio::ip::v4_mapped, address.to_v6());
+  }
+  return address.is_v4() ? "ipv4:" + address.to_string() : "ipv6:[" + address.to_string() + "]";
+}
+
 /// One keep-alive connection; everything runs on its strand. Per request: read the header (with
 /// the read timeout), pick the route's body limit, read the body, hand the request to the handler
 /// with an exchange tagged by the request's sequence number, and meanwhile keep one read open
 /// ("monitor") so that a client closing its socket is seen at once. Responses are a queue of
 /// byte strings written one at a time, each with the write timeout.
-class Connection : public std::enable_shared_from_this<Connection> {
+///
+/// `Stream` is beast::tcp_stream (HTTP) or beast::ssl_stream<beast::tcp_stream> (HTTPS, which
+/// first handshakes); timeouts and closing act on the TCP layer below either.
+template <typename Stream>
+class Connection final : public ConnectionBase {
  public:
-  Connection(tcp::socket socket, HttpServer::Impl& server)
-      : stream_(std::move(socket)), linger_timer_(stream_.get_executor()), server_(server) {}
+  static constexpr bool kIsTls = !std::is_same_v<Stream, beast::tcp_stream>;
 
-  void start() {
-    asio::dispatch(stream_.get_executor(),
-                   beast::bind_front_handler(&Connection::read, shared_from_this()));
+  /// @param[in] stream_args  what constructs `Stream`: the accepted socket (and the SSL context).
+  template <typename... StreamArgs>
+  Connection(HttpServer::Impl& server, std::string peer, StreamArgs&&... stream_args)
+      : stream_(std::forward<StreamArgs>(stream_args)...),
+        linger_timer_(stream_.get_executor()),
+        server_(server),
+        peer_(std::move(peer)) {}
+
+  void start() override {
+    if constexpr (kIsTls) {
+      asio::dispatch(stream_.get_executor(),
+                     beast::bind_front_handler(&Connection::handshake, self()));
+    } else {
+      asio::dispatch(stream_.get_executor(), beast::bind_front_handler(&Connection::read, self()));
+    }
   }
 
-  auto executor() { return stream_.get_executor(); }
+  asio::any_io_executor executor() override { return stream_.get_executor(); }
 
   /// Closes at once, from the thread stopping the server once the listener threads are joined
   /// (nothing else touches this object then).
-  void abort() { drop(); }
+  void abort() override { drop(); }
 
   // The exchange's operations, on the strand. A stale sequence number (an exchange of an earlier
   // request on this connection) is ignored.
-  void do_respond(std::uint64_t seq, HttpResponse response) {
+  void do_respond(std::uint64_t seq, HttpResponse response) override {
     if (seq != seq_ || is_closed_ || is_answered_) return;
     is_answered_ = true;
     is_complete_ = true;
@@ -204,7 +334,7 @@ class Connection : public std::enable_shared_from_this<Connection> {
   }
 
   void do_start_stream(std::uint64_t seq, int status, std::string content_type,
-                       HttpHeaders headers) {
+                       HttpHeaders headers) override {
     if (seq != seq_ || is_closed_ || is_answered_) return;
     is_answered_ = true;
     is_streaming_ = true;
@@ -216,7 +346,7 @@ class Connection : public std::enable_shared_from_this<Connection> {
     enqueue(std::move(bytes), Completion());
   }
 
-  void do_write_chunk(std::uint64_t seq, std::string data, Completion done) {
+  void do_write_chunk(std::uint64_t seq, std::string data, Completion done) override {
     if (seq != seq_ || is_closed_ || !is_streaming_ || is_complete_) {
       done.run(false);
       return;
@@ -240,7 +370,7 @@ class Connection : public std::enable_shared_from_this<Connection> {
     }
   }
 
-  void do_end_stream(std::uint64_t seq) {
+  void do_end_stream(std::uint64_t seq) override {
     if (seq != seq_ || is_closed_ || !is_streaming_ || is_complete_) return;
     is_complete_ = true;
     if (version_ >= 11) {
@@ -250,7 +380,7 @@ class Connection : public std::enable_shared_from_this<Connection> {
     }
   }
 
-  void do_on_close(std::uint64_t seq, std::function<void()> callback) {
+  void do_on_close(std::uint64_t seq, std::function<void()> callback) override {
     if (seq != seq_ || is_response_done_) return;
     if (is_closed_) {
       if (callback) callback();
@@ -260,6 +390,30 @@ class Connection : public std::enable_shared_from_this<Connection> {
   }
 
  private:
+  std::shared_ptr<Connection> self() {
+    return std::static_pointer_cast<Connection>(shared_from_this());
+  }
+  beast::tcp_stream& tcp() { return beast::get_lowest_layer(stream_); }
+
+  /// HTTPS: the TLS handshake, bounded by the read timeout. A client that fails it (speaks
+  /// plaintext, distrusts our certificate, lacks a required client certificate) gets no answer:
+  /// there is no channel to send one on. Debug level: port scanners and health probes do this.
+  void handshake() {
+    tcp().expires_after(std::chrono::seconds(server_.options.read_timeout_seconds));
+    stream_.async_handshake(asio::ssl::stream_base::server,
+                            beast::bind_front_handler(&Connection::on_handshake, self()));
+  }
+
+  void on_handshake(beast::error_code error) {
+    if (error) {
+      service::log_event(service::LogLevel::Debug, "tls_handshake_failed",
+                         service::LogFields().add("peer", peer_).add("message", error.message()));
+      drop();
+      return;
+    }
+    read();
+  }
+
   void read() {
     if (is_closed_) return;
     wants_next_ = false;
@@ -273,9 +427,9 @@ class Connection : public std::enable_shared_from_this<Connection> {
     // Checked per route once the request line is known. (Not boost::none: Beast 1.74 compares
     // Content-Length against the optional, and anything is greater than none.)
     parser_->body_limit(std::numeric_limits<std::uint64_t>::max());
-    stream_.expires_after(std::chrono::seconds(server_.options.read_timeout_seconds));
+    tcp().expires_after(std::chrono::seconds(server_.options.read_timeout_seconds));
     http::async_read_header(stream_, buffer_, *parser_,
-                            beast::bind_front_handler(&Connection::on_header, shared_from_this()));
+                            beast::bind_front_handler(&Connection::on_header, self()));
   }
 
   void on_header(beast::error_code error, std::size_t) {
@@ -302,12 +456,12 @@ class Connection : public std::enable_shared_from_this<Connection> {
       auto reply = std::make_shared<std::string>(
           header.version() >= 11 ? "HTTP/1.1 100 Continue\r\n\r\n" : "HTTP/1.0 100 Continue\r\n\r\n");
       asio::async_write(stream_, asio::buffer(*reply),
-                        [self = shared_from_this(), reply](beast::error_code e, std::size_t) {
+                        [connection = self(), reply](beast::error_code e, std::size_t) {
                           if (e) {
-                            self->drop();
+                            connection->drop();
                             return;
                           }
-                          self->read_body();
+                          connection->read_body();
                         });
       return;
     }
@@ -316,7 +470,7 @@ class Connection : public std::enable_shared_from_this<Connection> {
 
   void read_body() {
     http::async_read(stream_, buffer_, *parser_,
-                     beast::bind_front_handler(&Connection::on_read, shared_from_this()));
+                     beast::bind_front_handler(&Connection::on_read, self()));
   }
 
   void on_read(beast::error_code error, std::size_t) {
@@ -344,6 +498,7 @@ class Connection : public std::enable_shared_from_this<Connection> {
     HttpRequest in;
     in.method = std::string(request.method_string());
     in.target = std::string(request.target());
+    in.peer = peer_;
     for (const auto& field : request) {
       in.headers.emplace_back(std::string(field.name_string()), std::string(field.value()));
     }
@@ -359,7 +514,7 @@ class Connection : public std::enable_shared_from_this<Connection> {
     }
     is_monitoring_ = true;
     stream_.async_read_some(asio::buffer(monitor_buffer_),
-                            beast::bind_front_handler(&Connection::on_monitor, shared_from_this()));
+                            beast::bind_front_handler(&Connection::on_monitor, self()));
   }
 
   void on_monitor(beast::error_code error, std::size_t n) {
@@ -405,9 +560,9 @@ class Connection : public std::enable_shared_from_this<Connection> {
     if (is_writing_ || queue_.empty() || is_closed_) return;
     is_writing_ = true;
     // With the monitor read pending this arms the write timer only.
-    stream_.expires_after(std::chrono::seconds(server_.options.write_timeout_seconds));
+    tcp().expires_after(std::chrono::seconds(server_.options.write_timeout_seconds));
     asio::async_write(stream_, asio::buffer(queue_.front().bytes),
-                      beast::bind_front_handler(&Connection::on_write, shared_from_this()));
+                      beast::bind_front_handler(&Connection::on_write, self()));
   }
 
   void on_write(beast::error_code error, std::size_t) {
@@ -432,13 +587,13 @@ class Connection : public std::enable_shared_from_this<Connection> {
     close_callback_ = nullptr;
     if (!keep_alive_) {
       beast::error_code ignored;
-      stream_.socket().shutdown(tcp::socket::shutdown_send, ignored);
+      tcp().socket().shutdown(tcp::socket::shutdown_send, ignored);
       linger();
       return;
     }
     if (is_monitoring_) {
       wants_next_ = true;
-      stream_.cancel();  // on_monitor (operation_aborted, or data already read) reads next
+      tcp().cancel();  // on_monitor (operation_aborted, or data already read) reads next
     } else {
       read();
     }
@@ -451,8 +606,8 @@ class Connection : public std::enable_shared_from_this<Connection> {
     is_lingering_ = true;
     buffer_.clear();
     linger_timer_.expires_after(std::chrono::seconds(2));
-    linger_timer_.async_wait([self = shared_from_this()](beast::error_code error) {
-      if (!error) self->drop();
+    linger_timer_.async_wait([connection = self()](beast::error_code error) {
+      if (!error) connection->drop();
     });
     start_monitor();
   }
@@ -475,8 +630,8 @@ class Connection : public std::enable_shared_from_this<Connection> {
     for (Pending& pending : failed) pending.done.run(false);
     beast::error_code ignored;
     linger_timer_.cancel();
-    stream_.socket().shutdown(tcp::socket::shutdown_both, ignored);
-    stream_.close();
+    tcp().socket().shutdown(tcp::socket::shutdown_both, ignored);
+    tcp().close();
     const std::lock_guard lock(server_.mutex);
     server_.connections.erase(shared_from_this());
   }
@@ -486,11 +641,12 @@ class Connection : public std::enable_shared_from_this<Connection> {
     Completion done;
   };
 
-  beast::tcp_stream stream_;
+  Stream stream_;
   asio::steady_timer linger_timer_;
   beast::flat_buffer buffer_;
   std::optional<http::request_parser<http::string_body>> parser_;
   HttpServer::Impl& server_;
+  const std::string peer_;
   std::size_t limit_ = 0;
   std::uint64_t seq_ = 0;          // the current request's number
   unsigned version_ = 11;
@@ -511,13 +667,13 @@ class Connection : public std::enable_shared_from_this<Connection> {
 
 class ConnectionExchange final : public HttpExchange {
  public:
-  ConnectionExchange(const std::shared_ptr<Connection>& connection,
+  ConnectionExchange(const std::shared_ptr<ConnectionBase>& connection,
                      std::shared_ptr<Lifeline> lifeline, std::uint64_t seq)
       : connection_(connection), lifeline_(std::move(lifeline)), seq_(seq) {}
 
   ~ConnectionExchange() override {
     if (!is_answered_.exchange(true)) {
-      post([seq = seq_](Connection& c) {
+      post([seq = seq_](ConnectionBase& c) {
         c.do_respond(seq, HttpResponse{500, "text/plain; charset=utf-8", "no response\n", {}});
       });
     }
@@ -525,7 +681,7 @@ class ConnectionExchange final : public HttpExchange {
 
   void respond(HttpResponse response) override {
     is_answered_.store(true);
-    post([seq = seq_, response = std::move(response)](Connection& c) mutable {
+    post([seq = seq_, response = std::move(response)](ConnectionBase& c) mutable {
       c.do_respond(seq, std::move(response));
     });
   }
@@ -533,7 +689,7 @@ class ConnectionExchange final : public HttpExchange {
   void start_stream(int status, std::string content_type, HttpHeaders headers) override {
     is_answered_.store(true);
     post([seq = seq_, status, content_type = std::move(content_type),
-          headers = std::move(headers)](Connection& c) mutable {
+          headers = std::move(headers)](ConnectionBase& c) mutable {
       c.do_start_stream(seq, status, std::move(content_type), std::move(headers));
     });
   }
@@ -542,19 +698,20 @@ class ConnectionExchange final : public HttpExchange {
     // Shared so that the posted handler stays copyable; if it is destroyed unrun (the server
     // stopped), the Completion reports false.
     auto completion = std::make_shared<Completion>(std::move(done));
-    const bool posted = post([seq = seq_, data = std::move(data), completion](Connection& c) mutable {
-      c.do_write_chunk(seq, std::move(data), std::move(*completion));
-    });
+    const bool posted =
+        post([seq = seq_, data = std::move(data), completion](ConnectionBase& c) mutable {
+          c.do_write_chunk(seq, std::move(data), std::move(*completion));
+        });
     if (!posted) completion->run(false);
   }
 
   void end_stream() override {
-    post([seq = seq_](Connection& c) { c.do_end_stream(seq); });
+    post([seq = seq_](ConnectionBase& c) { c.do_end_stream(seq); });
   }
 
   void on_close(std::function<void()> callback) override {
     auto shared = std::make_shared<std::function<void()>>(std::move(callback));
-    const bool posted = post([seq = seq_, shared](Connection& c) mutable {
+    const bool posted = post([seq = seq_, shared](ConnectionBase& c) mutable {
       c.do_on_close(seq, std::move(*shared));
     });
     if (!posted && *shared) (*shared)();  // the connection or the server is already gone
@@ -566,7 +723,7 @@ class ConnectionExchange final : public HttpExchange {
   bool post(Fn&& fn) {
     const std::lock_guard lock(lifeline_->mutex);
     if (!lifeline_->is_alive) return false;
-    std::shared_ptr<Connection> connection = connection_.lock();
+    std::shared_ptr<ConnectionBase> connection = connection_.lock();
     if (!connection) return false;
     auto executor = connection->executor();
     asio::post(executor, [connection = std::move(connection), fn = std::forward<Fn>(fn)]() mutable {
@@ -575,21 +732,22 @@ class ConnectionExchange final : public HttpExchange {
     return true;
   }
 
-  std::weak_ptr<Connection> connection_;
+  std::weak_ptr<ConnectionBase> connection_;
   std::shared_ptr<Lifeline> lifeline_;
   std::uint64_t seq_;
   std::atomic<bool> is_answered_{false};
 };
 
-void Connection::dispatch(HttpRequest in, bool keep_alive, unsigned version) {
+template <typename Stream>
+void Connection<Stream>::dispatch(HttpRequest in, bool keep_alive, unsigned version) {
   ++seq_;
   keep_alive_ = keep_alive;
   version_ = version;
   // No read timeout while the handler works (the gateway bounds its calls with deadlines); the
   // monitor read watches for the client leaving.
-  stream_.expires_never();
+  tcp().expires_never();
   start_monitor();
-  auto exchange = std::make_shared<ConnectionExchange>(shared_from_this(), server_.lifeline, seq_);
+  auto exchange = std::make_shared<ConnectionExchange>(self(), server_.lifeline, seq_);
   try {
     server_.handler(std::move(in), exchange);
   } catch (const std::exception&) {
@@ -598,6 +756,24 @@ void Connection::dispatch(HttpRequest in, bool keep_alive, unsigned version) {
 }
 
 }  // namespace
+
+Result<TlsConfig> load_tls_config(const std::string& cert_path, const std::string& key_path,
+                                  const std::string& client_ca_path) {
+  TlsLabels labels;
+  labels.cert = "TLS certificate file '" + cert_path + "'";
+  labels.key = "TLS key file '" + key_path + "'";
+  labels.client_ca = "TLS client CA file '" + client_ca_path + "'";
+  TlsConfig tls;
+  MD_ASSIGN_OR_RETURN(tls.cert_chain_pem, read_file(cert_path, labels.cert));
+  MD_ASSIGN_OR_RETURN(tls.private_key_pem, read_file(key_path, labels.key));
+  if (!client_ca_path.empty()) {
+    MD_ASSIGN_OR_RETURN(tls.client_ca_pem, read_file(client_ca_path, labels.client_ca));
+  }
+  // gRPC takes PEM text too but reports a bad one only as a failed listen: check it here.
+  MD_ASSIGN_OR_RETURN(auto checked, make_ssl_context(tls, labels));
+  (void)checked;
+  return tls;
+}
 
 std::string_view HttpRequest::find_header(std::string_view name) const {
   for (const auto& [key, value] : headers) {
@@ -614,7 +790,15 @@ void HttpServer::Impl::accept() {
       // Chunks of a stream are small and must leave at once (no Nagle delay).
       beast::error_code ignored;
       socket.set_option(tcp::no_delay(true), ignored);
-      auto connection = std::make_shared<Connection>(std::move(socket), *this);
+      std::string peer = peer_of(socket);
+      std::shared_ptr<ConnectionBase> connection;
+      if (ssl) {
+        connection = std::make_shared<Connection<beast::ssl_stream<beast::tcp_stream>>>(
+            *this, std::move(peer), std::move(socket), *ssl);
+      } else {
+        connection = std::make_shared<Connection<beast::tcp_stream>>(*this, std::move(peer),
+                                                                     std::move(socket));
+      }
       {
         const std::lock_guard lock(mutex);
         if (stopped) return;
@@ -658,6 +842,9 @@ Result<std::unique_ptr<HttpServer>> HttpServer::start_async(const std::string& a
                                                             HttpServerOptions options) {
   MD_ASSIGN_OR_RETURN(tcp::endpoint endpoint, parse_endpoint(address));
   auto impl = std::make_unique<Impl>();
+  if (options.tls) {
+    MD_ASSIGN_OR_RETURN(impl->ssl, make_ssl_context(*options.tls));
+  }
   impl->handler = std::move(handler);
   impl->options = std::move(options);
   beast::error_code error;
@@ -696,7 +883,7 @@ void HttpServer::stop() {
   }
   beast::error_code ignored;
   impl_->acceptor.close(ignored);
-  std::set<std::shared_ptr<Connection>> connections;
+  std::set<std::shared_ptr<ConnectionBase>> connections;
   {
     const std::lock_guard lock(impl_->mutex);
     connections = impl_->connections;

@@ -9,11 +9,16 @@
 /// timeout, and answered with keep-alive. While a response is pending or streaming the connection
 /// keeps reading, so that a client closing its socket is noticed at once (HttpExchange::on_close)
 /// and bytes of a pipelined next request are kept (up to max_pipelined_bytes) for later.
+///
+/// With HttpServerOptions::tls the listener speaks HTTPS only (TLS 1.2 or later): every
+/// connection starts with a handshake, bounded by the read timeout; a client that fails it (a
+/// plaintext request, an untrusted or missing client certificate) is dropped without an answer.
 
 #include <cstddef>
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -40,6 +45,10 @@ struct HttpRequest {
   /// answers 413 for them).
   bool is_body_over_limit = false;
   std::uint64_t declared_body_bytes = 0;
+  /// The client's address without the port, in gRPC's peer() form: "ipv4:127.0.0.1" or
+  /// "ipv6:[::1]" (an IPv4-mapped IPv6 address is reported as IPv4); empty if the socket could
+  /// not tell (it was already reset).
+  std::string peer;
 
   /// The value of the first header named `name` (ASCII case-insensitive), or empty.
   std::string_view find_header(std::string_view name) const;
@@ -85,6 +94,24 @@ using HttpHandler = std::function<HttpResponse(const HttpRequest&)>;
 using AsyncHttpHandler =
     std::function<void(HttpRequest request, std::shared_ptr<HttpExchange> exchange)>;
 
+/// PEM text of a TLS server identity, shared by the gRPC port and the HTTP listener.
+struct TlsConfig {
+  std::string cert_chain_pem;   ///< the server certificate, then any intermediates
+  std::string private_key_pem;  ///< the certificate's key (unencrypted)
+  /// Non-empty: clients must present a certificate issued by one of these CAs (mutual TLS).
+  std::string client_ca_pem;
+};
+
+/// Reads the PEM files of --tls-cert, --tls-key and (optionally, when not empty) --tls-client-ca
+/// and checks them with OpenSSL, so that a bad file stops the server at startup with a message
+/// naming it rather than failing every handshake later.
+/// @return the files' text; InvalidArgument naming the file when it cannot be read, holds no
+///         PEM certificate (cert, client CA) or private key (key), or when the key does not
+///         belong to the certificate.
+[[nodiscard]] Result<TlsConfig> load_tls_config(const std::string& cert_path,
+                                                const std::string& key_path,
+                                                const std::string& client_ca_path);
+
 struct HttpServerOptions {
   int threads = 1;
   std::size_t max_request_bytes = 1 << 20;  ///< body limit when `body_limit` is empty
@@ -98,14 +125,17 @@ struct HttpServerOptions {
                                    ///< dropped (a stalled reader cannot pin a stream forever)
   std::size_t max_connections = 1024;          ///< more are closed on accept
   std::size_t max_pipelined_bytes = 64 * 1024;  ///< buffered while a response is pending
+  /// Set: serve HTTPS (TLS 1.2+) with this identity instead of plaintext HTTP.
+  std::optional<TlsConfig> tls;
 };
 
 class HttpServer {
  public:
   /// Binds `address` ("127.0.0.1:9464", "[::1]:0", "0.0.0.0:9464"; port 0 picks a free one) and
   /// starts serving `handler` on its threads (the handler's response is sent at once).
-  /// @return the running server; InvalidArgument for a malformed address; Unavailable-style
-  ///         Internal error naming the address when it cannot be bound.
+  /// @return the running server; InvalidArgument for a malformed address, or for a
+  ///         HttpServerOptions::tls whose certificate, key or client CAs OpenSSL rejects;
+  ///         Unavailable-style Internal error naming the address when it cannot be bound.
   [[nodiscard]] static Result<std::unique_ptr<HttpServer>> start(const std::string& address,
                                                                  HttpHandler handler,
                                                                  HttpServerOptions options = {});

@@ -169,7 +169,7 @@ TEST_F(ClientTransportTest, EveryGrpcCodeMapsToAnErrorCodeAndKeepsItsName) {
       {grpc::StatusCode::PERMISSION_DENIED, ErrorCode::PermissionDenied},
       {grpc::StatusCode::RESOURCE_EXHAUSTED, ErrorCode::ResourceExhausted},
       {grpc::StatusCode::FAILED_PRECONDITION, ErrorCode::FailedPrecondition},
-      {grpc::StatusCode::ABORTED, ErrorCode::FailedPrecondition},
+      {grpc::StatusCode::ABORTED, ErrorCode::Aborted},
       {grpc::StatusCode::OUT_OF_RANGE, ErrorCode::InvalidArgument},
       {grpc::StatusCode::UNIMPLEMENTED, ErrorCode::FailedPrecondition},
       {grpc::StatusCode::INTERNAL, ErrorCode::Internal},

@@ -76,6 +76,21 @@ ServerProcess::~ServerProcess() {
 
 std::string ServerProcess::address() const { return "127.0.0.1:" + std::to_string(port_); }
 
+int ServerProcess::http_port(std::chrono::milliseconds timeout) const {
+  const std::regex listening(R"re("event":"http_listening".*"port":([0-9]+))re");
+  int port = 0;
+  std::unique_lock lock(mutex_);
+  changed_.wait_for(lock, timeout, [&] {
+    std::smatch match;
+    if (std::regex_search(log_, match, listening)) {
+      port = std::stoi(match[1].str());
+      return true;
+    }
+    return eof_;
+  });
+  return port;
+}
+
 std::optional<int> ServerProcess::stop(int signal, std::chrono::milliseconds timeout) {
   if (pid_ <= 0) return std::nullopt;
   kill(pid_, signal);

@@ -33,6 +33,10 @@ class ServerProcess {
   int pid() const { return pid_; }
   /// "127.0.0.1:PORT", for grpc::CreateChannel.
   std::string address() const;
+  /// The --http-listen port, from the `"event":"http_listening"` line (logged just after the
+  /// listening line), waiting at most `timeout` for it.
+  /// @return the port, or 0 when the line did not come (no --http-listen, or the server exited).
+  int http_port(std::chrono::milliseconds timeout = std::chrono::seconds(10)) const;
 
   /// Sends `signal` (e.g. SIGTERM or SIGKILL) and waits at most `timeout` for the exit.
   /// @return the wait status (use WIFEXITED / WEXITSTATUS / WIFSIGNALED), or nullopt if it did
