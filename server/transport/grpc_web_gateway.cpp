@@ -281,6 +281,7 @@ class ForwardedCall final : public grpc::ClientBidiReactor<grpc::ByteBuffer, grp
     HttpHeaders headers;  ///< CORS headers of the response
     std::optional<std::chrono::nanoseconds> timeout;
     std::string session_id;
+    std::string peer;  ///< the browser's address, for the service's per-client rate limits
     std::chrono::steady_clock::time_point start;
   };
 
@@ -305,6 +306,9 @@ class ForwardedCall final : public grpc::ClientBidiReactor<grpc::ByteBuffer, grp
     if (!call->setup_.session_id.empty()) {
       call->context_.AddMetadata("x-session-id", call->setup_.session_id);
     }
+    // The service names in-process callers by this (client_identity in deform_service_impl.h);
+    // over the network it is ignored, so a browser cannot pick its own name.
+    if (!call->setup_.peer.empty()) call->context_.AddMetadata("x-meshdeform-peer", call->setup_.peer);
     call->shared_->stub->PrepareBidiStreamingCall(&call->context_, call->setup_.path,
                                                   grpc::StubOptions(), call.get());
     call->StartWriteLast(&call->request_, grpc::WriteOptions());
@@ -599,6 +603,7 @@ void GrpcWebGateway::handle(HttpRequest request, std::shared_ptr<HttpExchange> e
     }
     setup.session_id = std::string(session);
   }
+  setup.peer = request.peer;
   enum class Admission { Admitted, Stopping, Full } admission = Admission::Admitted;
   {
     const std::lock_guard lock(shared.mutex);

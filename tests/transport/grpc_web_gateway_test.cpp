@@ -54,8 +54,16 @@ struct Response {
 
 class Client {
  public:
-  explicit Client(int port) {
+  /// @param[in] source  local IPv4 address to connect from (host order; 0: any), e.g. 127.0.0.2
+  ///                    to look like another browser on loopback.
+  explicit Client(int port, std::uint32_t source = 0) {
     fd_ = ::socket(AF_INET, SOCK_STREAM, 0);
+    if (source != 0) {
+      sockaddr_in local{};
+      local.sin_family = AF_INET;
+      local.sin_addr.s_addr = htonl(source);
+      if (::bind(fd_, reinterpret_cast<sockaddr*>(&local), sizeof local) != 0) close();
+    }
     sockaddr_in address{};
     address.sin_family = AF_INET;
     address.sin_port = htons(static_cast<std::uint16_t>(port));
@@ -326,6 +334,7 @@ class GrpcWebTest : public ::testing::Test {
     service::ServiceOptions service_options;
     service_options.workers = 2;
     service_options.refine_budget = 0;  // no background revisions: Watch sees only our moves
+    if (create_rate_) service_options.create_rate = *create_rate_;
     service_ = std::make_unique<service::DeformationService>(service_options);
     impl_ = std::make_unique<DeformServiceImpl>(*service_);
     enable_health_and_reflection();
@@ -352,6 +361,8 @@ class GrpcWebTest : public ::testing::Test {
     http_ = std::move(http).value();
   }
 
+  std::optional<service::RateLimit> create_rate_;  ///< set before start() to limit creations
+
   void TearDown() override {
     if (gateway_) gateway_->stop();
     if (http_) http_->stop();
@@ -370,8 +381,8 @@ class GrpcWebTest : public ::testing::Test {
 
   Response raw_call(const std::string& path, std::string_view body,
                     std::string_view content_type = "application/grpc-web+proto",
-                    std::string_view extra_headers = "") {
-    Client client(port());
+                    std::string_view extra_headers = "", std::uint32_t source = 0) {
+    Client client(port(), source);
     Response response;
     EXPECT_TRUE(client.is_connected());
     EXPECT_TRUE(client.send_all(grpc_web_request(path, body, content_type, extra_headers)));
@@ -1019,6 +1030,27 @@ TEST(GrpcWebHelpers, ParseGrpcTimeout) {
     EXPECT_FALSE(parse_grpc_timeout(bad).ok()) << bad;
   }
   EXPECT_EQ(percent_encode_grpc_message("a%b\n\xC3\xA9 ok"), "a%25b%0A%C3%A9 ok");
+}
+
+TEST_F(GrpcWebTest, RateLimitsCountEachBrowserByItsOwnAddress) {
+  // The gateway forwards in-process, so without the browser's address every browser would share
+  // one rate-limit bucket. Two loopback addresses play two browsers.
+  create_rate_ = service::RateLimit{0.001, 1.0};  // one session each, then a ~17-minute wait
+  start();
+  v1::CreateSessionRequest request;
+  request.set_sample("bar_small");
+  auto create_from = [&](std::uint32_t source) {
+    const Response response =
+        raw_call(std::string(kService) + "CreateSession", frame(0x00, request.SerializeAsString()),
+                 "application/grpc-web+proto", "", source);
+    const Frames frames = parse_frames(response.body);
+    return response.header("grpc-status").empty() ? frames.status()
+                                                  : std::stoi(std::string(response.header("grpc-status")));
+  };
+  EXPECT_EQ(create_from(0x7F000001), 0);  // 127.0.0.1
+  const int second = create_from(0x7F000001);
+  EXPECT_EQ(second, static_cast<int>(grpc::StatusCode::RESOURCE_EXHAUSTED));
+  EXPECT_EQ(create_from(0x7F000002), 0);  // 127.0.0.2: another browser, its own bucket
 }
 
 }  // namespace
