@@ -16,14 +16,14 @@ build="$root/build-fuzz"
 cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DCMAKE_CXX_COMPILER=clang++ -DMESHDEFORM_BUILD_FUZZERS=ON \
   -DMESHDEFORM_BUILD_TESTS=OFF -DMESHDEFORM_BUILD_CLI=OFF -DMESHDEFORM_BUILD_BENCH=OFF \
-  -DMESHDEFORM_BUILD_SERVER=OFF >/dev/null
+  -DMESHDEFORM_BUILD_SERVER=ON >/dev/null  # for the protobuf code of fuzz_request only
 cmake --build "$build" -j"$(nproc)" --target meshdeform_fuzzers
 
 if [ $# -gt 0 ]; then
   targets=("$@")
 else
   targets=(fuzz_mesh_obj fuzz_mesh_off fuzz_mesh_ply fuzz_mesh_stl fuzz_mesh_glb fuzz_mesh_gltf
-           fuzz_sel fuzz_def fuzz_edit_spec fuzz_clean)
+           fuzz_sel fuzz_def fuzz_edit_spec fuzz_clean fuzz_request)
 fi
 
 scratch="$(mktemp -d)"

@@ -287,6 +287,7 @@ Result<v1::PositionEncoding> encoding_from_proto(int value) {
 
 void pack_positions(const Positions& rows, v1::PositionEncoding encoding, std::string* out) {
   static_assert(sizeof(float) == 4);
+  if (rows.rows() == 0) return;  // no vertex, no bytes (in either encoding)
   std::vector<float> floats(static_cast<std::size_t>(rows.rows()) * 3);
   for (Eigen::Index r = 0; r < rows.rows(); ++r) {
     for (int c = 0; c < 3; ++c) {

@@ -43,7 +43,7 @@ inline constexpr int kMaxMagnifyRegions = 64;
 /// Appends #rows x 3 positions to `out` in a compact encoding: FLOAT32 (little-endian float32
 /// x, y, z per row) or MESHOPT (those float32 rows, 12 bytes each, through meshoptimizer's
 /// lossless vertex codec). Rows beyond float's range become +-inf (FLOAT32 is the client's choice
-/// of precision). @pre encoding is FLOAT32 or MESHOPT.
+/// of precision). No rows append nothing. @pre encoding is FLOAT32 or MESHOPT.
 void pack_positions(const Positions& rows, v1::PositionEncoding encoding, std::string* out);
 
 void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* out);
