@@ -42,6 +42,7 @@ struct Flags {
   int workers = 0;
   int shutdown_grace_seconds = 10;
   int refine_budget = 30;
+  int refine_delay_ms = 150;
   std::string http_listen;
   std::string web_root;
   std::vector<std::string> cors_origins;
@@ -72,6 +73,8 @@ constexpr const char* kUsage =
     "  --refine-budget N           outer iterations the server keeps refining a session in the\n"
     "                              background after a move while its handles rest, publishing\n"
     "                              each improvement as a revision (default 30; 0 = off)\n"
+    "  --refine-delay-ms N         ... starting once the handles have rested N ms (default 150:\n"
+    "                              no refinement revisions between the moves of a drag)\n"
     "  --http-listen ADDR          also serve HTTP/1.1 on ADDR (e.g. 127.0.0.1:8080): the service\n"
     "                              over gRPC-Web (for browsers), GET /metrics (Prometheus text\n"
     "                              format), GET /healthz, and --web-root files (default: off)\n"
@@ -158,6 +161,8 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
       ok = parse_int(value, 0, 1024, flags.workers);
     } else if (arg == "--refine-budget") {
       ok = parse_int(value, 0, 100'000, flags.refine_budget);
+    } else if (arg == "--refine-delay-ms") {
+      ok = parse_int(value, 0, 60'000, flags.refine_delay_ms);
     } else if (arg == "--http-listen") {
       flags.http_listen = std::string(value);
       ok = !value.empty();
@@ -236,6 +241,7 @@ int main(int argc, char** argv) {
   options.max_vertices = flags.max_vertices;
   options.idle_ttl = std::chrono::seconds(flags.idle_ttl_seconds);
   options.refine_budget = flags.refine_budget;
+  options.refine_delay = std::chrono::milliseconds(flags.refine_delay_ms);
   options.memory_budget_bytes = static_cast<std::size_t>(flags.memory_budget_mib) << 20;
   options.state_dir = flags.state_dir;
   options.create_rate = {flags.create_rate, flags.create_burst};

@@ -400,14 +400,27 @@ void DeformationService::move_handles_async(const SessionId& id, const Token& ed
       return session->move(request, combined.token());
     });
     done(std::move(result));
-    schedule_refinement(session);
+    schedule_refinement(session, /*after_move=*/true);
   });
 }
 
-void DeformationService::schedule_refinement(const std::shared_ptr<Session>& session) {
+void DeformationService::schedule_refinement(const std::shared_ptr<Session>& session,
+                                             bool after_move) {
   if (options_.refine_budget <= 0 || shutdown_.stop_requested()) return;
   // Strand-only state, read on the strand: this runs at the end of an edit or refinement task.
   if (!session->wants_refinement() || session->has_queued_edits()) return;
+  if (after_move && options_.refine_delay.count() > 0) {
+    // Start once the handles rest: every move posts a timer, and only the one whose move is
+    // still the last when it fires goes on (the others see a newer move and drop out).
+    delays_.post_after(options_.refine_delay, [this, session] {
+      if (std::chrono::steady_clock::now() - session->last_move_time() < options_.refine_delay) {
+        return;
+      }
+      post(session, [this, session] { schedule_refinement(session, /*after_move=*/false); },
+           /*is_refinement=*/true);
+    });
+    return;
+  }
   pool_.submit_background([this, session] {
     post(
         session,
@@ -429,7 +442,7 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
                           .add("e_theta", r.e_theta)
                           .add("solve_seconds", r.solve_seconds));
           }
-          if (refined.ok()) schedule_refinement(session);
+          if (refined.ok()) schedule_refinement(session, /*after_move=*/false);
         },
         /*is_refinement=*/true);
   });

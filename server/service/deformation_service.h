@@ -28,6 +28,7 @@
 
 #include "core/io/mesh_io.h"
 #include "core/status.h"
+#include "server/service/delay_queue.h"
 #include "server/service/persistence.h"
 #include "server/service/rate_limiter.h"
 #include "server/service/session.h"
@@ -146,7 +147,8 @@ class DeformationService {
             bool is_refinement = false);
   /// If the session wants refinement, queues one slice at background priority (it runs when no
   /// edit of any session waits) and, after it, the next.
-  void schedule_refinement(const std::shared_ptr<Session>& session);
+  /// `after_move`: wait for ServiceOptions::refine_delay of rest first.
+  void schedule_refinement(const std::shared_ptr<Session>& session, bool after_move);
 
   ServiceOptions options_;
   std::shared_ptr<ServiceCounters> counters_;
@@ -160,7 +162,8 @@ class DeformationService {
   std::atomic<std::uint64_t> rate_limited_moves_{0};
   std::atomic<std::uint64_t> stale_copies_dropped_{0};
   SessionStore store_;
-  WorkerPool pool_;  // declared last: destroyed (drained, joined) before the store
+  WorkerPool pool_;  // destroyed (drained, joined) before the store
+  DelayQueue delays_;  // declared last: destroyed first, so no timer posts into a dead pool
 };
 
 }  // namespace meshdeform::service

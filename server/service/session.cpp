@@ -498,6 +498,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   DeformResult result = commit(std::move(report).value(), request.method, targets, base_positions,
                                built, request.editor, /*refinement=*/false, entry);
   counters_->moves_committed.fetch_add(1);
+  last_move_ticks_.store(std::chrono::steady_clock::now().time_since_epoch().count());
   if (options_.refine_budget > 0 && !result.converged) {
     refine_ = RefineState{request.method, request.ora, std::move(face_scale), request.tolerance,
                           options_.refine_budget};

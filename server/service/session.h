@@ -141,6 +141,11 @@ class Session : public std::enable_shared_from_this<Session> {
 
   std::size_t estimated_bytes() const { return estimated_bytes_.load(); }
   std::chrono::steady_clock::time_point last_used() const;
+  /// When the last move (not refinement) was committed; the epoch before any.
+  std::chrono::steady_clock::time_point last_move_time() const {
+    return std::chrono::steady_clock::time_point(
+        std::chrono::steady_clock::duration(last_move_ticks_.load()));
+  }
   void touch(std::chrono::steady_clock::time_point now);
   /// Edits queued or running (the store only evicts sessions with none).
   std::atomic<int>& inflight() { return inflight_; }
@@ -216,6 +221,7 @@ class Session : public std::enable_shared_from_this<Session> {
   std::chrono::steady_clock::time_point last_used_{};
 
   const StateDirectory* state_dir_ = nullptr;
+  std::atomic<std::chrono::steady_clock::rep> last_move_ticks_{0};
   mutable std::mutex stamp_mutex_;
   std::optional<FileStamp> stamp_;  ///< guarded by stamp_mutex_
 

@@ -192,6 +192,10 @@ struct ServiceOptions {
   /// the service keeps running outer iterations on the same targets (in slices, committing each
   /// improvement as a revision) up to this many in total; 0 = off.
   int refine_budget = 0;
+  /// ... and it starts only once the handles have rested this long after a move: while a user
+  /// drags, every refinement revision would be a wasted solve and a full update to every
+  /// watcher between two moves.
+  std::chrono::milliseconds refine_delay{150};
   /// Directory for session state files (persistence.h); empty = in memory only. Sessions whose
   /// file is younger than idle_ttl are restored on their first request after a restart (or on
   /// another replica sharing the directory).

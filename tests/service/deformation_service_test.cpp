@@ -779,5 +779,29 @@ TEST(RefinementTest, OffByDefaultInTheService) {
   EXPECT_EQ(service.stats().refinements_committed, 0u);
 }
 
+TEST(RefinementTest, WaitsUntilTheHandlesRest) {
+  // A drag: moves back to back. With a rest delay longer than the drag, nothing is refined in
+  // between (no wasted solves, no extra revisions to watchers); the revisions are exactly the
+  // moves. Once the handles rest past the delay, refinement runs.
+  ServiceOptions options = small_options();
+  options.refine_budget = 30;
+  options.refine_delay = milliseconds(2000);  // far longer than five small moves
+  DeformationService service(options);
+  Fixture f = create_with_handles(service, "cylinder_small");
+  for (int i = 1; i <= 5; ++i) {
+    Result<DeformResult> moved =
+        service.move_handles(f.created.id, f.created.edit_token, bend_move(10.0 * i, 1));
+    ASSERT_TRUE(moved.ok()) << message_of(moved);
+    EXPECT_EQ(moved->revision, static_cast<std::uint64_t>(i));  // no refinement in between
+  }
+  EXPECT_EQ(service.stats().refinements_committed, 0u);
+  // Resting: refinement starts after the delay (bounded wait).
+  const auto deadline = std::chrono::steady_clock::now() + seconds(30);
+  while (service.stats().refinements_committed == 0 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(milliseconds(20));
+  }
+  EXPECT_GE(service.stats().refinements_committed, 1u);
+}
+
 }  // namespace
 }  // namespace meshdeform::service
