@@ -1,0 +1,224 @@
+// End-to-end test of the browser viewer in real headless Chromium against a real server.
+// Env: MESHDEFORM_SERVER_PATH (server binary), MESHDEFORM_VIEWER_DIST (built viewer, default
+// web_viewer/dist), MESHDEFORM_ARTIFACTS_DIR (screenshots), CHROMIUM_PATH (default
+// /usr/bin/chromium). Run: node --test tests/viewer/
+import { test, before, after } from "node:test";
+import assert from "node:assert/strict";
+import { spawn } from "node:child_process";
+import { createRequire } from "node:module";
+import { existsSync, mkdirSync, mkdtempSync, writeFileSync } from "node:fs";
+import { tmpdir } from "node:os";
+import path from "node:path";
+import { fileURLToPath } from "node:url";
+
+const require = createRequire(new URL("../../web_viewer/package.json", import.meta.url));
+const { chromium } = require("playwright-core");
+
+const repo = path.resolve(path.dirname(fileURLToPath(import.meta.url)), "../..");
+const serverPath = process.env.MESHDEFORM_SERVER_PATH || path.join(repo, "build/server/transport/meshdeform-server");
+const dist = path.resolve(process.env.MESHDEFORM_VIEWER_DIST || path.join(repo, "web_viewer/dist"));
+const artifacts = process.env.MESHDEFORM_ARTIFACTS_DIR || mkdtempSync(path.join(tmpdir(), "meshdeform-viewer-e2e-"));
+mkdirSync(artifacts, { recursive: true });
+
+const STEP_MS = 30_000;
+let server, serverLog = "", baseUrl, browser;
+
+function withTimeout(p, ms, what) {
+  let t;
+  return Promise.race([p, new Promise((_, rej) => (t = setTimeout(() => rej(new Error(`timeout: ${what}`)), ms)))]).finally(() => clearTimeout(t));
+}
+
+function startServer() {
+  return new Promise((resolve, reject) => {
+    server = spawn(serverPath, ["--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0", "--web-root", dist, "--log-level", "info"], { stdio: ["ignore", "ignore", "pipe"] });
+    const timer = setTimeout(() => reject(new Error("server did not report http_listening\n" + serverLog)), 20_000);
+    server.on("error", (e) => { clearTimeout(timer); reject(e); });
+    server.on("exit", (code) => { clearTimeout(timer); reject(new Error(`server exited (${code})\n${serverLog}`)); });
+    let buf = "";
+    server.stderr.on("data", (d) => {
+      serverLog += d;
+      buf += d;
+      let i;
+      while ((i = buf.indexOf("\n")) >= 0) {
+        const line = buf.slice(0, i);
+        buf = buf.slice(i + 1);
+        try {
+          const j = JSON.parse(line);
+          if (j.event === "http_listening") { clearTimeout(timer); resolve(`http://127.0.0.1:${j.port}`); }
+        } catch { /* not JSON */ }
+      }
+    });
+  });
+}
+
+const hook = (page, expr) => page.evaluate(expr);
+async function poll(page, fn, arg, what, ms = STEP_MS) {
+  await withTimeout(page.waitForFunction(fn, arg, { timeout: ms, polling: 100 }), ms + 1000, what);
+}
+async function shot(page, name) {
+  const file = path.join(artifacts, name);
+  const buf = await page.locator('[data-testid="canvas"]').screenshot({ path: file, timeout: STEP_MS });
+  return buf;
+}
+
+async function newPage(url) {
+  const ctx = await browser.newContext({ viewport: { width: 1200, height: 800 } });
+  const page = await ctx.newPage();
+  page.setDefaultTimeout(STEP_MS);
+  page.on("pageerror", (e) => console.log("[pageerror]", e.message));
+  page.on("console", (m) => { if (m.type() === "error" || m.type() === "warning") console.log(`[console.${m.type()}]`, m.text()); });
+  await page.goto(url, { timeout: STEP_MS });
+  return page;
+}
+
+/** Drags the real mouse from the handle centroid by (dx, dy) pixels; returns the start point. */
+async function dragHandle(page, dx, dy) {
+  const p = await hook(page, () => window.__meshdeform.handleScreenPoint());
+  assert.ok(p, "handleScreenPoint() is null");
+  await page.mouse.move(p.x, p.y);
+  await page.mouse.down();
+  await page.mouse.move(p.x + dx, p.y + dy, { steps: 12 });
+  await page.mouse.up();
+  return p;
+}
+
+before(async () => {
+  assert.ok(existsSync(serverPath), `server binary not found: ${serverPath}`);
+  assert.ok(existsSync(path.join(dist, "index.html")), `viewer not built: ${dist}/index.html (run npm run build in web_viewer)`);
+  baseUrl = await startServer();
+  browser = await withTimeout(chromium.launch({
+    executablePath: process.env.CHROMIUM_PATH || "/usr/bin/chromium",
+    args: ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+      "--disable-component-update", "--disable-sync", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"],
+    timeout: STEP_MS,
+  }), STEP_MS + 5000, "chromium launch");
+});
+
+after(async () => {
+  try { await browser?.close(); } catch { /* already gone */ }
+  if (server && server.exitCode === null) {
+    server.removeAllListeners("exit");
+    server.kill("SIGTERM");
+    await new Promise((r) => { const t = setTimeout(() => { server.kill("SIGKILL"); r(); }, 5000); server.once("exit", () => { clearTimeout(t); r(); }); });
+  }
+  console.log(`screenshots in ${artifacts}`);
+});
+
+test("viewer end to end", { timeout: 120_000 }, async (t) => {
+  let editor, watcher;
+  await t.test("(a) loads the default sample ready to drag", async () => {
+    // A stiff soft-handle weight so that the fixed region stays put within 1e-6 (the server's
+    // default lambda of 100 lets it drift by ~1e-4).
+    editor = await newPage(`${baseUrl}/?lambda=1e6`);
+    await poll(editor, () => window.__meshdeform?.ready === true, null, "editor ready");
+    const h = await hook(editor, () => ({ ...window.__meshdeform }));
+    assert.equal(h.role, "edit");
+    assert.equal(h.vertexCount, 4802);
+    assert.equal(h.lastError, "");
+    assert.match(await editor.evaluate(() => location.hash), /^#session=[^&]+&token=/);
+    await shot(editor, "a-loaded.png");
+  });
+
+  await t.test("(b) a real mouse drag moves the handle and keeps the fixed region", async () => {
+    // Let background refinement settle so the comparison sees only the drag.
+    await editor.waitForTimeout(500);
+    const before = await hook(editor, () => window.__meshdeform.positions());
+    const rev0 = await hook(editor, () => window.__meshdeform.revision);
+    const img0 = await shot(editor, "b-before.png");
+    await dragHandle(editor, 80, -40);
+    await poll(editor, (r) => window.__meshdeform.revision > r, rev0, "revision after drag");
+    await editor.waitForTimeout(800);
+    const after = await hook(editor, () => window.__meshdeform.positions());
+    let maxMove = 0;
+    const moved = [];
+    for (let i = 0; i < before.length / 3; i++) {
+      const d = Math.hypot(after[i * 3] - before[i * 3], after[i * 3 + 1] - before[i * 3 + 1], after[i * 3 + 2] - before[i * 3 + 2]);
+      moved.push(d);
+      maxMove = Math.max(maxMove, d);
+    }
+    // Bounding-box diagonal of the rest mesh for a scale-free margin.
+    const diag = bboxDiag(before);
+    assert.ok(maxMove > 0.05 * diag, `handle moved ${maxMove} (diag ${diag})`);
+    const groups = await hook(editor, () => window.__meshdeform.groups());
+    const fixed = groups.find((g) => g.role === "fixed").vertices;
+    const handle = groups.find((g) => g.role === "handle").vertices;
+    assert.ok(fixed.length > 0 && handle.length > 0);
+    const fixedMax = Math.max(...fixed.map((i) => moved[i]));
+    assert.ok(fixedMax <= 1e-6, `fixed region moved by ${fixedMax}`);
+    const handleMin = Math.min(...handle.map((i) => moved[i]));
+    assert.ok(handleMin > 0.05 * diag, `every handle vertex moved clearly (min ${handleMin}, diag ${diag})`);
+    const etheta = await editor.locator('[data-testid="metric-etheta"]').textContent();
+    assert.ok(Number.isFinite(Number(etheta)), `E_theta shows a number: ${etheta}`);
+    const img1 = await shot(editor, "b-after.png");
+    assert.ok(!img0.equals(img1), "canvas pixels changed");
+    const m = await hook(editor, () => window.__meshdeform.metrics());
+    assert.ok(m.updatesRendered > 0 && m.updateBytes.length > 0);
+    assert.ok(m.dragToFrameMs.length > 0, "dragToFrameMs recorded");
+    console.log(`drag: max move ${maxMove.toFixed(3)}, dragToFrameMs median ${median(m.dragToFrameMs).toFixed(1)} ms over ${m.dragToFrameMs.length}, encodings ${[...new Set(m.updateEncodings)]}`);
+  });
+
+  await t.test("(c) the watch link follows the editor read-only", async () => {
+    await editor.locator('[data-testid="share"]').click();
+    const viewLink = await editor.locator('[data-testid="share-view-link"]').inputValue();
+    const editLink = await editor.locator('[data-testid="share-edit-link"]').inputValue();
+    assert.match(viewLink, /#session=.+&token=.+/);
+    assert.notEqual(viewLink, editLink);
+    watcher = await newPage(viewLink);
+    await poll(watcher, () => window.__meshdeform?.revision >= 0, null, "watcher snapshot");
+    assert.equal(await hook(watcher, () => window.__meshdeform.role), "view");
+    assert.match(await watcher.locator('[data-testid="role"]').textContent(), /Watching \(read-only\)/);
+    assert.equal(await watcher.locator('[data-testid="tool-brush"]').isDisabled(), true);
+    // Same revision as the editor (refinement may still be committing: compare to the editor's latest).
+    await withTimeout((async () => {
+      for (;;) {
+        const [a, b] = [await hook(editor, () => window.__meshdeform.revision), await hook(watcher, () => window.__meshdeform.revision)];
+        if (a === b) return;
+        await watcher.waitForTimeout(150);
+      }
+    })(), STEP_MS, "watcher reaches editor revision");
+    const rev = await hook(editor, () => window.__meshdeform.revision);
+    await dragHandle(editor, -60, 30);
+    await poll(editor, (r) => window.__meshdeform.revision > r, rev, "editor new revision");
+    const target = await hook(editor, () => window.__meshdeform.revision);
+    await poll(watcher, (r) => window.__meshdeform.revision >= r, target, "watcher follows");
+    await shot(watcher, "c-watcher.png");
+  });
+
+  await t.test("(d) a bad upload shows the server's error and keeps the session", async () => {
+    const dir = mkdtempSync(path.join(tmpdir(), "meshdeform-upload-"));
+    const bad = path.join(dir, "garbage.obj");
+    writeFileSync(bad, "this is not a mesh\n\u0001\u0002 42 foo bar\nf 9 9 9\n");
+    const before = await hook(editor, () => ({ sid: window.__meshdeform.sessionId, rev: window.__meshdeform.revision }));
+    await editor.locator('[data-testid="upload-input"]').setInputFiles(bad);
+    await poll(editor, () => window.__meshdeform.lastError !== "", null, "upload error");
+    const text = await editor.locator('[data-testid="error"]').textContent();
+    assert.match(text, /Upload failed: INVALID_ARGUMENT/);
+    const now = await hook(editor, () => ({ sid: window.__meshdeform.sessionId, rev: window.__meshdeform.revision, ready: window.__meshdeform.ready }));
+    assert.equal(now.sid, before.sid);
+    assert.ok(now.rev >= before.rev);
+    assert.equal(now.ready, true);
+    await shot(editor, "d-bad-upload.png");
+  });
+
+  await t.test("(e) switching to ARAP still drags", async () => {
+    await editor.locator("#error-close").click();
+    assert.equal(await hook(editor, () => window.__meshdeform.lastError), "");
+    await editor.locator('[data-testid="method"]').selectOption("2");
+    await editor.waitForTimeout(300);
+    const rev = await hook(editor, () => window.__meshdeform.revision);
+    await dragHandle(editor, 40, 40);
+    await poll(editor, (r) => window.__meshdeform.revision > r, rev, "ARAP revision");
+    assert.equal(await hook(editor, () => window.__meshdeform.lastError), "");
+    await shot(editor, "e-arap.png");
+  });
+});
+
+function bboxDiag(p) {
+  const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
+  for (let i = 0; i < p.length; i++) { lo[i % 3] = Math.min(lo[i % 3], p[i]); hi[i % 3] = Math.max(hi[i % 3], p[i]); }
+  return Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
+}
+function median(a) {
+  const s = [...a].sort((x, y) => x - y);
+  return s.length ? s[Math.floor(s.length / 2)] : NaN;
+}

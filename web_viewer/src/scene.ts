@@ -1,0 +1,194 @@
+// three.js scene: the deformable mesh, camera + orbit controls, the handle gizmo, and an
+// on-demand render loop that can tell callers when the frame showing their geometry is done.
+import * as THREE from "three";
+import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { TransformControls } from "three/addons/controls/TransformControls.js";
+
+export class Viewer3D {
+  readonly renderer: THREE.WebGLRenderer;
+  readonly scene = new THREE.Scene();
+  readonly camera = new THREE.PerspectiveCamera(40, 1, 0.01, 1000);
+  readonly orbit: OrbitControls;
+  readonly gizmo: TransformControls;
+  /** The gizmo's target: at the handle centroid, carries the group's rotation and scale. */
+  readonly pivotObject = new THREE.Object3D();
+  geometry: THREE.BufferGeometry | null = null;
+  mesh: THREE.Mesh | null = null;
+  private frameQueued = false;
+  private afterFrame: (() => void)[] = [];
+  /** Milliseconds each frame spent on normals + drawing (bench: is the browser the bottleneck?). */
+  readonly frameWorkMs: number[] = [];
+  private readonly raycaster = new THREE.Raycaster();
+
+  constructor(readonly canvas: HTMLCanvasElement, beforeControls: () => void) {
+    // Multisampling on a software rasterizer (SwiftShader, llvmpipe: no GPU) costs a large part of
+    // every frame and slows down input while dragging; real GPUs get it.
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: !isSoftwareRenderer() });
+    this.renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
+    this.renderer.setClearColor(0xf4f6f9);
+    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x6b7385, 1.1));
+    const key = new THREE.DirectionalLight(0xffffff, 1.3);
+    key.position.set(0.5, 1, 0.8);
+    this.camera.add(key); // a headlight-ish key light that follows the view
+    this.scene.add(this.camera);
+    // Our pointer handlers must see pointerdown before the controls so a drag on the handle
+    // can stop the orbit from starting.
+    beforeControls();
+    this.orbit = new OrbitControls(this.camera, canvas);
+    this.orbit.enableDamping = false;
+    this.orbit.addEventListener("change", () => this.requestRender());
+    this.gizmo = new TransformControls(this.camera, canvas);
+    this.gizmo.setSize(0.8);
+    this.gizmo.addEventListener("change", () => this.requestRender());
+    this.gizmo.addEventListener("dragging-changed", (e: any) => (this.orbit.enabled = !e.value));
+    this.scene.add(this.pivotObject);
+    this.scene.add(this.gizmo.getHelper());
+    new ResizeObserver(() => this.resize()).observe(canvas);
+    this.resize();
+  }
+
+  resize(): void {
+    const w = Math.max(1, this.canvas.clientWidth), h = Math.max(1, this.canvas.clientHeight);
+    this.renderer.setSize(w, h, false);
+    this.camera.aspect = w / h;
+    this.camera.updateProjectionMatrix();
+    this.requestRender();
+  }
+
+  setMesh(positions: Float32Array, indices: Uint32Array): void {
+    if (this.mesh) {
+      this.scene.remove(this.mesh);
+      this.geometry?.dispose();
+    }
+    const g = new THREE.BufferGeometry();
+    const pos = new THREE.BufferAttribute(Float32Array.from(positions), 3);
+    pos.setUsage(THREE.DynamicDrawUsage);
+    g.setAttribute("position", pos);
+    const col = new THREE.BufferAttribute(new Float32Array(positions.length).fill(0.8), 3);
+    col.setUsage(THREE.DynamicDrawUsage);
+    g.setAttribute("color", col);
+    g.setIndex(new THREE.BufferAttribute(indices, 1));
+    g.computeVertexNormals();
+    g.computeBoundingSphere();
+    g.computeBoundingBox();
+    const mat = new THREE.MeshStandardMaterial({ vertexColors: true, roughness: 0.65, metalness: 0.0, side: THREE.DoubleSide });
+    this.geometry = g;
+    this.mesh = new THREE.Mesh(g, mat);
+    this.scene.add(this.mesh);
+    this.frame();
+  }
+
+  /** Frames the camera on the mesh bounding box. */
+  frame(): void {
+    const bb = this.geometry?.boundingBox;
+    if (!bb) return;
+    const c = bb.getCenter(new THREE.Vector3());
+    const r = Math.max(1e-6, bb.getSize(new THREE.Vector3()).length() / 2);
+    const dist = r / Math.sin(THREE.MathUtils.degToRad(this.camera.fov / 2)) * 1.1;
+    this.camera.position.copy(c).add(new THREE.Vector3(0.6, 0.45, 1).normalize().multiplyScalar(dist));
+    this.camera.near = dist / 100;
+    this.camera.far = dist * 100;
+    this.camera.updateProjectionMatrix();
+    this.orbit.target.copy(c);
+    this.orbit.update();
+    this.requestRender();
+  }
+
+  /** Positions changed: re-upload, fix normals and bounds for picking — once per frame, however
+   * many updates arrive in between (a burst of revisions costs one normal pass, not one each). */
+  updatePositions(positions: Float32Array): void {
+    if (!this.geometry) return;
+    this.pendingPositions = positions;
+    this.requestRender();
+  }
+
+  private pendingPositions: Float32Array | null = null;
+
+  private flushPositions(): void {
+    const g = this.geometry;
+    const positions = this.pendingPositions;
+    this.pendingPositions = null;
+    if (!g || !positions) return;
+    const attr = g.getAttribute("position") as THREE.BufferAttribute;
+    (attr.array as Float32Array).set(positions);
+    attr.needsUpdate = true;
+    g.computeVertexNormals();
+    g.computeBoundingSphere();
+  }
+
+  /** Per-vertex sRGB colours; stored linear, as three's vertex colours are. */
+  setColors(rgb: Float32Array): void {
+    const attr = this.geometry?.getAttribute("color") as THREE.BufferAttribute | undefined;
+    if (!attr) return;
+    const dst = attr.array as Float32Array;
+    for (let i = 0; i < rgb.length; i++) dst[i] = srgbToLinear(rgb[i]);
+    attr.needsUpdate = true;
+    this.requestRender();
+  }
+
+  requestRender(): void {
+    if (this.frameQueued) return;
+    this.frameQueued = true;
+    requestAnimationFrame(() => {
+      this.frameQueued = false;
+      const start = performance.now();
+      this.flushPositions();
+      this.renderer.render(this.scene, this.camera);
+      if (this.frameWorkMs.length < 10_000) this.frameWorkMs.push(performance.now() - start);
+      const cbs = this.afterFrame;
+      this.afterFrame = [];
+      cbs.forEach((f) => f());
+    });
+  }
+
+  /** Runs `cb` at the end of the next rendered frame (and makes sure there is one). */
+  onNextFrame(cb: () => void): void {
+    this.afterFrame.push(cb);
+    this.requestRender();
+  }
+
+  /** Page CSS pixels of a world point, or null if it is behind the camera. */
+  toScreen(x: number, y: number, z: number, out = new THREE.Vector3()): [number, number] | null {
+    out.set(x, y, z).project(this.camera);
+    if (out.z > 1 || out.z < -1) return null;
+    const r = this.canvas.getBoundingClientRect();
+    return [r.left + ((out.x + 1) / 2) * r.width, r.top + ((1 - out.y) / 2) * r.height];
+  }
+
+  /** A ray through page CSS pixel (x, y). */
+  ray(clientX: number, clientY: number): THREE.Ray {
+    const r = this.canvas.getBoundingClientRect();
+    const ndc = new THREE.Vector2(((clientX - r.left) / r.width) * 2 - 1, -((clientY - r.top) / r.height) * 2 + 1);
+    this.raycaster.setFromCamera(ndc, this.camera);
+    return this.raycaster.ray.clone();
+  }
+
+  pick(clientX: number, clientY: number): THREE.Intersection | null {
+    if (!this.mesh) return null;
+    this.ray(clientX, clientY);
+    const hits = this.raycaster.intersectObject(this.mesh, false);
+    return hits[0] ?? null;
+  }
+
+  viewDirection(): THREE.Vector3 {
+    return this.camera.getWorldDirection(new THREE.Vector3());
+  }
+}
+
+function srgbToLinear(c: number): number {
+  return c < 0.04045 ? c * 0.0773993808 : Math.pow(c * 0.9478672986 + 0.0521327014, 2.4);
+}
+
+/** True when WebGL runs on a CPU rasterizer (probed on a throwaway canvas). */
+function isSoftwareRenderer(): boolean {
+  try {
+    const gl = document.createElement("canvas").getContext("webgl2") ?? document.createElement("canvas").getContext("webgl");
+    if (!gl) return false;
+    const info = gl.getExtension("WEBGL_debug_renderer_info");
+    const name = String(info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER));
+    gl.getExtension("WEBGL_lose_context")?.loseContext();
+    return /swiftshader|llvmpipe|software/i.test(name);
+  } catch {
+    return false;
+  }
+}

@@ -1,0 +1,15 @@
+import { defineConfig } from "vite";
+
+// Relative base so the built viewer works under any path (e.g. behind a proxy prefix).
+export default defineConfig({
+  base: "./",
+  build: {
+    outDir: "dist",
+    emptyOutDir: true,
+    chunkSizeWarningLimit: 1024,
+  },
+  test: {
+    include: ["test/**/*.test.ts"],
+    environment: "node",
+  },
+} as any);
