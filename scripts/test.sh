@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The whole test suite, in three stages; any failure fails the run:
 #  1. installs what is missing, builds everything in ./build (the benchmarks too, so they cannot
-#     rot) and runs CTest;
+#     rot) and the browser viewer (web_viewer/dist), and runs CTest: the C++ suites, the viewer's
+#     vitest tests and its end-to-end tests in headless Chromium;
 #  2. the same tests under ASan + UBSan (scripts/test-sanitize.sh, ./build-asan; no benchmarks);
 #  3. a short bounded fuzz run of every parser (scripts/fuzz.sh, clang + libFuzzer, ./build-fuzz),
 #     MESHDEFORM_FUZZ_SECONDS per target (default 10).
@@ -12,8 +13,9 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 stage() { echo "== test.sh: $1 ($(( SECONDS - start ))s)" >&2; }
 start=$SECONDS
 
+"$root/scripts/build-viewer.sh" --test
 "$root/scripts/build.sh" -DMESHDEFORM_BUILD_TESTS=ON -DMESHDEFORM_BUILD_BENCH=ON -DMESHDEFORM_BUILD_CLI=ON \
-  -DMESHDEFORM_BUILD_SERVER=ON
+  -DMESHDEFORM_BUILD_SERVER=ON -DMESHDEFORM_VIEWER_TESTS=ON
 ctest --test-dir "$root/build" --output-on-failure --timeout 600 -j"$(nproc)"
 stage "stage 1 (build + tests) done"
 

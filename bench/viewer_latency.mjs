@@ -1,0 +1,172 @@
+// Browser-side speed of the viewer (issue 5): time from a drag event to the frame that shows its
+// result, updates per second while dragging, and bytes per update in each position encoding,
+// for the 4,802-vertex cylinder and the 40,401-vertex bumpy plane, on loopback, in one run.
+//
+//   node bench/viewer_latency.mjs [--build build] [--moves 90] [--out bench/results]
+//
+// Starts its own meshdeform-server (127.0.0.1, ephemeral ports) serving web_viewer/dist, drives
+// Debian's headless Chromium (playwright-core from web_viewer/node_modules) with real mouse
+// events at 60 Hz, and reads the viewer's own measurements (window.__meshdeform.metrics():
+// pointermove -> first animation frame after that move's revision was uploaded). Writes
+// viewer.md and viewer.json. Not a test: no thresholds. Rendering is CPU (SwiftShader) here.
+import { spawn, execSync } from "node:child_process";
+import { createRequire } from "node:module";
+import { existsSync, mkdirSync, readFileSync, writeFileSync } from "node:fs";
+import os from "node:os";
+import path from "node:path";
+import { fileURLToPath } from "node:url";
+
+const repo = path.resolve(path.dirname(fileURLToPath(import.meta.url)), "..");
+const require = createRequire(path.join(repo, "web_viewer/package.json"));
+const { chromium } = require("playwright-core");
+
+const args = Object.fromEntries(process.argv.slice(2).reduce((acc, a, i, all) => {
+  if (a.startsWith("--")) acc.push([a.slice(2), all[i + 1]]);
+  return acc;
+}, []));
+const build = path.resolve(repo, args.build ?? "build");
+const moves = Number(args.moves ?? 90);
+const out = path.resolve(repo, args.out ?? "bench/results");
+const serverPath = path.join(build, "server/transport/meshdeform-server");
+const loadtestPath = path.join(build, "client_cpp/loadtest/meshdeform-loadtest");
+const dist = path.join(repo, "web_viewer/dist");
+for (const f of [serverPath, path.join(dist, "index.html")]) {
+  if (!existsSync(f)) { console.error(`missing ${f}: run ./scripts/build.sh and ./scripts/build-viewer.sh`); process.exit(2); }
+}
+
+const models = [{ sample: "cylinder", vertices: 4802 }, { sample: "bumpy_plane", vertices: 40401 }].filter((m) => !args.model || m.sample === args.model);
+const encodings = ["double", "float32", "meshopt"];
+
+function startServer() {
+  return new Promise((resolve, reject) => {
+    const server = spawn(serverPath, ["--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0", "--web-root", dist, "--log-level", "info"],
+      { stdio: ["ignore", "ignore", "pipe"] });
+    let log = "";
+    const timer = setTimeout(() => reject(new Error("server did not start\n" + log)), 20_000);
+    server.stderr.on("data", (d) => {
+      log += d;
+      const m = log.match(/"event":"http_listening"[^\n]*"port":(\d+)/);
+      const g = log.match(/"event":"listening"[^\n]*"port":(\d+)/);
+      if (m && g) { clearTimeout(timer); resolve({ server, url: `http://127.0.0.1:${m[1]}`, grpc: `127.0.0.1:${g[1]}` }); }
+    });
+  });
+}
+
+const quantile = (xs, q) => {
+  if (!xs.length) return NaN;
+  const s = [...xs].sort((a, b) => a - b);
+  return s[Math.min(s.length - 1, Math.floor(q * s.length))];
+};
+const mean = (xs) => xs.reduce((a, b) => a + b, 0) / Math.max(xs.length, 1);
+
+async function measure(browser, url, model, encoding) {
+  const ctx = await browser.newContext({ viewport: { width: Number(args.width ?? 1200), height: Number(args.height ?? 800) } });
+  const page = await ctx.newPage();
+  page.setDefaultTimeout(120_000);
+  await page.goto(`${url}/?sample=${model.sample}&encoding=${encoding}`);
+  await page.waitForFunction(() => window.__meshdeform?.ready, null, { timeout: 120_000, polling: 100 });
+  await page.waitForTimeout(1500);  // let the first refinement of nothing settle
+  await page.evaluate(() => window.__meshdeform.resetMetrics());
+  const p = await page.evaluate(() => window.__meshdeform.handleScreenPoint());
+  await page.mouse.move(p.x, p.y);
+  await page.mouse.down();
+  const t0 = performance.now();
+  for (let i = 1; i <= moves; i++) {
+    const a = (2 * Math.PI * i) / moves;
+    await page.mouse.move(p.x + 60 * Math.sin(a), p.y - 40 * (1 - Math.cos(a)));
+    const next = t0 + i * (1000 / 60);
+    const wait = next - performance.now();
+    if (wait > 0) await new Promise((r) => setTimeout(r, wait));
+  }
+  const dragSeconds = (performance.now() - t0) / 1000;
+  await page.mouse.up();
+  await page.waitForTimeout(1500);
+  const m = await page.evaluate(() => window.__meshdeform.metrics());
+  await ctx.close();
+  const frames = m.dragToFrameMs;
+  return {
+    model: model.sample, vertices: model.vertices, encoding,
+    drag_events: moves, drag_seconds: dragSeconds,
+    own_frames: frames.length, updates_per_second: frames.length / dragSeconds,
+    drag_to_frame_ms: { p50: quantile(frames, 0.5), p95: quantile(frames, 0.95), max: Math.max(...frames) },
+    updates_received: m.updateBytes.length,
+    frame_work_ms: { p50: quantile(m.frameWorkMs, 0.5), p95: quantile(m.frameWorkMs, 0.95), frames: m.frameWorkMs.length },
+    bytes_per_update_mean: mean(m.updateBytes),
+    dense_double_bytes: 24 * model.vertices,
+    dense_float32_bytes: 12 * model.vertices,
+  };
+}
+
+/** The same edit loop without a browser: the C++ load tester (native gRPC), one session, one
+ * move in flight, ticks at 60 Hz, one watcher: what the service and the wire sustain. */
+function serviceAlone(grpc, model) {
+  if (!existsSync(loadtestPath)) return null;
+  const json = path.join(os.tmpdir(), `meshdeform-viewer-bench-${process.pid}-${model.sample}.json`);
+  execSync(`${loadtestPath} --server ${grpc} --sessions 1 --sample ${model.sample} --rate 60 --duration 10 --watchers 1 --iterations 2 --json ${json}`,
+    { stdio: "ignore", timeout: 60_000 });
+  const j = JSON.parse(readFileSync(json, "utf8"));
+  return { model: model.sample, moves_per_second: j.moves.per_second_total, latency_ms: j.moves.latency_ms, server_solve_ms: j.moves.server_solve_ms };
+}
+
+const { server, url, grpc } = await startServer();
+const browser = await chromium.launch({
+  executablePath: process.env.CHROMIUM_PATH || "/usr/bin/chromium",
+  args: ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+    "--disable-component-update", "--disable-sync", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"],
+});
+const rows = [];
+const alone = [];
+try {
+  for (const model of models) {
+    const a = serviceAlone(grpc, model);
+    if (a) {
+      alone.push(a);
+      console.log(`${a.model} service alone: ${a.moves_per_second.toFixed(1)} moves/s, latency p50 ${a.latency_ms.p50.toFixed(1)} ms, solve p50 ${a.server_solve_ms.p50.toFixed(1)} ms`);
+    }
+  }
+  for (const model of models) {
+    for (const encoding of encodings) {
+      const r = await measure(browser, url, model, encoding);
+      rows.push(r);
+      console.log(`${r.model} ${r.encoding}: ${r.updates_per_second.toFixed(1)} updates/s, drag->frame p50 ${r.drag_to_frame_ms.p50.toFixed(0)} ms, ` +
+        `frame work p50 ${r.frame_work_ms.p50.toFixed(1)} ms, drag took ${r.drag_seconds.toFixed(1)} s, ` +
+        `p95 ${r.drag_to_frame_ms.p95.toFixed(0)} ms, ${(r.bytes_per_update_mean / 1024).toFixed(1)} KiB/update`);
+    }
+  }
+} finally {
+  const version = browser.version();
+  await browser.close();
+  server.kill("SIGTERM");
+  var chromiumVersion = version;
+}
+
+let git = "unknown";
+try { git = execSync("git describe --always --dirty", { cwd: repo }).toString().trim(); } catch { /* not a checkout */ }
+const machine = {
+  date_utc: new Date().toISOString(), cpu_model: os.cpus()[0]?.model ?? "unknown", hardware_threads: os.cpus().length,
+  load_average: os.loadavg().map((x) => x.toFixed(2)).join(" "), chromium: chromiumVersion, node: process.version, git_revision: git,
+  rendering: "headless Chromium, SwiftShader (CPU) WebGL", drag: `${moves} mouse events at 60 Hz on a loop of 60 x 80 px`,
+};
+mkdirSync(out, { recursive: true });
+writeFileSync(path.join(out, "viewer.json"), JSON.stringify({ machine, rows, service_alone: alone }, null, 2) + "\n");
+const f = (x, d = 0) => (Number.isFinite(x) ? x.toFixed(d) : "-");
+let md = `# Viewer: drag to frame, updates per second, bytes per update\n\n`;
+md += `Made by \`node bench/viewer_latency.mjs\` on ${machine.date_utc} (${machine.cpu_model}, ${machine.hardware_threads} threads, ` +
+  `load ${machine.load_average}; Chromium ${machine.chromium}, ${machine.rendering}; git ${machine.git_revision}). ` +
+  `Server and browser on one machine, loopback; ${machine.drag}; 2 outer iterations per move, one move in flight, newest target wins.\n\n`;
+md += `| model | #V | encoding | updates/s while dragging | drag -> frame p50 / p95 / max (ms) | frame work p50 (ms) | bytes / update (mean) | dense doubles | dense float32 |\n`;
+md += `|---|---:|---|---:|---|---:|---:|---:|---:|\n`;
+for (const r of rows) {
+  md += `| ${r.model} | ${r.vertices.toLocaleString("en")} | ${r.encoding} | ${f(r.updates_per_second, 1)} | ${f(r.drag_to_frame_ms.p50)} / ${f(r.drag_to_frame_ms.p95)} / ${f(r.drag_to_frame_ms.max)} | ${f(r.frame_work_ms.p50, 1)} | ` +
+    `${Math.round(r.bytes_per_update_mean).toLocaleString("en")} | ${r.dense_double_bytes.toLocaleString("en")} | ${r.dense_float32_bytes.toLocaleString("en")} |\n`;
+}
+md += `\nframe work: main-thread time per rendered frame (normals + WebGL calls); the rasterizing itself runs in Chromium's GPU process, on the CPU here.\n`;
+if (alone.length) {
+  md += `\nThe same loop without a browser (meshdeform-loadtest, native gRPC, same server, 60 Hz ticks, one move in flight, one watcher):\n\n`;
+  md += `| model | moves/s | latency p50 / p95 (ms) | server solve p50 (ms) |\n|---|---:|---|---:|\n`;
+  for (const a of alone) md += `| ${a.model} | ${f(a.moves_per_second, 1)} | ${f(a.latency_ms.p50, 1)} / ${f(a.latency_ms.p95, 1)} | ${f(a.server_solve_ms.p50, 1)} |\n`;
+}
+md += `\nbytes / update: the serialized DeformUpdate of every Watch message received during and right after the drag ` +
+  `(deltas of the changed vertices: indices + positions; refinement revisions included). Dense: every position, for comparison.\n`;
+writeFileSync(path.join(out, "viewer.md"), md);
+console.log(`wrote ${path.join(out, "viewer.md")}`);
