@@ -14,8 +14,11 @@ grpc_port="${MESHDEFORM_GRPC_PORT:-50051}"
 http_port="${MESHDEFORM_HTTP_PORT:-8080}"
 sample="${MESHDEFORM_DEMO_SAMPLE:-cylinder}"
 
-"$root/scripts/build.sh" -DMESHDEFORM_BUILD_SERVER=ON -DMESHDEFORM_BUILD_CLI=ON \
-  -DMESHDEFORM_BUILD_TESTS=OFF -DMESHDEFORM_BUILD_BENCH=OFF
+# A fresh ./build skips the tests and benchmarks (a quicker first demo); an existing one keeps
+# its configuration (a developer's test build is not switched off behind their back).
+fresh=()
+[ -f "$root/build/CMakeCache.txt" ] || fresh=(-DMESHDEFORM_BUILD_TESTS=OFF -DMESHDEFORM_BUILD_BENCH=OFF)
+"$root/scripts/build.sh" -DMESHDEFORM_BUILD_SERVER=ON -DMESHDEFORM_BUILD_CLI=ON "${fresh[@]}"
 "$root/scripts/build-viewer.sh"
 
 server="$root/build/server/transport/meshdeform-server"

@@ -1,5 +1,7 @@
 #include "server/transport/proto_convert.h"
 
+#include <meshoptimizer.h>
+
 #include <algorithm>
 #include <bit>
 #include <climits>
@@ -8,12 +10,12 @@
 #include <string>
 #include <vector>
 
-#include <meshoptimizer.h>
-
 namespace meshdeform::transport {
 namespace {
 
-Status invalid(std::string message) { return Error(ErrorCode::InvalidArgument, std::move(message)); }
+Status invalid(std::string message) {
+  return Error(ErrorCode::InvalidArgument, std::move(message));
+}
 
 bool finite(const v1::Vec3& v) {
   return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
@@ -178,8 +180,8 @@ Result<service::SetHandlesRequest> set_handles_from_proto(const v1::SetHandlesRe
     }
     converted.vertices.reserve(static_cast<std::size_t>(group.vertices_size()));
     for (int i = 0; i < group.vertices_size(); ++i) {
-      MD_ASSIGN_OR_RETURN(int v, index_from_proto(group.vertices(i), where + ".vertices[" +
-                                                                         std::to_string(i) + "]"));
+      MD_ASSIGN_OR_RETURN(int v, index_from_proto(group.vertices(i),
+                                                  where + ".vertices[" + std::to_string(i) + "]"));
       converted.vertices.push_back(v);
     }
     out.groups.push_back(std::move(converted));
@@ -222,9 +224,8 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
   const v1::VertexTargets& targets = request.targets();
   if (static_cast<std::size_t>(targets.positions_size()) !=
       3 * static_cast<std::size_t>(targets.vertices_size())) {
-    return invalid("targets: " + std::to_string(targets.positions_size()) +
-                   " positions for " + std::to_string(targets.vertices_size()) +
-                   " vertices (need 3 per vertex)");
+    return invalid("targets: " + std::to_string(targets.positions_size()) + " positions for " +
+                   std::to_string(targets.vertices_size()) + " vertices (need 3 per vertex)");
   }
   out.targets.reserve(static_cast<std::size_t>(targets.vertices_size()));
   for (int i = 0; i < targets.vertices_size(); ++i) {
@@ -264,8 +265,8 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
     converted.scale = region.scale();
     converted.vertices.reserve(static_cast<std::size_t>(region.vertices_size()));
     for (int i = 0; i < region.vertices_size(); ++i) {
-      MD_ASSIGN_OR_RETURN(int v, index_from_proto(region.vertices(i), where + ".vertices[" +
-                                                                          std::to_string(i) + "]"));
+      MD_ASSIGN_OR_RETURN(int v, index_from_proto(region.vertices(i),
+                                                  where + ".vertices[" + std::to_string(i) + "]"));
       converted.vertices.push_back(v);
     }
     out.magnify.push_back(std::move(converted));
@@ -301,9 +302,9 @@ void pack_positions(const Positions& rows, v1::PositionEncoding encoding, std::s
     const std::size_t count = static_cast<std::size_t>(rows.rows());
     const std::size_t offset = out->size();
     out->resize(offset + meshopt_encodeVertexBufferBound(count, kStride));
-    const std::size_t written = meshopt_encodeVertexBuffer(
-        reinterpret_cast<unsigned char*>(out->data() + offset), out->size() - offset,
-        floats.data(), count, kStride);
+    const std::size_t written =
+        meshopt_encodeVertexBuffer(reinterpret_cast<unsigned char*>(out->data() + offset),
+                                   out->size() - offset, floats.data(), count, kStride);
     out->resize(offset + written);
     return;
   }
@@ -355,7 +356,6 @@ void result_metrics_to_proto(const service::DeformResult& result, v1::DeformResu
   out->set_pcg_iterations(static_cast<std::uint32_t>(std::max(result.pcg_iterations, 0)));
 }
 
-
 void positions_to_proto(const Positions& rows, v1::PositionEncoding encoding,
                         google::protobuf::RepeatedField<double>* doubles, std::string* packed) {
   if (encoding == v1::POSITION_ENCODING_UNSPECIFIED) {
@@ -370,6 +370,16 @@ void result_to_proto(const service::DeformResult& result, bool full_positions,
                      v1::PositionEncoding encoding, v1::DeformResult* out) {
   result_metrics_to_proto(result, out);
   out->set_encoding(encoding);
+  // A browser-bound delta that moves nearly every vertex (a drag does) is smaller dense: 12
+  // bytes per vertex against 12 plus a 2-3 byte index per changed vertex.
+  if (encoding != v1::POSITION_ENCODING_UNSPECIFIED && result.positions &&
+      result.positions->rows() > 0 &&
+      static_cast<double>(result.changed.size()) >
+          kDenseFraction * static_cast<double>(result.positions->rows())) {
+    out->set_dense(true);
+    pack_positions(*result.positions, encoding, out->mutable_packed_positions());
+    return;
+  }
   out->mutable_changed_indices()->Reserve(static_cast<int>(result.changed.size()));
   for (int v : result.changed) out->add_changed_indices(static_cast<std::uint32_t>(v));
   positions_to_proto(result.changed_positions, encoding, out->mutable_changed_positions(),

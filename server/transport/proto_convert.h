@@ -34,6 +34,9 @@ v1::Method method_to_proto(core::Method method);
 ///         kMaxMagnifyRegions regions or a non-finite magnify scale.
 [[nodiscard]] Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& request);
 
+/// Compact deltas changing more than this fraction of the vertices are sent dense.
+inline constexpr double kDenseFraction = 0.85;
+
 /// At most this many magnify regions per move (each is resolved over every face).
 inline constexpr int kMaxMagnifyRegions = 64;
 
@@ -50,7 +53,9 @@ void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* ou
 void created_to_proto(const service::CreatedSession& created, v1::CreateSessionResponse* out);
 /// @param[in] full_positions  also fill out->positions with all #V x 3 positions.
 /// @param[in] encoding        UNSPECIFIED: doubles in the repeated fields; FLOAT32 / MESHOPT:
-///                            the same positions in the packed_* bytes (see pack_positions).
+///                            the same positions in the packed_* bytes (see pack_positions),
+///                            and a delta that changed more than kDenseFraction of the
+///                            vertices dense (DeformResult.dense).
 void result_to_proto(const service::DeformResult& result, bool full_positions,
                      v1::PositionEncoding encoding, v1::DeformResult* out);
 /// Snapshots carry all positions and no changed lists; deltas the changed lists only.

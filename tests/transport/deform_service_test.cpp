@@ -718,6 +718,10 @@ TEST_F(DeformServiceTest, HealthIsServingInProcessAndOnLoopback) {
 std::vector<float> unpack(const std::string& bytes, v1::PositionEncoding encoding,
                           std::size_t count) {
   std::vector<float> out(3 * count);
+  if (count == 0) {
+    EXPECT_TRUE(bytes.empty());  // no vertex, no bytes (meshopt too: no header to decode)
+    return out;
+  }
   if (encoding == v1::POSITION_ENCODING_FLOAT32) {
     EXPECT_EQ(bytes.size(), out.size() * sizeof(float));
     if (bytes.size() == out.size() * sizeof(float)) std::memcpy(out.data(), bytes.data(), bytes.size());
@@ -752,23 +756,20 @@ TEST_F(DeformServiceTest, CompactEncodingsCarryTheSamePositions) {
   ASSERT_EQ(exact.positions_size(), 3 * 420);
   ASSERT_GT(exact.changed_indices_size(), 100);
   EXPECT_TRUE(exact.packed_positions().empty());
+  // The bend moves every vertex (the fixed ring too, by the soft constraint), so the compact
+  // forms send the delta dense: all positions, no indices.
+  ASSERT_EQ(exact.changed_indices_size(), 420);
+  EXPECT_FALSE(exact.dense());  // doubles keep the exact changed lists
   for (int e = 1; e <= 2; ++e) {
     const v1::DeformResult& packed = responses[static_cast<std::size_t>(e)].result();
     EXPECT_EQ(packed.positions_size(), 0);
     EXPECT_EQ(packed.changed_positions_size(), 0);
-    ASSERT_EQ(packed.changed_indices_size(), exact.changed_indices_size());
-    for (int j = 0; j < exact.changed_indices_size(); ++j) {
-      ASSERT_EQ(packed.changed_indices(j), exact.changed_indices(j));
-    }
+    EXPECT_TRUE(packed.dense());
+    EXPECT_EQ(packed.changed_indices_size(), 0);
+    EXPECT_TRUE(packed.packed_changed_positions().empty());
     const std::vector<float> all = unpack(packed.packed_positions(), packed.encoding(), 420);
     for (int j = 0; j < exact.positions_size(); ++j) {
       ASSERT_EQ(all[static_cast<std::size_t>(j)], static_cast<float>(exact.positions(j))) << j;
-    }
-    const std::vector<float> changed =
-        unpack(packed.packed_changed_positions(), packed.encoding(),
-               static_cast<std::size_t>(packed.changed_indices_size()));
-    for (int j = 0; j < exact.changed_positions_size(); ++j) {
-      ASSERT_EQ(changed[static_cast<std::size_t>(j)], static_cast<float>(exact.changed_positions(j)));
     }
   }
   const std::size_t doubles = responses[0].ByteSizeLong();
@@ -793,23 +794,44 @@ TEST_F(DeformServiceTest, WatchSnapshotsAndDeltasInMeshopt) {
   EXPECT_EQ(snapshot.result().encoding(), v1::POSITION_ENCODING_MESHOPT);
   std::vector<float> mirror = unpack(snapshot.result().packed_positions(),
                                      v1::POSITION_ENCODING_MESHOPT, 420);
-  v1::MoveHandlesRequest request = bend_request(s, 25);
-  request.set_full_positions(true);  // doubles: the reference
-  v1::MoveHandlesResponse response;
-  ASSERT_TRUE(move(request, &response).ok());
-  v1::DeformUpdate update;
-  ASSERT_TRUE(reader->Read(&update));
-  ASSERT_FALSE(update.is_snapshot());
-  const std::vector<float> changed =
-      unpack(update.result().packed_changed_positions(), v1::POSITION_ENCODING_MESHOPT,
-             static_cast<std::size_t>(update.result().changed_indices_size()));
-  for (int j = 0; j < update.result().changed_indices_size(); ++j) {
-    const std::size_t v = update.result().changed_indices(j);
-    for (int c = 0; c < 3; ++c) mirror[3 * v + c] = changed[static_cast<std::size_t>(3 * j + c)];
-  }
-  // Snapshot + deltas reproduce the new revision (to float32 rounding of the doubles).
-  for (int j = 0; j < response.result().positions_size(); ++j) {
-    ASSERT_EQ(mirror[static_cast<std::size_t>(j)], static_cast<float>(response.result().positions(j)));
+  // Move 1 (from rest) moves every vertex: a dense delta. Moves 2 and 3 solve the same targets
+  // with Laplacian editing (direct, deterministic): 2 changes vertices, 3 changes none (a sparse,
+  // empty delta).
+  for (int step = 1; step <= 3; ++step) {
+    v1::MoveHandlesRequest request = bend_request(s, 25);
+    if (step >= 2) request.set_method(v1::METHOD_LAPLACIAN);
+    request.set_full_positions(true);  // doubles: the reference
+    v1::MoveHandlesResponse response;
+    ASSERT_TRUE(move(request, &response).ok());
+    v1::DeformUpdate update;
+    ASSERT_TRUE(reader->Read(&update));
+    ASSERT_FALSE(update.is_snapshot());
+    const v1::DeformResult& r = update.result();
+    if (step == 1) {
+      EXPECT_TRUE(r.dense());
+    }
+    if (step == 3) {
+      EXPECT_FALSE(r.dense());
+      EXPECT_EQ(r.changed_indices_size(), 0);
+      EXPECT_TRUE(r.packed_changed_positions().empty());
+    }
+    if (r.dense()) {
+      mirror = unpack(r.packed_positions(), v1::POSITION_ENCODING_MESHOPT, 420);
+    } else {
+      const std::vector<float> changed =
+          unpack(r.packed_changed_positions(), v1::POSITION_ENCODING_MESHOPT,
+                 static_cast<std::size_t>(r.changed_indices_size()));
+      for (int j = 0; j < r.changed_indices_size(); ++j) {
+        const std::size_t v = r.changed_indices(j);
+        for (int c = 0; c < 3; ++c) mirror[3 * v + c] = changed[static_cast<std::size_t>(3 * j + c)];
+      }
+    }
+    // Snapshot + deltas reproduce each revision (to float32 rounding of the doubles).
+    for (int j = 0; j < response.result().positions_size(); ++j) {
+      ASSERT_EQ(mirror[static_cast<std::size_t>(j)],
+                static_cast<float>(response.result().positions(j)))
+          << "step " << step << " value " << j;
+    }
   }
   context.TryCancel();
 }

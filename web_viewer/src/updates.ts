@@ -89,6 +89,12 @@ export class PositionState {
     }
     // A delta is relative to the previous revision: it is only valid on top of some snapshot.
     if (!this.hasSnapshot) return { applied: false, changed: null, result: r };
+    if (r.dense) {
+      // Nearly every vertex moved: the server sent the delta dense (all positions, no indices).
+      this.positions.set(decodePositions(r.encoding, r.positions, r.packedPositions, this.vertexCount));
+      this.revision = rev;
+      return { applied: true, changed: null, result: r };
+    }
     const idx = Uint32Array.from(r.changedIndices);
     const p = decodePositions(r.encoding, r.changedPositions, r.packedChangedPositions, idx.length);
     const dst = this.positions;

@@ -74,6 +74,21 @@ for (const [name, enc] of [["double", PositionEncoding.UNSPECIFIED], ["float32",
       expect(s.revision).toBe(5);
     });
 
+    it("applies a dense delta (every position, no indices)", (ctx) => {
+      if (enc === PositionEncoding.MESHOPT && !encoder) ctx.skip(encoderSkipReason);
+      const s = new PositionState(N);
+      s.apply(snapshot(enc, 1, rest));
+      const moved = rest.map((x) => x * 2);
+      const p = pack(enc, moved);
+      const d = s.apply(create(DeformUpdateSchema, {
+        result: create(DeformResultSchema, { revision: 2n, encoding: enc, dense: true, positions: p.doubles, packedPositions: p.packed }),
+      }));
+      expect(d.applied).toBe(true);
+      expect(d.changed).toBeNull();
+      expect(Array.from(s.positions)).toEqual(moved);
+      expect(s.revision).toBe(2);
+    });
+
     it("drops stale and duplicate revisions", (ctx) => {
       if (enc === PositionEncoding.MESHOPT && !encoder) ctx.skip(encoderSkipReason);
       const s = new PositionState(N);
