@@ -42,6 +42,19 @@ Result<int> index_from_proto(std::uint32_t value, const std::string& field) {
   return static_cast<int>(value);
 }
 
+/// `where`.vertices as ints; InvalidArgument naming the first index > INT_MAX.
+Result<std::vector<int>> indices_from_proto(const google::protobuf::RepeatedField<std::uint32_t>& in,
+                                            const std::string& where) {
+  std::vector<int> out;
+  out.reserve(static_cast<std::size_t>(in.size()));
+  for (int i = 0; i < in.size(); ++i) {
+    MD_ASSIGN_OR_RETURN(int v,
+                        index_from_proto(in.Get(i), where + ".vertices[" + std::to_string(i) + "]"));
+    out.push_back(v);
+  }
+  return out;
+}
+
 void groups_to_proto(const std::vector<service::HandleGroup>& groups,
                      google::protobuf::RepeatedPtrField<v1::HandleGroup>* out) {
   for (const service::HandleGroup& group : groups) {
@@ -178,12 +191,7 @@ Result<service::SetHandlesRequest> set_handles_from_proto(const v1::SetHandlesRe
         return invalid(where + ".role " + std::to_string(static_cast<int>(group.role())) +
                        " is not FIXED or HANDLE");
     }
-    converted.vertices.reserve(static_cast<std::size_t>(group.vertices_size()));
-    for (int i = 0; i < group.vertices_size(); ++i) {
-      MD_ASSIGN_OR_RETURN(int v, index_from_proto(group.vertices(i),
-                                                  where + ".vertices[" + std::to_string(i) + "]"));
-      converted.vertices.push_back(v);
-    }
+    MD_ASSIGN_OR_RETURN(converted.vertices, indices_from_proto(group.vertices(), where));
     out.groups.push_back(std::move(converted));
   }
   return out;
@@ -263,12 +271,7 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
     service::MagnifyRegion converted;
     if (!std::isfinite(region.scale())) return invalid(where + ".scale is non-finite");
     converted.scale = region.scale();
-    converted.vertices.reserve(static_cast<std::size_t>(region.vertices_size()));
-    for (int i = 0; i < region.vertices_size(); ++i) {
-      MD_ASSIGN_OR_RETURN(int v, index_from_proto(region.vertices(i),
-                                                  where + ".vertices[" + std::to_string(i) + "]"));
-      converted.vertices.push_back(v);
-    }
+    MD_ASSIGN_OR_RETURN(converted.vertices, indices_from_proto(region.vertices(), where));
     out.magnify.push_back(std::move(converted));
   }
   out.editor = request.editor().substr(0, 256);
