@@ -8,8 +8,12 @@
 // budgets are capped at 2 so that one input stays fast.
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <memory>
 #include <string>
+#include <vector>
+
+#include <meshoptimizer.h>
 
 #include "meshdeform/v1/deformation.pb.h"
 #include "server/service/deformation_service.h"
@@ -57,12 +61,52 @@ void reset_handles(Fixture& f) {
       "restoring the fixture's handles");
 }
 
+/// Decodes packed float32 rows (FLOAT32 or MESHOPT) and checks that they are exactly the float
+/// rounding of `rows`.
+void check_packed(const std::string& bytes, v1::PositionEncoding encoding, const Positions& rows) {
+  const std::size_t count = static_cast<std::size_t>(rows.rows());
+  if (count == 0) {
+    fuzz::fuzz_check(bytes.empty(), "bytes for no vertex");
+    return;
+  }
+  std::vector<float> decoded(3 * count);
+  if (encoding == v1::POSITION_ENCODING_FLOAT32) {
+    fuzz::fuzz_check(bytes.size() == decoded.size() * sizeof(float), "float32 size");
+    std::memcpy(decoded.data(), bytes.data(), bytes.size());
+  } else {
+    fuzz::fuzz_check(meshopt_decodeVertexBuffer(decoded.data(), count, 3 * sizeof(float),
+                                                reinterpret_cast<const unsigned char*>(bytes.data()),
+                                                bytes.size()) == 0,
+                     "meshopt bytes do not decode");
+  }
+  for (std::size_t r = 0; r < count; ++r) {
+    for (int c = 0; c < 3; ++c) {
+      fuzz::fuzz_check(decoded[3 * r + c] == static_cast<float>(rows(static_cast<Eigen::Index>(r), c)),
+                       "packed positions differ from the float rounding of the result");
+    }
+  }
+}
+
 void check_result(const service::DeformResult& result, v1::PositionEncoding encoding) {
   fuzz::fuzz_check(result.positions && result.positions->allFinite(), "non-finite result");
   v1::DeformResult wire;
-  transport::result_to_proto(result, true, encoding, &wire);
-  fuzz::fuzz_check(wire.changed_indices_size() == static_cast<int>(result.changed.size()),
-                   "changed indices lost in encoding");
+  transport::result_to_proto(result, false, encoding, &wire);
+  if (encoding == v1::POSITION_ENCODING_UNSPECIFIED) {
+    fuzz::fuzz_check(!wire.dense(), "doubles sent dense");
+    fuzz::fuzz_check(wire.changed_indices_size() == static_cast<int>(result.changed.size()) &&
+                         wire.changed_positions_size() == 3 * wire.changed_indices_size(),
+                     "changed lists lost in encoding");
+    return;
+  }
+  if (wire.dense()) {
+    // Dense: every position, no indices.
+    fuzz::fuzz_check(wire.changed_indices_size() == 0, "dense delta with indices");
+    check_packed(wire.packed_positions(), encoding, *result.positions);
+  } else {
+    fuzz::fuzz_check(wire.changed_indices_size() == static_cast<int>(result.changed.size()),
+                     "changed indices lost in encoding");
+    check_packed(wire.packed_changed_positions(), encoding, result.changed_positions);
+  }
 }
 
 }  // namespace
