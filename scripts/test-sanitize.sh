@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # The whole test suite again under AddressSanitizer + UndefinedBehaviorSanitizer (GCC), in
 # ./build-asan: any memory error, leak or undefined behaviour fails the test that triggered it.
-# The benchmarks are left out (they are not tests and need CGAL's long build), and so is the gRPC
-# transport by default: its build under ASan doubles this stage on a 2-core CI machine. Stage 1
-# runs the transport tests; pass -DMESHDEFORM_BUILD_SERVER=ON here to sanitize them too.
+# Every C++ suite runs here, the gRPC server, client, load tester, TLS, recovery and nginx
+# scale-out tests included (they drive the instrumented server binary); the benchmarks are left
+# out (not tests, and CGAL's long build), and so are the viewer's JavaScript tests (nothing to
+# instrument). Pass -DMESHDEFORM_BUILD_SERVER=OFF for a quicker run without gRPC.
 # -O1 -g1 keeps the instrumented build quick while the stack traces stay readable.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -11,7 +12,7 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cmake -S "$root" -B "$root/build-asan" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g1" \
   -DMESHDEFORM_SANITIZE=address,undefined -DMESHDEFORM_BUILD_BENCH=OFF \
-  -DMESHDEFORM_BUILD_SERVER=OFF -DMESHDEFORM_BUILD_TESTS=ON -DMESHDEFORM_BUILD_CLI=ON "$@" >/dev/null
+  -DMESHDEFORM_BUILD_SERVER=ON -DMESHDEFORM_BUILD_TESTS=ON -DMESHDEFORM_BUILD_CLI=ON "$@" >/dev/null
 cmake --build "$root/build-asan" -j"$(nproc)"
 # halt_on_error makes UBSan findings fatal (by default it only prints them); LeakSanitizer works
 # in this environment, so leaks fail too.

@@ -3,7 +3,8 @@
 #  1. installs what is missing, builds everything in ./build (the benchmarks too, so they cannot
 #     rot) and the browser viewer (web_viewer/dist), and runs CTest: the C++ suites, the viewer's
 #     vitest tests and its end-to-end tests in headless Chromium;
-#  2. the same tests under ASan + UBSan (scripts/test-sanitize.sh, ./build-asan; no benchmarks);
+#  2. every C++ test again under ASan + UBSan, the gRPC suites included (scripts/test-sanitize.sh,
+#     ./build-asan; no benchmarks, no JavaScript);
 #  3. a short bounded fuzz run of every parser (scripts/fuzz.sh, clang + libFuzzer, ./build-fuzz),
 #     MESHDEFORM_FUZZ_SECONDS per target (default 10).
 # MESHDEFORM_SKIP_SANITIZE=1 skips stage 2, MESHDEFORM_FUZZ_SECONDS=0 skips stage 3 (local loops).
