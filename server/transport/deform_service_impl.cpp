@@ -236,17 +236,18 @@ class FailedWriteReactor final : public grpc::ServerWriteReactor<v1::DeformUpdat
 std::string client_identity(const grpc::CallbackServerContext& context,
                             const ClientIdentityOptions& options) {
   const std::string peer = context.peer();
+  if (options.trust_forwarded_for) {
+    // Behind a proxy that sets the header (the gateway passes the browser's on).
+    std::string forwarded = metadata_value(context, "x-forwarded-for");
+    forwarded = forwarded.substr(0, forwarded.find(','));
+    if (std::string name = sanitize_client(forwarded); !name.empty()) return "fwd:" + name;
+  }
   if (peer.rfind("ipv4:", 0) != 0 && peer.rfind("ipv6:", 0) != 0 && peer.rfind("unix:", 0) != 0) {
     // In-process: the gateway forwarding a browser's call names the browser.
     if (std::string browser = metadata_value(context, "x-meshdeform-peer"); !browser.empty()) {
       return sanitize_client(browser);
     }
     return sanitize_client(peer);
-  }
-  if (options.trust_forwarded_for) {
-    std::string forwarded = metadata_value(context, "x-forwarded-for");
-    forwarded = forwarded.substr(0, forwarded.find(','));
-    if (std::string name = sanitize_client(forwarded); !name.empty()) return "fwd:" + name;
   }
   if (peer.rfind("unix:", 0) == 0) return sanitize_client(peer);
   // Strip the port: "ipv4:1.2.3.4:5678" -> "ipv4:1.2.3.4", "ipv6:[::1]:5678" -> "ipv6:[::1]".

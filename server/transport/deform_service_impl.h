@@ -24,10 +24,11 @@ struct ClientIdentityOptions {
   bool trust_forwarded_for = false;
 };
 
-/// The rate-limit name of a call's client: the peer address without its port ("ipv4:10.0.0.7",
-/// "ipv6:[::1]"); for calls forwarded in-process by the gRPC-Web gateway, the browser's address
-/// the gateway passes as `x-meshdeform-peer` (trusted only in-process: a network peer cannot
-/// set it); with trust_forwarded_for, the first `x-forwarded-for` address.
+/// The rate-limit name of a call's client: with trust_forwarded_for, the first `x-forwarded-for`
+/// address when there is one (the gateway passes a proxy's header on); else the peer address
+/// without its port ("ipv4:10.0.0.7", "ipv6:[::1]"); for calls forwarded in-process by the
+/// gRPC-Web gateway, the browser's address the gateway passes as `x-meshdeform-peer` (trusted
+/// only in-process: a network peer cannot set it).
 std::string client_identity(const grpc::CallbackServerContext& context,
                             const ClientIdentityOptions& options);
 

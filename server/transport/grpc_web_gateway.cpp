@@ -282,6 +282,7 @@ class ForwardedCall final : public grpc::ClientBidiReactor<grpc::ByteBuffer, grp
     std::optional<std::chrono::nanoseconds> timeout;
     std::string session_id;
     std::string peer;  ///< the browser's address, for the service's per-client rate limits
+    std::string forwarded_for;  ///< X-Forwarded-For of a proxy in front (used only if trusted)
     std::chrono::steady_clock::time_point start;
   };
 
@@ -309,6 +310,10 @@ class ForwardedCall final : public grpc::ClientBidiReactor<grpc::ByteBuffer, grp
     // The service names in-process callers by this (client_identity in deform_service_impl.h);
     // over the network it is ignored, so a browser cannot pick its own name.
     if (!call->setup_.peer.empty()) call->context_.AddMetadata("x-meshdeform-peer", call->setup_.peer);
+    // A proxy's X-Forwarded-For, which the service honours only with --trust-forwarded-for.
+    if (!call->setup_.forwarded_for.empty()) {
+      call->context_.AddMetadata("x-forwarded-for", call->setup_.forwarded_for);
+    }
     call->shared_->stub->PrepareBidiStreamingCall(&call->context_, call->setup_.path,
                                                   grpc::StubOptions(), call.get());
     call->StartWriteLast(&call->request_, grpc::WriteOptions());
@@ -604,6 +609,10 @@ void GrpcWebGateway::handle(HttpRequest request, std::shared_ptr<HttpExchange> e
     setup.session_id = std::string(session);
   }
   setup.peer = request.peer;
+  if (const std::string_view forwarded = request.find_header("x-forwarded-for");
+      !forwarded.empty() && forwarded.size() <= 256 && is_printable_ascii(forwarded)) {
+    setup.forwarded_for = std::string(forwarded);
+  }
   enum class Admission { Admitted, Stopping, Full } admission = Admission::Admitted;
   {
     const std::lock_guard lock(shared.mutex);

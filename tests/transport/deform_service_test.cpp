@@ -1011,6 +1011,34 @@ TEST_F(DeformServiceTest, RateLimitsAreResourceExhaustedWithARetryHintPerClient)
             std::string::npos);
 }
 
+TEST(ClientIdentityTest, BehindATrustedProxyClientsAreNamedByForwardedFor) {
+  service::ServiceOptions options;
+  options.create_rate = {0.001, 1.0};
+  service::DeformationService service(options);
+  DeformServiceImpl impl(service, ClientIdentityOptions{/*trust_forwarded_for=*/true});
+  grpc::ServerBuilder builder;
+  int port = 0;
+  builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
+  configure_builder(builder, impl, kMaxMessageMib);
+  std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
+  ASSERT_NE(server, nullptr);
+  auto stub = v1::DeformationService::NewStub(grpc::CreateChannel(
+      "127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials()));
+  std::vector<grpc::StatusCode> codes;
+  // One proxy address, three clients behind it (the proxy sets the header; nginx: $remote_addr).
+  for (const char* client : {"203.0.113.1", "203.0.113.2", "203.0.113.1"}) {
+    grpc::ClientContext context;
+    bound(context);
+    context.AddMetadata("x-forwarded-for", client);
+    v1::CreateSessionResponse created;
+    codes.push_back(stub->CreateSession(&context, sample_request("bar_small"), &created).error_code());
+  }
+  EXPECT_EQ(codes[0], grpc::StatusCode::OK);
+  EXPECT_EQ(codes[1], grpc::StatusCode::OK);  // another client behind the same proxy
+  EXPECT_EQ(codes[2], grpc::StatusCode::RESOURCE_EXHAUSTED);
+  server->Shutdown(std::chrono::system_clock::now() + seconds(10));
+}
+
 TEST(ClientIdentityTest, NetworkPeersCannotNameThemselves) {
   // Over TCP the peer address names the client, whatever metadata it sends.
   service::ServiceOptions options;
