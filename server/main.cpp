@@ -102,20 +102,12 @@ constexpr const char* kUsage =
     "                              only behind a proxy that sets it (nginx: grpc_set_header\n"
     "                              X-Forwarded-For $remote_addr), else clients pick their name\n";
 
-bool parse_double(std::string_view text, double min, double max, double& out) {
-  double value = 0;
+/// Parses all of `text` as a number in [min, max] (int or double: from_chars takes both).
+template <typename T>
+bool parse_number(std::string_view text, T min, T max, T& out) {
+  T value{};
   const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
   if (ec != std::errc() || end != text.data() + text.size() || !(value >= min && value <= max)) {
-    return false;
-  }
-  out = value;
-  return true;
-}
-
-bool parse_int(std::string_view text, int min, int max, int& out) {
-  int value = 0;
-  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
-  if (ec != std::errc() || end != text.data() + text.size() || value < min || value > max) {
     return false;
   }
   out = value;
@@ -148,21 +140,21 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
       flags.listen = std::string(value);
       ok = !value.empty();
     } else if (arg == "--max-sessions") {
-      ok = parse_int(value, 1, 1'000'000, flags.max_sessions);
+      ok = parse_number(value, 1, 1'000'000, flags.max_sessions);
     } else if (arg == "--max-vertices") {
-      ok = parse_int(value, 3, 100'000'000, flags.max_vertices);
+      ok = parse_number(value, 3, 100'000'000, flags.max_vertices);
     } else if (arg == "--idle-ttl-seconds") {
-      ok = parse_int(value, 1, 365 * 24 * 3600, flags.idle_ttl_seconds);
+      ok = parse_number(value, 1, 365 * 24 * 3600, flags.idle_ttl_seconds);
     } else if (arg == "--memory-budget-mib") {
-      ok = parse_int(value, 1, 1'000'000, flags.memory_budget_mib);
+      ok = parse_number(value, 1, 1'000'000, flags.memory_budget_mib);
     } else if (arg == "--max-message-mib") {
-      ok = parse_int(value, 1, 2047, flags.max_message_mib);
+      ok = parse_number(value, 1, 2047, flags.max_message_mib);
     } else if (arg == "--workers") {
-      ok = parse_int(value, 0, 1024, flags.workers);
+      ok = parse_number(value, 0, 1024, flags.workers);
     } else if (arg == "--refine-budget") {
-      ok = parse_int(value, 0, 100'000, flags.refine_budget);
+      ok = parse_number(value, 0, 100'000, flags.refine_budget);
     } else if (arg == "--refine-delay-ms") {
-      ok = parse_int(value, 0, 60'000, flags.refine_delay_ms);
+      ok = parse_number(value, 0, 60'000, flags.refine_delay_ms);
     } else if (arg == "--http-listen") {
       flags.http_listen = std::string(value);
       ok = !value.empty();
@@ -188,15 +180,15 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
       flags.log_level = std::string(value);
       ok = value == "debug" || value == "info" || value == "warn" || value == "error";
     } else if (arg == "--create-rate") {
-      ok = parse_double(value, 0, 1e6, flags.create_rate);
+      ok = parse_number<double>(value, 0, 1e6, flags.create_rate);
     } else if (arg == "--create-burst") {
-      ok = parse_double(value, 1, 1e6, flags.create_burst);
+      ok = parse_number<double>(value, 1, 1e6, flags.create_burst);
     } else if (arg == "--move-rate") {
-      ok = parse_double(value, 0, 1e6, flags.move_rate);
+      ok = parse_number<double>(value, 0, 1e6, flags.move_rate);
     } else if (arg == "--move-burst") {
-      ok = parse_double(value, 1, 1e6, flags.move_burst);
+      ok = parse_number<double>(value, 1, 1e6, flags.move_burst);
     } else if (arg == "--shutdown-grace-seconds") {
-      ok = parse_int(value, 0, 3600, flags.shutdown_grace_seconds);
+      ok = parse_number(value, 0, 3600, flags.shutdown_grace_seconds);
     } else {
       std::cerr << "meshdeform-server: unknown flag " << arg << "\n" << kUsage;
       return false;

@@ -86,6 +86,15 @@ Positions positions_of(const google::protobuf::RepeatedField<double>& flat) {
   return P;
 }
 
+/// `impl` on a real TCP port of 127.0.0.1 (not in-process: the peer is a network address).
+/// @return the server (nullptr if it did not start); *port the port it bound.
+std::unique_ptr<grpc::Server> serve_on_loopback(DeformServiceImpl& impl, int* port) {
+  grpc::ServerBuilder builder;
+  builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), port);
+  configure_builder(builder, impl, kMaxMessageMib);
+  return builder.BuildAndStart();
+}
+
 service::ServiceOptions one_worker() {
   service::ServiceOptions options;
   options.workers = 1;
@@ -688,11 +697,8 @@ TEST_F(DeformServiceTest, HealthIsServingInProcessAndOnLoopback) {
   // A second server on a loopback port picked by the kernel: the real network path.
   service::DeformationService service(one_worker());
   DeformServiceImpl impl(service);
-  grpc::ServerBuilder builder;
   int port = 0;
-  builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
-  configure_builder(builder, impl, kMaxMessageMib);
-  std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
+  std::unique_ptr<grpc::Server> server = serve_on_loopback(impl, &port);
   ASSERT_NE(server, nullptr);
   ASSERT_GT(port, 0);
   auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(port),
@@ -1016,11 +1022,8 @@ TEST(ClientIdentityTest, BehindATrustedProxyClientsAreNamedByForwardedFor) {
   options.create_rate = {0.001, 1.0};
   service::DeformationService service(options);
   DeformServiceImpl impl(service, ClientIdentityOptions{/*trust_forwarded_for=*/true});
-  grpc::ServerBuilder builder;
   int port = 0;
-  builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
-  configure_builder(builder, impl, kMaxMessageMib);
-  std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
+  std::unique_ptr<grpc::Server> server = serve_on_loopback(impl, &port);
   ASSERT_NE(server, nullptr);
   auto stub = v1::DeformationService::NewStub(grpc::CreateChannel(
       "127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials()));
@@ -1045,11 +1048,8 @@ TEST(ClientIdentityTest, NetworkPeersCannotNameThemselves) {
   options.create_rate = {0.001, 1.0};
   service::DeformationService service(options);
   DeformServiceImpl impl(service);
-  grpc::ServerBuilder builder;
   int port = 0;
-  builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
-  configure_builder(builder, impl, kMaxMessageMib);
-  std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
+  std::unique_ptr<grpc::Server> server = serve_on_loopback(impl, &port);
   ASSERT_NE(server, nullptr);
   auto stub = v1::DeformationService::NewStub(grpc::CreateChannel(
       "127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials()));
