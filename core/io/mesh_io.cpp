@@ -1,5 +1,7 @@
 #include "core/io/mesh_io.h"
 
+#include "core/io/json_depth.h"
+
 #include <tiny_gltf.h>
 
 #include <Eigen/Geometry>
@@ -180,12 +182,13 @@ class MeshBuilder {
 // OBJ: v / f only; everything else (vt, vn, g, o, s, usemtl, mtllib, ...) is ignored. mtllib is
 // deliberately not followed: request bytes must not make the server read files.
 
-Result<MeshData> read_obj(std::string_view bytes) {
+Result<MeshData> read_obj(std::string_view bytes, WorkMeter& work) {
   MeshBuilder builder;
   LineReader lines(bytes);
   std::string_view line;
   std::vector<std::int64_t> polygon;
   while (lines.next(line)) {
+    MD_RETURN_IF_ERROR(work.step(1 + line.size() / 16));  // a line and its tokens
     const std::string where = "line " + std::to_string(lines.line_number());
     if (has_binary_bytes(line)) return invalid(where + ": unexpected binary data in OBJ text");
     const std::size_t hash = line.find('#');
@@ -228,13 +231,18 @@ Result<MeshData> read_obj(std::string_view bytes) {
 // ---------------------------------------------------------------------------------------------
 // OFF (ASCII; optional C/N/ST prefixes whose extra per-vertex values are ignored).
 
-Result<MeshData> read_off(std::string_view bytes) {
+Result<MeshData> read_off(std::string_view bytes, WorkMeter& work) {
   LineReader lines(bytes);
   std::string_view line;
   // Next non-empty, comment-stripped line as tokens; false at the end of the data.
   std::string error;
+  Status stopped = Status::success();  // Cancelled: the stop was requested mid-read
   auto next_tokens = [&](std::vector<std::string_view>& tokens) {
     while (lines.next(line)) {
+      if (const Status counted = work.step(1 + line.size() / 16); !counted.ok()) {
+        stopped = counted;
+        return false;
+      }
       if (has_binary_bytes(line)) {
         error =
             "line " + std::to_string(lines.line_number()) + ": unexpected binary data in OFF text";
@@ -248,7 +256,10 @@ Result<MeshData> read_off(std::string_view bytes) {
     return false;
   };
   std::vector<std::string_view> tokens;
-  if (!next_tokens(tokens)) return invalid(error.empty() ? "OFF data is empty" : error);
+  if (!next_tokens(tokens)) {
+    if (!stopped.ok()) return stopped;
+    return invalid(error.empty() ? "OFF data is empty" : error);
+  }
   const std::string keyword(tokens[0]);
   const bool is_off = keyword.size() >= 3 && keyword.compare(keyword.size() - 3, 3, "OFF") == 0 &&
                       keyword.find_first_not_of("STCN") == keyword.size() - 3;
@@ -256,8 +267,10 @@ Result<MeshData> read_off(std::string_view bytes) {
   if (tokens.size() > 1 && tokens[1] == "BINARY") return invalid("binary OFF is not supported");
   std::vector<std::string_view> counts(tokens.begin() + 1, tokens.end());
   if (counts.empty()) {
-    if (!next_tokens(counts))
+    if (!next_tokens(counts)) {
+      if (!stopped.ok()) return stopped;
       return invalid(error.empty() ? "OFF data ends before the counts line" : error);
+    }
   }
   std::int64_t nv = 0;
   std::int64_t nf = 0;
@@ -278,6 +291,7 @@ Result<MeshData> read_off(std::string_view bytes) {
   builder.reserve(static_cast<std::size_t>(nv), static_cast<std::size_t>(nf));
   for (std::int64_t i = 0; i < nv; ++i) {
     if (!next_tokens(tokens)) {
+      if (!stopped.ok()) return stopped;
       return invalid(error.empty() ? "OFF data ends after " + std::to_string(i) + " of " +
                                          std::to_string(nv) + " vertices (truncated)"
                                    : error);
@@ -296,6 +310,7 @@ Result<MeshData> read_off(std::string_view bytes) {
   std::vector<std::int64_t> polygon;
   for (std::int64_t f = 0; f < nf; ++f) {
     if (!next_tokens(tokens)) {
+      if (!stopped.ok()) return stopped;
       return invalid(error.empty() ? "OFF data ends after " + std::to_string(f) + " of " +
                                          std::to_string(nf) + " faces (truncated)"
                                    : error);
@@ -462,7 +477,8 @@ class PlyBinarySource {
 };
 
 template <typename Source>
-Result<MeshData> read_ply_body(Source& source, const std::vector<PlyElement>& elements) {
+Result<MeshData> read_ply_body(Source& source, const std::vector<PlyElement>& elements,
+                               WorkMeter& work) {
   MeshBuilder builder;
   bool has_vertex = false;
   bool has_face = false;
@@ -496,7 +512,13 @@ Result<MeshData> read_ply_body(Source& source, const std::vector<PlyElement>& el
         return invalid("PLY element 'face' lacks a 'vertex_indices' list property");
       }
     }
-    if (!element.properties.empty() && element.count > source.remaining_values(PlyType::UInt8)) {
+    if (element.properties.empty()) {
+      // A row without properties consumes no input, so its count is not backed by any bytes:
+      // skip the element in O(1) (looping over a forged count of 2e9 rows took minutes).
+      MD_RETURN_IF_ERROR(work.step());
+      continue;
+    }
+    if (element.count > source.remaining_values(PlyType::UInt8)) {
       return invalid("PLY element '" + element.name + "' declares " +
                      std::to_string(element.count) +
                      " entries, more than the data holds (truncated?)");
@@ -504,6 +526,7 @@ Result<MeshData> read_ply_body(Source& source, const std::vector<PlyElement>& el
     if (is_vertex) builder.reserve(static_cast<std::size_t>(element.count), 0);
     std::array<double, 3> position{};
     for (std::uint64_t i = 0; i < element.count; ++i) {
+      MD_RETURN_IF_ERROR(work.step(element.properties.size()));
       const std::string where = "PLY " + element.name + " " + std::to_string(i);
       for (std::size_t p = 0; p < element.properties.size(); ++p) {
         const PlyProperty& prop = element.properties[p];
@@ -535,6 +558,7 @@ Result<MeshData> read_ply_body(Source& source, const std::vector<PlyElement>& el
         const auto count = static_cast<std::size_t>(count_value);
         const bool keep = static_cast<int>(p) == indices_property;
         if (keep) polygon.clear();
+        MD_RETURN_IF_ERROR(work.step(count));
         for (std::size_t k = 0; k < count; ++k) {
           if (!source.read(prop.type, value)) {
             return invalid(where + ": missing or malformed list value of '" + prop.name + "'");
@@ -561,7 +585,7 @@ Result<MeshData> read_ply_body(Source& source, const std::vector<PlyElement>& el
   return builder.finish("PLY");
 }
 
-Result<MeshData> read_ply(std::string_view bytes) {
+Result<MeshData> read_ply(std::string_view bytes, WorkMeter& work) {
   LineReader lines(bytes);
   std::string_view line;
   if (!lines.next(line) || split_ws(line) != std::vector<std::string_view>{"ply"}) {
@@ -571,6 +595,7 @@ Result<MeshData> read_ply(std::string_view bytes) {
   std::vector<PlyElement> elements;
   bool ended = false;
   while (!ended && lines.next(line)) {
+    MD_RETURN_IF_ERROR(work.step(1 + line.size() / 16));
     const std::string where = "PLY header line " + std::to_string(lines.line_number());
     if (has_binary_bytes(line)) return invalid(where + ": unexpected binary data");
     const auto tokens = split_ws(line);
@@ -621,10 +646,11 @@ Result<MeshData> read_ply(std::string_view bytes) {
   if (encoding == Encoding::Ascii) {
     if (has_binary_bytes(body)) return invalid("ASCII PLY body contains binary data");
     PlyAsciiSource source(body);
-    return read_ply_body(source, elements);
+    MD_RETURN_IF_ERROR(work.step(source.remaining_values(PlyType::UInt8)));  // tokenising
+    return read_ply_body(source, elements, work);
   }
   PlyBinarySource source(body, encoding == Encoding::Big);
-  return read_ply_body(source, elements);
+  return read_ply_body(source, elements, work);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -643,11 +669,13 @@ std::uint32_t load_u32_le(const char* p) {
 
 float load_f32_le(const char* p) { return std::bit_cast<float>(load_u32_le(p)); }
 
-Result<MeshData> read_stl_binary(std::string_view bytes) {
+Result<MeshData> read_stl_binary(std::string_view bytes, WorkMeter& work) {
+  // read_stl checked that the size is exactly 84 + 50 * count: the count is backed by bytes.
   const std::uint32_t count = load_u32_le(bytes.data() + 80);
   MeshBuilder builder;
   builder.reserve(3 * static_cast<std::size_t>(count), count);
   for (std::uint32_t t = 0; t < count; ++t) {
+    MD_RETURN_IF_ERROR(work.step());
     const char* p = bytes.data() + kStlHeader + kStlTriangle * t + 12;  // skip the normal
     for (int k = 0; k < 3; ++k) {
       builder.add_vertex(load_f32_le(p + 12 * k), load_f32_le(p + 12 * k + 4),
@@ -659,9 +687,10 @@ Result<MeshData> read_stl_binary(std::string_view bytes) {
   return builder.finish("STL");
 }
 
-Result<MeshData> read_stl_ascii(std::string_view bytes) {
+Result<MeshData> read_stl_ascii(std::string_view bytes, WorkMeter& work) {
   if (has_binary_bytes(bytes)) return invalid("ASCII STL contains binary data");
   const auto tokens = split_ws(bytes);
+  MD_RETURN_IF_ERROR(work.step(tokens.size()));  // tokenising
   MeshBuilder builder;
   std::size_t t = 0;
   int facet = 0;
@@ -676,7 +705,11 @@ Result<MeshData> read_stl_ascii(std::string_view bytes) {
                    (t < tokens.size() ? quoted(tokens[t]) : "end of data (truncated?)"));
   };
   bool in_solid = false;
+  // Every pass of this loop and of the inner ones advances t: the work is bounded by the tokens.
+  std::size_t counted = 0;
   while (t < tokens.size()) {
+    MD_RETURN_IF_ERROR(work.step(t - counted + 1));
+    counted = t;
     const std::string word = lower(tokens[t]);
     if (!in_solid) {
       if (word != "solid") return invalid("ASCII STL: expected 'solid', got " + quoted(tokens[t]));
@@ -724,13 +757,13 @@ Result<MeshData> read_stl_ascii(std::string_view bytes) {
   return builder.finish("STL");
 }
 
-Result<MeshData> read_stl(std::string_view bytes) {
+Result<MeshData> read_stl(std::string_view bytes, WorkMeter& work) {
   if (bytes.size() >= kStlHeader) {
     const std::uint64_t count = load_u32_le(bytes.data() + 80);
-    if (kStlHeader + kStlTriangle * count == bytes.size()) return read_stl_binary(bytes);
+    if (kStlHeader + kStlTriangle * count == bytes.size()) return read_stl_binary(bytes, work);
   }
   const std::size_t start = std::min(bytes.size(), bytes.find_first_not_of(" \t\r\n"));
-  if (lower(bytes.substr(start, 5)) == "solid") return read_stl_ascii(bytes);
+  if (lower(bytes.substr(start, 5)) == "solid") return read_stl_ascii(bytes, work);
   if (bytes.size() >= kStlHeader) {
     const std::uint64_t count = load_u32_le(bytes.data() + 80);
     return invalid("binary STL declares " + std::to_string(count) + " triangles (" +
@@ -882,9 +915,26 @@ Result<AccessorView> view_accessor(const tinygltf::Model& model, int index,
   return out;
 }
 
+// Nodes may share a mesh (instancing), so the output is not bounded by the input: a few kB of
+// nodes referencing one large mesh would expand to gigabytes. Each primitive draws its vertices
+// and corners from this budget, a fixed multiple of the input size.
+struct GltfBudget {
+  std::uint64_t elements_left = 0;
+  Status take(std::uint64_t elements, const std::string& where) {
+    if (elements > elements_left) {
+      return invalid(where + ": instancing expands the mesh past " +
+                     std::to_string(kExpansion) + " vertices and corners per input byte");
+    }
+    elements_left -= elements;
+    return Status::success();
+  }
+  static constexpr std::uint64_t kExpansion = 2;
+};
+
 Status append_primitive(const tinygltf::Model& model, const tinygltf::Primitive& primitive,
                         const Eigen::Matrix4d& transform, bool is_identity,
-                        const std::string& where, MeshBuilder& builder) {
+                        const std::string& where, MeshBuilder& builder, WorkMeter& work,
+                        GltfBudget& budget) {
   if (primitive.mode != TINYGLTF_MODE_TRIANGLES && primitive.mode != TINYGLTF_MODE_TRIANGLE_STRIP &&
       primitive.mode != TINYGLTF_MODE_TRIANGLE_FAN) {
     return Status::success();  // points and lines carry no surface
@@ -901,7 +951,9 @@ Status append_primitive(const tinygltf::Model& model, const tinygltf::Primitive&
   if (base + positions.count > static_cast<std::size_t>(std::numeric_limits<int>::max())) {
     return invalid(where + ": too many vertices");
   }
+  MD_RETURN_IF_ERROR(budget.take(positions.count, where));
   for (std::size_t i = 0; i < positions.count; ++i) {
+    if ((i & 1023U) == 0) MD_RETURN_IF_ERROR(work.step(std::min<std::size_t>(1024, positions.count - i)));
     Eigen::Vector4d p(positions.get(i, 0), positions.get(i, 1), positions.get(i, 2), 1.0);
     if (!is_identity) p = transform * p;
     builder.add_vertex(p[0], p[1], p[2]);
@@ -914,8 +966,10 @@ Status append_primitive(const tinygltf::Model& model, const tinygltf::Primitive&
         indices.component_type == TINYGLTF_COMPONENT_TYPE_DOUBLE) {
       return invalid(where + ": indices must be integer scalars");
     }
+    MD_RETURN_IF_ERROR(budget.take(indices.count, where));
     corners.reserve(indices.count);
     for (std::size_t i = 0; i < indices.count; ++i) {
+      if ((i & 1023U) == 0) MD_RETURN_IF_ERROR(work.step(std::min<std::size_t>(1024, indices.count - i)));
       const double value = indices.get(i, 0);
       if (value < 0.0 || value >= static_cast<double>(positions.count)) {
         return invalid(where + ": index " + std::to_string(static_cast<std::int64_t>(value)) +
@@ -925,6 +979,7 @@ Status append_primitive(const tinygltf::Model& model, const tinygltf::Primitive&
       corners.push_back(static_cast<std::int64_t>(value));
     }
   } else {
+    MD_RETURN_IF_ERROR(budget.take(positions.count, where));
     corners.resize(positions.count);
     for (std::size_t i = 0; i < positions.count; ++i) corners[i] = static_cast<std::int64_t>(i);
   }
@@ -975,22 +1030,26 @@ Eigen::Matrix4d node_transform(const tinygltf::Node& node) {
 }
 
 Status append_mesh(const tinygltf::Model& model, int mesh_index, const Eigen::Matrix4d& transform,
-                   MeshBuilder& builder) {
+                   MeshBuilder& builder, WorkMeter& work, GltfBudget& budget) {
   if (mesh_index < 0 || static_cast<std::size_t>(mesh_index) >= model.meshes.size()) {
     return invalid("glTF node refers to missing mesh " + std::to_string(mesh_index));
   }
   const bool is_identity = transform == Eigen::Matrix4d::Identity();
   const auto& primitives = model.meshes[static_cast<std::size_t>(mesh_index)].primitives;
   for (std::size_t p = 0; p < primitives.size(); ++p) {
+    MD_RETURN_IF_ERROR(work.step());
     MD_RETURN_IF_ERROR(append_primitive(
         model, primitives[p], transform, is_identity,
-        "glTF mesh " + std::to_string(mesh_index) + " primitive " + std::to_string(p), builder));
+        "glTF mesh " + std::to_string(mesh_index) + " primitive " + std::to_string(p), builder,
+        work, budget));
   }
   return Status::success();
 }
 
-Result<MeshData> gltf_to_mesh(const tinygltf::Model& model) {
+Result<MeshData> gltf_to_mesh(const tinygltf::Model& model, std::size_t input_bytes,
+                              WorkMeter& work) {
   MeshBuilder builder;
+  GltfBudget budget{GltfBudget::kExpansion * input_bytes};
   const int scene = model.defaultScene >= 0 ? model.defaultScene : (model.scenes.empty() ? -1 : 0);
   bool any_mesh_node = false;
   if (scene >= 0 && static_cast<std::size_t>(scene) < model.scenes.size()) {
@@ -1005,19 +1064,20 @@ Result<MeshData> gltf_to_mesh(const tinygltf::Model& model) {
       stack.push_back({root, Eigen::Matrix4d::Identity()});
     }
     std::size_t visits = 0;
-    const std::size_t budget = 16 * (model.nodes.size() + 1);
+    const std::size_t visit_budget = 16 * (model.nodes.size() + 1);
     while (!stack.empty()) {
       const Item item = stack.back();
       stack.pop_back();
       if (item.node < 0 || static_cast<std::size_t>(item.node) >= model.nodes.size()) {
         return invalid("glTF scene refers to missing node " + std::to_string(item.node));
       }
-      if (++visits > budget) return invalid("glTF node hierarchy is cyclic or too deep");
+      if (++visits > visit_budget) return invalid("glTF node hierarchy is cyclic or too deep");
+      MD_RETURN_IF_ERROR(work.step());
       const tinygltf::Node& node = model.nodes[static_cast<std::size_t>(item.node)];
       const Eigen::Matrix4d world = item.parent * node_transform(node);
       if (node.mesh >= 0) {
         any_mesh_node = true;
-        MD_RETURN_IF_ERROR(append_mesh(model, node.mesh, world, builder));
+        MD_RETURN_IF_ERROR(append_mesh(model, node.mesh, world, builder, work, budget));
       }
       for (auto it = node.children.rbegin(); it != node.children.rend(); ++it)
         stack.push_back({*it, world});
@@ -1026,16 +1086,37 @@ Result<MeshData> gltf_to_mesh(const tinygltf::Model& model) {
   if (!any_mesh_node) {
     // No scene graph: take every mesh as is.
     for (std::size_t m = 0; m < model.meshes.size(); ++m) {
-      MD_RETURN_IF_ERROR(
-          append_mesh(model, static_cast<int>(m), Eigen::Matrix4d::Identity(), builder));
+      MD_RETURN_IF_ERROR(append_mesh(model, static_cast<int>(m), Eigen::Matrix4d::Identity(),
+                                     builder, work, budget));
     }
   }
   return builder.finish("glTF");
 }
 
-Result<MeshData> read_gltf(std::string_view bytes, bool allow_files, const std::string& base_dir) {
+// The JSON text of a .gltf, or the JSON chunk of a .glb (its binary chunk is not JSON); the
+// whole input when the GLB header is malformed (tinygltf reports that).
+std::string_view gltf_json_text(std::string_view bytes, bool is_binary) {
+  if (!is_binary) return bytes;
+  constexpr std::size_t kGlbHeader = 12, kChunkHeader = 8;
+  if (bytes.size() < kGlbHeader + kChunkHeader) return {};
+  const std::uint32_t length = load_u32_le(bytes.data() + kGlbHeader);
+  return bytes.substr(kGlbHeader + kChunkHeader,
+                      std::min<std::size_t>(length, bytes.size() - kGlbHeader - kChunkHeader));
+}
+
+Result<MeshData> read_gltf(std::string_view bytes, bool allow_files, const std::string& base_dir,
+                           WorkMeter& work) {
   if (bytes.size() > std::numeric_limits<unsigned int>::max())
     return invalid("glTF data is too large");
+  {
+    const bool glb = bytes.size() >= 4 && bytes.substr(0, 4) == "glTF";
+    const std::string_view json_text = gltf_json_text(bytes, glb);
+    MD_RETURN_IF_ERROR(work.step(json_text.size() / 16 + 1));
+    if (json_nesting_depth(json_text, kMaxJsonDepth) > kMaxJsonDepth) {
+      return invalid("glTF JSON nests arrays/objects deeper than " + std::to_string(kMaxJsonDepth) +
+                     " levels");
+    }
+  }
   tinygltf::TinyGLTF loader;
   loader.SetImageLoader(&ignore_image, nullptr);
   if (!allow_files) {
@@ -1059,7 +1140,8 @@ Result<MeshData> read_gltf(std::string_view bytes, bool allow_files, const std::
     while (!err.empty() && is_space(err.back())) err.pop_back();
     return invalid("glTF reader: " + (err.empty() ? std::string("cannot parse data") : err));
   }
-  return gltf_to_mesh(model);
+  MD_RETURN_IF_ERROR(work.poll());  // tinygltf's own parse cannot be stopped: check after it
+  return gltf_to_mesh(model, bytes.size(), work);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1267,19 +1349,20 @@ auto guarded(const char* what, F&& body) -> decltype(body()) {
 }
 
 Result<MeshData> read_any(std::string_view bytes, MeshFormat format, bool allow_files,
-                          const std::string& base_dir) {
+                          const std::string& base_dir, const ReadControl& control) {
+  WorkMeter work(control);
   switch (format) {
     case MeshFormat::Obj:
-      return read_obj(bytes);
+      return read_obj(bytes, work);
     case MeshFormat::Off:
-      return read_off(bytes);
+      return read_off(bytes, work);
     case MeshFormat::Ply:
-      return read_ply(bytes);
+      return read_ply(bytes, work);
     case MeshFormat::Stl:
-      return read_stl(bytes);
+      return read_stl(bytes, work);
     case MeshFormat::Glb:
     case MeshFormat::Gltf:
-      return read_gltf(bytes, allow_files, base_dir);
+      return read_gltf(bytes, allow_files, base_dir, work);
   }
   return invalid("unknown mesh format");
 }
@@ -1315,7 +1398,8 @@ Result<LoadedMesh> finish_load(Result<MeshData> read, MeshFormat format,
     return loaded;
   }
   MD_ASSIGN_OR_RETURN(loaded.report,
-                      core::clean_mesh(loaded.mesh, options.weld || format == MeshFormat::Stl));
+                      core::clean_mesh(loaded.mesh, options.weld || format == MeshFormat::Stl,
+                                       options.control.stop));
   return loaded;
 }
 
@@ -1365,9 +1449,10 @@ Result<MeshFormat> format_from_path(const std::filesystem::path& path) {
   return format;
 }
 
-Result<MeshData> read_mesh_from_memory(std::string_view bytes, MeshFormat format) {
+Result<MeshData> read_mesh_from_memory(std::string_view bytes, MeshFormat format,
+                                       const ReadControl& control) {
   return guarded("reading mesh", [&]() -> Result<MeshData> {
-    return read_any(bytes, format, /*allow_files=*/false, "");
+    return read_any(bytes, format, /*allow_files=*/false, "", control);
   });
 }
 
@@ -1376,7 +1461,7 @@ Result<MeshData> read_mesh(const std::filesystem::path& path) {
     MD_ASSIGN_OR_RETURN(const MeshFormat format, format_from_path(path));
     MD_ASSIGN_OR_RETURN(const std::string bytes, read_file(path));
     // A local .gltf may reference buffers next to it; the file is trusted, request bytes are not.
-    auto mesh = read_any(bytes, format, /*allow_files=*/true, path.parent_path().string());
+    auto mesh = read_any(bytes, format, /*allow_files=*/true, path.parent_path().string(), {});
     if (!mesh.ok()) return with_context(mesh.status(), path.string());
     return mesh;
   });
@@ -1431,7 +1516,7 @@ Result<LoadedMesh> load_mesh(const std::filesystem::path& path, const LoadOption
 Result<LoadedMesh> load_mesh_from_memory(std::string_view bytes, MeshFormat format,
                                          const LoadOptions& options) {
   return guarded("loading mesh", [&]() -> Result<LoadedMesh> {
-    return finish_load(read_mesh_from_memory(bytes, format), format, options);
+    return finish_load(read_mesh_from_memory(bytes, format, options.control), format, options);
   });
 }
 
