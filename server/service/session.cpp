@@ -260,7 +260,7 @@ void Session::update_estimate() {
 
 Result<Session::CachedDeformer*> Session::get_or_build(core::Method method,
                                                        const std::vector<int>& constrained,
-                                                       bool* built) {
+                                                       bool* built, std::stop_token stop) {
   *built = false;
   for (CachedDeformer& entry : deformers_) {
     if (entry.method == method && entry.constrained == constrained) {
@@ -284,7 +284,7 @@ Result<Session::CachedDeformer*> Session::get_or_build(core::Method method,
   const Eigen::VectorXi idx =
       Eigen::Map<const Eigen::VectorXi>(constrained.data(), static_cast<Eigen::Index>(constrained.size()));
   MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
-                      core::make_deformer(method, rest_.V, rest_.F, idx, settings_));
+                      core::make_deformer(method, rest_.V, rest_.F, idx, settings_, stop));
   counters_->deformer_constructions.fetch_add(1);
   *built = true;
   // A fresh deformer sits at the rest pose, i.e. revision 0's positions only.
@@ -293,7 +293,7 @@ Result<Session::CachedDeformer*> Session::get_or_build(core::Method method,
   return &deformers_.back();
 }
 
-Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request) {
+Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::stop_token stop) {
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
   if (!is_fresh()) return stale_copy(id_);  // never overwrite a newer revision of another replica
   refine_.reset();  // new anchors: the old solve is not worth continuing
@@ -327,7 +327,8 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request) {
   std::sort(constrained.begin(), constrained.end());
   MD_RETURN_IF_ERROR(check_pinnable(request.prepare, constrained));
   bool built = false;
-  MD_ASSIGN_OR_RETURN(CachedDeformer * entry, get_or_build(request.prepare, constrained, &built));
+  MD_ASSIGN_OR_RETURN(CachedDeformer * entry,
+                      get_or_build(request.prepare, constrained, &built, stop));
   (void)entry;
 
   {
@@ -733,32 +734,32 @@ void Session::touch(std::chrono::steady_clock::time_point now) {
   last_used_ = std::max(last_used_, now);
 }
 
-bool Session::enqueue(std::function<void()> task) {
+std::optional<TaskClass> Session::enqueue(std::function<void()> task, TaskClass task_class) {
   std::lock_guard lock(strand_mutex_);
-  strand_.push_back(std::move(task));
-  if (strand_running_) return false;
+  strand_.push_back({std::move(task), task_class});
+  if (strand_running_) return std::nullopt;
   strand_running_ = true;
-  return true;
+  return task_class;
 }
 
-bool Session::run_next() {
+std::optional<TaskClass> Session::run_next() {
   std::function<void()> task;
   {
     std::lock_guard lock(strand_mutex_);
     if (strand_.empty()) {
       strand_running_ = false;
-      return false;
+      return std::nullopt;
     }
-    task = std::move(strand_.front());
+    task = std::move(strand_.front().task);
     strand_.pop_front();
   }
   task();
   std::lock_guard lock(strand_mutex_);
   if (strand_.empty()) {
     strand_running_ = false;
-    return false;
+    return std::nullopt;
   }
-  return true;
+  return strand_.front().task_class;
 }
 
 }  // namespace meshdeform::service
