@@ -17,8 +17,8 @@ namespace meshdeform::service {
 
 /// Limits of heavy work. A task counts from admission until it finishes (queued or running).
 struct HeavyWorkLimits {
-  int per_client = 2;  ///< admitted at once per client (>= 1)
-  int total = 8;       ///< admitted at once over all clients (>= 1): running lanes + queue bound
+  int per_client = 4;  ///< admitted at once per client (>= 1)
+  int total = 16;      ///< admitted at once over all clients (>= 1): running lanes + queue bound
 };
 
 /// Counts admitted heavy tasks per client; thread-safe.

@@ -235,6 +235,7 @@ void DeformationService::create_session_async(CreateSessionRequest request, std:
   }
   // std::function needs a copyable callable: the ticket travels in a shared_ptr.
   auto ticket = std::make_shared<HeavyWorkAdmission::Ticket>(std::move(admitted).value());
+  std::string client = request.client;  // read before `request` moves into the task
   pool_.submit(
       [this, ticket, request = std::move(request), stop = std::move(stop),
        done = std::move(done)] {
@@ -252,7 +253,7 @@ void DeformationService::create_session_async(CreateSessionRequest request, std:
         }
         done(std::move(created));
       },
-      TaskClass::Heavy);
+      TaskClass::Heavy, std::move(client));
 }
 
 void DeformationService::get_mesh_async(SessionId id, Token token, io::MeshFormat format,
@@ -352,7 +353,7 @@ Result<std::shared_ptr<Session>> DeformationService::find_for_edit(const Session
 }
 
 void DeformationService::post(const std::shared_ptr<Session>& session, std::function<void()> task,
-                              bool is_refinement, TaskClass task_class) {
+                              bool is_refinement, Session::StrandStep step) {
   if (!is_refinement) session->preempt_refinement();
   session->inflight().fetch_add(1);
   SessionStore* store = &store_;
@@ -367,7 +368,7 @@ void DeformationService::post(const std::shared_ptr<Session>& session, std::func
     } done{session.get(), store};
     task();
   };
-  const std::optional<TaskClass> first = session->enqueue(std::move(wrapped), task_class);
+  const std::optional<Session::StrandStep> first = session->enqueue(std::move(wrapped), step);
   if (!first) return;  // the strand is already scheduled
   // One pool task per step of the strand: other sessions' edits interleave between steps, and
   // each step runs in its own class (a SetHandles precompute on a heavy lane, a move on any).
@@ -375,12 +376,12 @@ void DeformationService::post(const std::shared_ptr<Session>& session, std::func
     std::shared_ptr<Session> session;
     WorkerPool* pool;
     void operator()() const {
-      if (const std::optional<TaskClass> next = session->run_next()) {
-        pool->submit(Drain{session, pool}, *next);
+      if (const std::optional<Session::StrandStep> next = session->run_next()) {
+        pool->submit(Drain{session, pool}, next->task_class, next->client);
       }
     }
   };
-  pool_.submit(Drain{session, &pool_}, *first);
+  pool_.submit(Drain{session, &pool_}, first->task_class, first->client);
 }
 
 void DeformationService::set_handles_async(const SessionId& id, const Token& edit_token,
@@ -398,6 +399,7 @@ void DeformationService::set_handles_async(const SessionId& id, const Token& edi
     return;
   }
   auto ticket = std::make_shared<HeavyWorkAdmission::Ticket>(std::move(admitted).value());
+  Session::StrandStep step{TaskClass::Heavy, request.client};  // before `request` moves
   post(
       session,
       [this, session, ticket, request = std::move(request), stop = std::move(stop),
@@ -415,7 +417,7 @@ void DeformationService::set_handles_async(const SessionId& id, const Token& edi
         }
         done(std::move(result));
       },
-      /*is_refinement=*/false, TaskClass::Heavy);
+      /*is_refinement=*/false, std::move(step));
 }
 
 Result<SessionInfo> DeformationService::set_handles(const SessionId& id, const Token& edit_token,

@@ -157,7 +157,7 @@ class DeformationService {
   /// Queues `task` on the session's strand and the strand on the pool. An edit (not
   /// `is_refinement`) preempts a running refinement slice of the session.
   void post(const std::shared_ptr<Session>& session, std::function<void()> task,
-            bool is_refinement = false, TaskClass task_class = TaskClass::Normal);
+            bool is_refinement = false, Session::StrandStep step = {});
   /// If the session wants refinement, queues one slice at background priority (it runs when no
   /// edit of any session waits) and, after it, the next.
   /// `after_move`: wait for ServiceOptions::refine_delay of rest first.

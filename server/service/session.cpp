@@ -734,15 +734,15 @@ void Session::touch(std::chrono::steady_clock::time_point now) {
   last_used_ = std::max(last_used_, now);
 }
 
-std::optional<TaskClass> Session::enqueue(std::function<void()> task, TaskClass task_class) {
+std::optional<Session::StrandStep> Session::enqueue(std::function<void()> task, StrandStep step) {
   std::lock_guard lock(strand_mutex_);
-  strand_.push_back({std::move(task), task_class});
+  strand_.push_back({std::move(task), step});
   if (strand_running_) return std::nullopt;
   strand_running_ = true;
-  return task_class;
+  return step;
 }
 
-std::optional<TaskClass> Session::run_next() {
+std::optional<Session::StrandStep> Session::run_next() {
   std::function<void()> task;
   {
     std::lock_guard lock(strand_mutex_);
@@ -759,7 +759,7 @@ std::optional<TaskClass> Session::run_next() {
     strand_running_ = false;
     return std::nullopt;
   }
-  return strand_.front().task_class;
+  return strand_.front().step;
 }
 
 }  // namespace meshdeform::service

@@ -154,12 +154,18 @@ class Session : public std::enable_shared_from_this<Session> {
   std::atomic<int>& inflight() { return inflight_; }
   int inflight_count() const { return inflight_.load(); }
 
-  /// Strand: the service queues edits here, each with its cost class; `run_next` pops one.
-  /// @return the class to schedule a drain with if the caller must schedule one (the strand was
-  ///         idle); nullopt otherwise.
-  std::optional<TaskClass> enqueue(std::function<void()> task, TaskClass task_class);
-  /// Runs the oldest queued edit. @return the class of the next one if more remain.
-  std::optional<TaskClass> run_next();
+  /// How the strand's next step is to be scheduled on the pool.
+  struct StrandStep {
+    TaskClass task_class = TaskClass::Normal;
+    std::string client;  ///< who asked (fairness of heavy work)
+  };
+  /// Strand: the service queues edits here, each with its cost class and client; `run_next`
+  /// pops one.
+  /// @return how to schedule a drain if the caller must schedule one (the strand was idle);
+  ///         nullopt otherwise.
+  std::optional<StrandStep> enqueue(std::function<void()> task, StrandStep step);
+  /// Runs the oldest queued edit. @return how to schedule the next one if more remain.
+  std::optional<StrandStep> run_next();
 
  private:
   struct CachedDeformer {
@@ -235,7 +241,7 @@ class Session : public std::enable_shared_from_this<Session> {
   std::mutex strand_mutex_;
   struct StrandTask {
     std::function<void()> task;
-    TaskClass task_class = TaskClass::Normal;
+    StrandStep step;
   };
   std::deque<StrandTask> strand_;
   bool strand_running_ = false;

@@ -22,7 +22,7 @@ WorkerPool::~WorkerPool() {
   threads_.clear();  // joins; run() drains the queues before returning
 }
 
-void WorkerPool::submit(std::function<void()> task, TaskClass task_class) {
+void WorkerPool::submit(std::function<void()> task, TaskClass task_class, std::string client) {
   {
     std::lock_guard lock(mutex_);
     switch (task_class) {
@@ -30,7 +30,7 @@ void WorkerPool::submit(std::function<void()> task, TaskClass task_class) {
         queue_.push_back(std::move(task));
         break;
       case TaskClass::Heavy:
-        heavy_.push_back(std::move(task));
+        heavy_.push_back({std::move(client), std::move(task)});
         break;
       case TaskClass::Background:
         background_.push_back(std::move(task));
@@ -58,8 +58,22 @@ void WorkerPool::run(std::stop_token stop, bool heavy_lane) {
         return !queue_.empty() || (heavy_lane && !heavy_.empty()) || !background_.empty();
       });
       if (heavy_lane && !heavy_.empty() && !(only_worker && !queue_.empty())) {
-        task = std::move(heavy_.front());
-        heavy_.pop_front();
+        // Fair between clients: the oldest task of the client served least recently (the
+        // queue is bounded by admission control, so the scan is short).
+        auto pick = heavy_.begin();
+        std::uint64_t best = UINT64_MAX;
+        for (auto it = heavy_.begin(); it != heavy_.end(); ++it) {
+          const auto served = last_served_.find(it->client);
+          const std::uint64_t tick = served == last_served_.end() ? 0 : served->second;
+          if (tick < best) {
+            best = tick;
+            pick = it;
+          }
+        }
+        last_served_[pick->client] = ++serve_tick_;
+        task = std::move(pick->task);
+        heavy_.erase(pick);
+        if (heavy_.empty()) last_served_.clear();  // nothing to be fair about: forget
         is_heavy = true;
         ++heavy_running_;
       } else if (!queue_.empty()) {

@@ -5,8 +5,11 @@
 #include <condition_variable>
 #include <cstddef>
 #include <deque>
+#include <cstdint>
 #include <functional>
+#include <map>
 #include <mutex>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -27,11 +30,13 @@ struct QueueDepths {
   int heavy_running = 0;
 };
 
-/// First-in first-out task pool with a fixed number of threads and three task classes. Heavy
-/// tasks run only on the first `heavy_lanes` workers (at most size - 1 when size > 1), which
-/// take heavy tasks first; the other workers never take them, so light tasks (moves) always have
-/// a worker however many uploads and precomputes wait. Background tasks run only when no normal
-/// task waits (and, on a heavy lane, no heavy task).
+/// A task pool with a fixed number of threads and three task classes. Normal and background
+/// tasks run first in, first out. Heavy tasks run only on the first `heavy_lanes` workers (at
+/// most size - 1 when size > 1), which take heavy tasks first; the other workers never take
+/// them, so light tasks (moves) always have a worker however many uploads and precomputes wait.
+/// Heavy tasks are fair between clients: the next one is the oldest of the client served least
+/// recently, so one client's queued uploads do not hold up another's. Background tasks run only
+/// when no normal task waits (and, on a heavy lane, no heavy task).
 class WorkerPool {
  public:
   /// @param[in] size         threads; values < 1 mean std::thread::hardware_concurrency(), at
@@ -46,7 +51,9 @@ class WorkerPool {
   WorkerPool& operator=(const WorkerPool&) = delete;
 
   /// Queues a task of the given class. Tasks must not throw (an escaping exception is swallowed).
-  void submit(std::function<void()> task, TaskClass task_class = TaskClass::Normal);
+  /// @param[in] client  who asked, for fairness between clients (heavy tasks only).
+  void submit(std::function<void()> task, TaskClass task_class = TaskClass::Normal,
+              std::string client = {});
   /// Queues a low-priority task: it runs when no normal task waits; dropped at shutdown.
   void submit_background(std::function<void()> task) {
     submit(std::move(task), TaskClass::Background);
@@ -61,7 +68,13 @@ class WorkerPool {
   mutable std::mutex mutex_;
   std::condition_variable_any cv_;
   std::deque<std::function<void()>> queue_;
-  std::deque<std::function<void()>> heavy_;
+  struct HeavyTask {
+    std::string client;
+    std::function<void()> task;
+  };
+  std::deque<HeavyTask> heavy_;
+  std::map<std::string, std::uint64_t> last_served_;  ///< heavy: client -> serve tick
+  std::uint64_t serve_tick_ = 0;
   std::deque<std::function<void()>> background_;
   int size_ = 1;
   int heavy_lanes_ = 1;

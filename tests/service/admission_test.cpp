@@ -76,16 +76,24 @@ TEST(WorkerPoolTest, HeavyTasksNeverTakeTheLastWorker) {
   std::promise<void> light_ran;
   {
     WorkerPool pool(2);
+    // Declared after the pool, so destroyed before it: an early ASSERT opens the gate and the
+    // pool's drain does not wait on it.
+    struct OpenOnExit {
+      Gate& gate;
+      ~OpenOnExit() { gate.open(); }
+    } open_on_exit{gate};
     EXPECT_EQ(pool.heavy_lanes(), 1);
     // Three heavy tasks that block until the gate opens: one runs, two wait.
+    std::promise<void> first_started;
     for (int i = 0; i < 3; ++i) {
       pool.submit(
           [&] {
-            heavy_started.fetch_add(1);
+            if (heavy_started.fetch_add(1) == 0) first_started.set_value();
             gate.wait();
           },
           TaskClass::Heavy);
     }
+    ASSERT_EQ(first_started.get_future().wait_for(60s), std::future_status::ready);
     pool.submit([&] { light_ran.set_value(); });
     // The light task runs on the worker heavy work may not take, while the heavy lane is busy.
     EXPECT_EQ(light_ran.get_future().wait_for(60s), std::future_status::ready);
