@@ -56,9 +56,10 @@ struct Flags {
   double move_rate = 200.0;   // per client, moves per second (0 = unlimited)
   double move_burst = 400;
   bool trust_forwarded_for = false;
-  int heavy_per_client = 2;   // uploads/precomputes admitted at once per client
-  int heavy_total = 8;        // ... and over all clients
+  int heavy_per_client = 4;   // uploads/precomputes admitted at once per client
+  int heavy_total = 16;       // ... and over all clients
   int heavy_lanes = 0;        // workers that may run them (0 = workers - 1)
+  bool test_hooks = false;    // SIGUSR1 expires every idle session now (tests only)
 };
 
 constexpr const char* kUsage =
@@ -102,11 +103,13 @@ constexpr const char* kUsage =
     "                              unlimited)\n"
     "  --move-burst N              ... and at once (default 400)\n"
     "  --heavy-per-client N        uploads (CreateSession parses) and SetHandles precomputes each\n"
-    "                              client may have queued or running at once (default 2); over\n"
+    "                              client may have queued or running at once (default 4); over\n"
     "                              it, or over --heavy-total: RESOURCE_EXHAUSTED at once\n"
-    "  --heavy-total N             ... over all clients (default 8)\n"
+    "  --heavy-total N             ... over all clients (default 16)\n"
     "  --heavy-lanes N             workers that may run that heavy work (default 0 = workers - 1,\n"
     "                              at least 1): the others keep serving moves and reads\n"
+    "  --test-hooks                for tests only: SIGUSR1 expires every idle session at once (as\n"
+    "                              if --idle-ttl-seconds had passed) and logs \"expired_by_signal\"\n"
     "  --trust-forwarded-for       name clients by the x-forwarded-for header for those limits;\n"
     "                              only behind a proxy that sets it (nginx: grpc_set_header\n"
     "                              X-Forwarded-For $remote_addr), else clients pick their name\n";
@@ -131,8 +134,12 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
       help = true;
       return true;
     }
-    if (arg == "--trust-forwarded-for") {  // the one flag without a value
+    if (arg == "--trust-forwarded-for") {  // flags without a value
       flags.trust_forwarded_for = true;
+      continue;
+    }
+    if (arg == "--test-hooks") {
+      flags.test_hooks = true;
       continue;
     }
     if (const std::size_t eq = arg.find('='); eq != std::string_view::npos) {
@@ -240,6 +247,7 @@ int main(int argc, char** argv) {
   sigemptyset(&signals);
   sigaddset(&signals, SIGINT);
   sigaddset(&signals, SIGTERM);
+  if (flags.test_hooks) sigaddset(&signals, SIGUSR1);  // see --test-hooks
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
   meshdeform::service::ServiceOptions options;
@@ -372,7 +380,17 @@ int main(int argc, char** argv) {
   });
 
   int received = 0;
-  sigwait(&signals, &received);
+  while (true) {
+    sigwait(&signals, &received);
+    if (received != SIGUSR1) break;
+    // Test hook: an explicit expiry instead of a short TTL, so that tests do not depend on how
+    // fast this machine runs them.
+    const std::size_t removed = service.evict_expired(
+        std::chrono::steady_clock::now() + std::chrono::seconds(flags.idle_ttl_seconds) +
+        std::chrono::seconds(1));
+    log_event(LogLevel::Info, "expired_by_signal",
+              LogFields().add("removed", static_cast<std::uint64_t>(removed)));
+  }
   log_event(LogLevel::Info, "shutdown",
             LogFields().add("signal", received).add("grace_seconds", flags.shutdown_grace_seconds));
   // Health checks say NOT_SERVING at once (balancers stop sending); then stop accepting calls and,

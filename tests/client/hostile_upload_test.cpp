@@ -120,7 +120,7 @@ TEST_F(HostileUploadTest, HostileUploadsStopAndANormalClientIsServed) {
       ADD_FAILURE() << "hostile upload got " << code << ": " << status.error_message();
     }
   };
-  std::vector<std::thread> hostile;
+  std::vector<std::jthread> hostile;  // joined on every path, an early ASSERT included
   for (int i = 0; i < 3; ++i) {
     hostile.emplace_back([&] {
       hostile_call(ply_binary_zero_width_rows(), v1::MESH_FORMAT_PLY, seconds(2));
@@ -166,7 +166,7 @@ TEST_F(HostileUploadTest, HostileUploadsStopAndANormalClientIsServed) {
                                    << moved_status.error_message();
     EXPECT_EQ(moved.result().revision(), 1u);
   }
-  for (std::thread& t : hostile) t.join();
+  for (std::jthread& t : hostile) t.join();
   EXPECT_EQ(unexpected.load(), 0);
   EXPECT_TRUE(seen_codes.count(grpc::INVALID_ARGUMENT)) << "the crafted headers were refused";
 
@@ -181,7 +181,7 @@ TEST_F(HostileUploadTest, HostileUploadsStopAndANormalClientIsServed) {
     request.set_format(v1::MESH_FORMAT_OBJ);
     v1::CreateSessionResponse response;
     grpc::Status status;
-    std::thread upload([&] { status = stub_->CreateSession(&context, request, &response); });
+    std::jthread upload([&] { status = stub_->CreateSession(&context, request, &response); });
     const auto give_up = std::chrono::steady_clock::now() + seconds(60);
     while (stats().heavy_work_running() == 0 && std::chrono::steady_clock::now() < give_up) {
       std::this_thread::sleep_for(milliseconds(5));
