@@ -1,6 +1,7 @@
 #include "core/io/deform_spec.h"
 
 #include "core/io/json_depth.h"
+#include "core/similarity.h"
 
 #include <Eigen/Geometry>
 #include <algorithm>
@@ -380,13 +381,15 @@ Result<Positions> group_targets(const HandleGroup& group, const Positions& V,
       }
       if (!std::isfinite(group.scale)) return invalid(where + ".scale: is not finite");
       if (!group.translation.allFinite()) return invalid(where + ".translation: is not finite");
-      const Eigen::RowVector3d pivot = group.pivot ? Eigen::RowVector3d(group.pivot->transpose())
-                                                   : Eigen::RowVector3d(rest.colwise().mean());
-      if (!pivot.allFinite()) return invalid(where + ".pivot: is not finite");
-      for (Eigen::Index i = 0; i < n; ++i) {
-        out.row(i) = pivot + group.translation.transpose() +
-                     (R * (group.scale * (rest.row(i) - pivot).transpose())).transpose();
+      core::GroupSimilarity transform;
+      transform.rotation = R;
+      transform.scale = group.scale;
+      transform.translation = group.translation;
+      transform.pivot = group.pivot;
+      if (!core::similarity_pivot(transform, rest).allFinite()) {
+        return invalid(where + ".pivot: is not finite");
       }
+      out = core::apply_similarity(transform, rest);
       break;
     }
     case HandleForm::Matrix: {
