@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "core/anderson.h"
 #include "core/constraints.h"
 #include "core/measures.h"
 #include "core/normals_step.h"
@@ -300,22 +301,47 @@ Result<SolveReport> ArapSolver::solve(const Positions& targets, const SolveOptio
 
   double previous_energy = report.history.back().energy;
   if (previous_energy <= energy_floor) report.converged = true;
+  // Anderson acceleration (core/anderson.h) over the positions: x -> G(x) is one local step (the
+  // rotations of x) and one global step. The constrained rows of every G(x) are the targets, so
+  // every mix of them is feasible too. Safeguard: an accelerated iterate whose energy exceeds the
+  // last accepted one is replaced by the plain update and the window restarts, so the energy
+  // still never increases.
+  const bool accelerate = options.anderson_window > 0;
+  AndersonAccelerator accelerator(options.anderson_window);
+  RowPositions G;
+  const auto flat = [](RowPositions& M) { return Eigen::Map<Eigen::VectorXd>(M.data(), M.size()); };
+  if (accelerate) accelerator.reset(flat(P));
   for (int it = 1; it <= options.max_iterations && !report.converged; ++it) {
     if (stop.stop_requested()) return Error(ErrorCode::Cancelled, "solve cancelled");
     IterationInfo info;
     info.iteration = it;
 
     auto phase = Clock::now();
-    s.solve_positions(R, targets, P);
+    if (accelerate) {
+      G = P;
+      s.solve_positions(R, targets, G);
+    } else {
+      s.solve_positions(R, targets, P);
+    }
     info.linear_seconds = seconds_since(phase);
-    if (!P.allFinite()) {
+    if (!(accelerate ? G : P).allFinite()) {
       return Error(
           ErrorCode::NumericalFailure,
           "the global step produced non-finite positions at iteration " + std::to_string(it));
     }
     // The local step for the next iteration also gives this iterate's energy min_R E(P, R).
     phase = Clock::now();
-    info.energy = s.fit_rotations(P, R);
+    if (accelerate) {
+      flat(P) = accelerator.compute(flat(G));
+      info.energy = s.fit_rotations(P, R);
+      if (!(info.energy <= previous_energy)) {  // also rejects a non-finite mix
+        P = G;
+        info.energy = s.fit_rotations(P, R);
+        accelerator.reset(flat(P));
+      }
+    } else {
+      info.energy = s.fit_rotations(P, R);
+    }
     info.normals_seconds = seconds_since(phase);  // the local step, step one's counterpart
     record(info);
     report.history.push_back(info);
