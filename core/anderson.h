@@ -17,11 +17,12 @@
 /// Algorithm 1), so the accepted energies never increase when the plain iteration never increases
 /// them.
 
-#include <Eigen/Core>
-#include <Eigen/QR>
 #include <algorithm>
 #include <cmath>
 #include <limits>
+
+#include <Eigen/Core>
+#include <Eigen/QR>
 
 namespace meshdeform::core {
 

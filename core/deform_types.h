@@ -3,9 +3,10 @@
 /// Options, progress and reports shared by every deformation method (scale-aware, and the
 /// baselines added later), so callers switch methods without changing code.
 
-#include <Eigen/Core>
 #include <functional>
 #include <vector>
+
+#include <Eigen/Core>
 
 #include "core/mesh_data.h"
 
@@ -20,12 +21,12 @@ enum class StartFrom {
 
 /// Per-solve options. Defaults follow docs/algorithm.md.
 struct SolveOptions {
-  int max_iterations = 15;   ///< outer (step one + step two) iterations, the budget
-  double tolerance = 1e-4;   ///< stop when the relative energy change falls below this
-  int inner_iterations = 5;  ///< cap on step-one local/global sweeps per outer iteration
-  double lambda = 100.0;     ///< handle weight of Eq. 12 (fixed per solver; see precompute)
+  int max_iterations = 15;      ///< outer (step one + step two) iterations, the budget
+  double tolerance = 1e-4;      ///< stop when the relative energy change falls below this
+  int inner_iterations = 5;     ///< cap on step-one local/global sweeps per outer iteration
+  double lambda = 100.0;        ///< handle weight of Eq. 12 (fixed per solver; see precompute)
   StartFrom start = StartFrom::Auto;
-  bool track_metrics = true;  ///< compute E_theta / E_phi after every outer iteration
+  bool track_metrics = true;    ///< compute E_theta / E_phi after every outer iteration
   /// Step two's conjugate-gradient tolerance (relative residual). With `adaptive_pcg` this is the
   /// tightest tolerance used: early iterations solve loosely, tied to the outer progress
   /// (inexact alternating minimisation), and tighten as the energy settles.
@@ -34,7 +35,7 @@ struct SolveOptions {
   /// Anderson acceleration of the outer local/global iteration (Peng et al. 2018, "Anderson
   /// Acceleration for Geometry Optimization and Physics Simulation"): each step mixes the last
   /// `anderson_window` fixed-point updates; 0 turns it off. Safeguarded by the energy: an
-  /// accelerated iterate whose energy is not below the last accepted one is replaced by the plain
+  /// accelerated iterate whose energy exceeds the last accepted one is replaced by the plain
   /// update and the window restarts, so the energy still never increases. Used by ARAP (see
   /// core/anderson.h); the scale-aware solver does not read it yet.
   int anderson_window = 0;
@@ -50,8 +51,8 @@ struct SolveOptions {
 /// What one outer iteration did (iteration 0 is the starting guess).
 struct IterationInfo {
   int iteration = 0;
-  double energy = 0;   ///< Eq. 12 objective after step two
-  double e_theta = 0;  ///< radians RMS (0 unless track_metrics)
+  double energy = 0;            ///< Eq. 12 objective after step two
+  double e_theta = 0;           ///< radians RMS (0 unless track_metrics)
   double e_phi = 0;
   double elapsed_seconds = 0;   ///< since the solve started
   int pcg_iterations = 0;       ///< conjugate-gradient iterations of step two
@@ -75,14 +76,14 @@ struct StitchReport {
 
 /// The outcome of a solve.
 struct SolveReport {
-  Positions V;                         ///< #V x 3 deformed positions
-  std::vector<IterationInfo> history;  ///< starting guess, then each outer iteration
-  int iterations = 0;                  ///< outer iterations run
-  bool converged = false;              ///< stopped on tolerance rather than budget
-  int factorizations = 0;              ///< numeric factorizations during this solve
-  int pcg_iterations = 0;              ///< total PCG iterations during this solve
-  double seconds = 0;                  ///< wall time of the solve
-  StitchReport stitch;                 ///< ORA / magnification, when requested
+  Positions V;                          ///< #V x 3 deformed positions
+  std::vector<IterationInfo> history;   ///< starting guess, then each outer iteration
+  int iterations = 0;                   ///< outer iterations run
+  bool converged = false;               ///< stopped on tolerance rather than budget
+  int factorizations = 0;               ///< numeric factorizations during this solve
+  int pcg_iterations = 0;               ///< total PCG iterations during this solve
+  double seconds = 0;                   ///< wall time of the solve
+  StitchReport stitch;                  ///< ORA / magnification, when requested
 };
 
 }  // namespace meshdeform::core

@@ -1,8 +1,5 @@
 #include "core/procedural.h"
 
-#include <Eigen/Geometry>
-#include <OpenMesh/Core/Mesh/TriMesh_ArrayKernelT.hh>
-#include <OpenMesh/Tools/Subdivider/Uniform/LoopT.hh>
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -15,6 +12,10 @@
 #include <unordered_map>
 #include <utility>
 #include <vector>
+
+#include <Eigen/Geometry>
+#include <OpenMesh/Core/Mesh/TriMesh_ArrayKernelT.hh>
+#include <OpenMesh/Tools/Subdivider/Uniform/LoopT.hh>
 
 #include "core/validate.h"
 

@@ -4,8 +4,9 @@
 
 #include <gtest/gtest.h>
 
-#include <Eigen/Core>
 #include <vector>
+
+#include <Eigen/Core>
 
 #include "core/arap.h"
 #include "core/procedural.h"

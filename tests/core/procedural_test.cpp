@@ -2,8 +2,6 @@
 
 #include <gtest/gtest.h>
 
-#include <Eigen/Geometry>
-#include <Eigen/LU>
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -14,6 +12,9 @@
 #include <string>
 #include <utility>
 #include <vector>
+
+#include <Eigen/Geometry>
+#include <Eigen/LU>
 
 #include "core/validate.h"
 
