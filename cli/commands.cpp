@@ -67,8 +67,8 @@ Solver:
   --iterations N            outer iterations, the budget (default 15; an edit spec may set it)
   --tolerance T             stop when the relative energy change is below T (default 1e-4)
   --inner-iterations K      step-one sweeps per outer iteration (default 5)
-  --start laplacian|previous|rigid  starting guess (default: rigid, a few ARAP iterations, when
-                            the rigidity is > 0; else laplacian, the paper's initialisation)
+  --start laplacian|previous|rigid  starting guess (default: laplacian, the paper's
+                            initialisation; rigid: a few ARAP iterations first)
   --lambda L                handle weight (default 100)
   --threads N               solver threads, 0 = all (default 1)
 Output control:
@@ -264,13 +264,6 @@ int run_deform(const std::vector<std::string>& args) {
     run.method = *method;
   }
   if (auto error = apply_solver_flags(parsed, run)) return usage_error(command, *error);
-  // Without --start: the start a fresh solver's Auto picks (rigid with scale control, else the
-  // paper's Laplacian guess), named in the report.
-  if (!parsed.has("start")) {
-    run.options.start = run.method == core::Method::ScaleAware && run.options.rigidity > 0
-                            ? core::StartFrom::Rigid
-                            : core::StartFrom::Laplacian;
-  }
 
   auto outcome = run_deformation(*input, run);
   if (!outcome.ok()) return runtime_error(command, outcome.status());

@@ -14,15 +14,14 @@ namespace meshdeform::core {
 
 /// Where an iterative solve starts.
 enum class StartFrom {
-  /// The previous result when there is one; else, for the scale-aware method, the Rigid start
-  /// when SolveOptions::rigidity > 0 and the Laplacian-editing guess when it is 0 (the paper);
-  /// for the other methods the Laplacian-editing guess.
-  Auto,
+  Auto,       ///< the previous result when there is one, else the Laplacian-editing guess
   Laplacian,  ///< always the Laplacian-editing guess (paper Section 5.2)
   Previous,   ///< the previous result (the rest mesh before the first solve)
   /// Scale-aware only (other methods treat it as Laplacian): a rotation-aware start, the ARAP
   /// result after SolveOptions::rigid_start_iterations iterations from ARAP's own Laplacian guess
-  /// (docs/algorithm.md section 8: the Laplacian guess is poor for large twists).
+  /// (docs/algorithm.md section 8: the Laplacian guess is poor for large twists). Measured in
+  /// bench/results/rigidity_sweep.md: it avoids the twisted bar's folds, but folds the bent
+  /// cylinder, so Auto does not use it.
   Rigid,
 };
 

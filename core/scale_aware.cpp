@@ -110,6 +110,11 @@ struct ScaleAwareSolver::Impl {
   double energy(const Eigen::VectorXd& pos, const Eigen::VectorXd& target_vec) const;
   Eigen::VectorXd rhs(const Positions& targets) const;
   void multiply(const Eigen::VectorXd& in, Eigen::VectorXd& out) const;
+  void multiply_joint(const Eigen::VectorXd& in, Eigen::VectorXd& out, double rigidity) const;
+  Eigen::VectorXd precondition_joint(const Eigen::VectorXd& r, double rigidity) const;
+  PcgOutcome pcg_joint(const Eigen::VectorXd& b, Eigen::VectorXd& sol, double rigidity,
+                       double reduction, double tolerance, int max_iterations,
+                       const std::stop_token& stop) const;
   PcgOutcome pcg(const Eigen::VectorXd& b, Eigen::VectorXd& sol, double reduction,
                  double tolerance, int max_iterations, const std::stop_token& stop) const;
   RowPositions normals_of(const Eigen::VectorXd& pos, const RowPositions& fallback) const;
@@ -512,6 +517,77 @@ PcgOutcome ScaleAwareSolver::Impl::pcg(const Eigen::VectorXd& b, Eigen::VectorXd
   return out;
 }
 
+// Step two with scale control solves for the vertices and the face scales together: the joint
+// energy is one quadratic in (x, s) once the normals and face frames are fixed,
+//   [A + rho L, -rho C^T; -rho C, rho H] [x; s] = [b; rho r],
+// and alternating x- and s-steps converge slowly along the scale mode (measured: the area kept
+// shrinking for 100+ iterations). The preconditioner is block diagonal: the x block's (the
+// block-trace T + rho L, or the lagged factor) and H's constant factor.
+void ScaleAwareSolver::Impl::multiply_joint(const Eigen::VectorXd& in, Eigen::VectorXd& out,
+                                            double rigidity) const {
+  const Eigen::Index n3 = 3 * static_cast<Eigen::Index>(nv);
+  const Eigen::Index m = in.size() - n3;
+  Eigen::VectorXd out_x;
+  multiply(in.head(n3), out_x);
+  scale_control->add_coupling_transpose(in.tail(m), -rigidity, out_x);
+  Eigen::VectorXd cx, hs;
+  scale_control->multiply_coupling(in.head(n3), cx);
+  scale_control->multiply_scale_matrix(in.tail(m), hs);
+  out.resize(in.size());
+  out.head(n3) = out_x;
+  out.tail(m) = rigidity * (hs - cx);
+}
+
+Eigen::VectorXd ScaleAwareSolver::Impl::precondition_joint(const Eigen::VectorXd& r,
+                                                           double rigidity) const {
+  const Eigen::Index n3 = 3 * static_cast<Eigen::Index>(nv);
+  const Eigen::Index m = r.size() - n3;
+  Eigen::VectorXd out(r.size());
+  out.head(n3) = precondition(r.head(n3));
+  out.tail(m) = scale_control->solve_scale_matrix(r.tail(m)) / rigidity;
+  return out;
+}
+
+PcgOutcome ScaleAwareSolver::Impl::pcg_joint(const Eigen::VectorXd& b, Eigen::VectorXd& sol,
+                                             double rigidity, double reduction, double tolerance,
+                                             int max_iterations, const std::stop_token& stop) const {
+  PcgOutcome out;
+  const double b_norm = b.norm();
+  Eigen::VectorXd Ap;
+  multiply_joint(sol, Ap, rigidity);
+  Eigen::VectorXd r = b - Ap;
+  const double threshold = std::max(tolerance * b_norm, reduction * r.norm());
+  if (r.norm() <= threshold) {
+    out.converged = true;
+    return out;
+  }
+  Eigen::VectorXd z = precondition_joint(r, rigidity);
+  Eigen::VectorXd p = z;
+  double rz = r.dot(z);
+  for (int it = 0; it < max_iterations; ++it) {
+    if (stop.stop_requested()) {
+      out.cancelled = true;
+      return out;
+    }
+    multiply_joint(p, Ap, rigidity);
+    const double pAp = p.dot(Ap);
+    if (!(pAp > 0)) break;
+    const double alpha = rz / pAp;
+    sol.noalias() += alpha * p;
+    r.noalias() -= alpha * Ap;
+    ++out.iterations;
+    if (r.norm() <= threshold) {
+      out.converged = true;
+      return out;
+    }
+    z = precondition_joint(r, rigidity);
+    const double rz_next = r.dot(z);
+    p = z + (rz_next / rz) * p;
+    rz = rz_next;
+  }
+  return out;
+}
+
 RowPositions ScaleAwareSolver::Impl::normals_of(const Eigen::VectorXd& pos,
                                                 const RowPositions& fallback) const {
   RowPositions out(nf, 3);
@@ -601,12 +677,12 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
   std::vector<Eigen::Quaterniond> rotations = s.rotations;
   bool rotations_warm = s.rotations_warm;
 
-  const bool fresh = options.start == StartFrom::Auto && !s.has_previous;
-  const bool from_rigid =
-      options.start == StartFrom::Rigid || (fresh && options.rigidity > 0);
-  // (Auto picks the rotation-aware start with scale control: measured on the Table 1 twist it
-  // avoids the folds the Laplacian guess leads to; see bench/results/rigidity_sweep.md.)
-  const bool from_laplacian = !from_rigid && (options.start == StartFrom::Laplacian || fresh);
+  // Auto starts from the Laplacian guess at every rigidity. The rotation-aware start is an
+  // option: measured (bench/results/rigidity_sweep.md) it removes the twisted bar's folds but
+  // adds folds to the bent cylinder and raises E_theta on the bends, so it is not the default.
+  const bool from_rigid = options.start == StartFrom::Rigid;
+  const bool from_laplacian =
+      options.start == StartFrom::Laplacian || (options.start == StartFrom::Auto && !s.has_previous);
   if (from_rigid) {
     if (!s.rigid_start) {
       ArapSettings arap_settings;
@@ -696,18 +772,17 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     // block steps below (scales, then PCG from x) can only lower it. Step one itself is not a
     // minimiser of this energy (it fits normals on the Gauss map), so energies of consecutive
     // iterations are compared through this value, not directly.
-    const Eigen::VectorXd* rhs = &b;
-    Eigen::VectorXd b_rigid;
+    Eigen::VectorXd b_joint;
     if (rho > 0) {
       // The face frames follow the new normals (R_f N0_f = N_f): part of step one.
       s.scale_control->update_rotations(x, N);
     }
     info.energy_before = s.joint_energy(x, target_vec, rho);
     if (rho > 0) {
+      // An exact scale step first (a good warm start for the joint solve, never an increase).
       s.scale_control->update_scales(x);
-      b_rigid = b;
-      s.scale_control->add_rhs(rho, b_rigid);
-      rhs = &b_rigid;
+      b_joint.resize(b.size() + s.scale_control->scale_unknowns());
+      b_joint << b, rho * s.scale_control->scale_rhs();
     }
     info.assemble_seconds = seconds_since(phase);
     phase = Clock::now();
@@ -725,12 +800,23 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     const double tolerance = options.pcg_tolerance;
     // Past this many steps a fresh factorization is cheaper than more lagged PCG: stop there,
     // refactor and finish (bounded waste instead of a fixed cap).
+    // With scale control the lagged factor preconditions only the x block of the joint system,
+    // so a refactorization cannot shorten the coupled part: no early stop there.
     const int max_pcg =
-        lagged ? std::clamp(static_cast<int>(s.settings.refactor_cost_ratio *
+        lagged && rho == 0 ? std::clamp(static_cast<int>(s.settings.refactor_cost_ratio *
                                              s.cholesky.factor_flops() / s.pcg_iteration_flops),
                             4, 200)
                : 500;
-    PcgOutcome outcome = s.pcg(*rhs, x, reduction, tolerance, max_pcg, stop);
+    auto run_pcg = [&]() -> PcgOutcome {
+      if (rho == 0) return s.pcg(b, x, reduction, tolerance, max_pcg, stop);
+      Eigen::VectorXd joint(b_joint.size());
+      joint << x, s.scale_control->scale_unknowns_vector();
+      const PcgOutcome o = s.pcg_joint(b_joint, joint, rho, reduction, tolerance, max_pcg, stop);
+      x = joint.head(x.size());
+      s.scale_control->set_scale_unknowns(joint.tail(joint.size() - x.size()));
+      return o;
+    };
+    PcgOutcome outcome = run_pcg();
     if (outcome.cancelled) return Error(ErrorCode::Cancelled, "solve cancelled");
     info.pcg_iterations = outcome.iterations;
     if (!outcome.converged && !lagged) {
@@ -742,7 +828,7 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
       MD_RETURN_IF_ERROR(s.cholesky.factorize(s.A));
       info.refactored = true;
       ++report.factorizations;
-      outcome = s.pcg(*rhs, x, reduction, tolerance, max_pcg, stop);
+      outcome = run_pcg();
       if (outcome.cancelled) return Error(ErrorCode::Cancelled, "solve cancelled");
       info.pcg_iterations += outcome.iterations;
       if (!outcome.converged) {

@@ -113,6 +113,7 @@ Status ScaleControl::build(const RowPositions& V0, const Triangles& F, const Mes
   }
   SparseMatrix H(n, n);
   H.setFromTriplets(entries.begin(), entries.end());
+  scale_matrix_ = H;
   MD_RETURN_IF_ERROR(scale_system_.analyze(H));
   MD_RETURN_IF_ERROR(scale_system_.factorize(H));
   reset();
@@ -183,6 +184,57 @@ void ScaleControl::update_scales(const Eigen::VectorXd& x) {
     const Eigen::VectorXd rhs = fit_b_ + (pull_ * s_bar_) * area_;
     s_ = scale_system_.solve(rhs);
   }
+}
+
+Eigen::VectorXd ScaleControl::scale_unknowns_vector() const {
+  Eigen::VectorXd out(scale_unknowns());
+  out.head(nf_) = s_;
+  if (free_reference_) out(nf_) = s_bar_;
+  return out;
+}
+
+void ScaleControl::set_scale_unknowns(const Eigen::VectorXd& unknowns) {
+  s_ = unknowns.head(nf_);
+  if (free_reference_) s_bar_ = unknowns(nf_);
+}
+
+Eigen::VectorXd ScaleControl::scale_rhs() const {
+  if (free_reference_) return Eigen::VectorXd::Zero(nf_ + 1);
+  return (pull_ * s_bar_) * area_;
+}
+
+void ScaleControl::multiply_coupling(const Eigen::VectorXd& x, Eigen::VectorXd& out) const {
+  out.setZero(scale_unknowns());
+  for (int f = 0; f < nf_; ++f) {
+    double b = 0;
+    for (int k = 0; k < 3; ++k) {
+      const size_t c = 3 * static_cast<size_t>(f) + k;
+      const Eigen::Vector3d e =
+          x.segment<3>(3 * F_(f, (k + 2) % 3)) - x.segment<3>(3 * F_(f, (k + 1) % 3));
+      b += weight_[c] * e.dot(rotation_[f] * rest_edge_[c]);
+    }
+    out(f) = b;
+  }
+}
+
+void ScaleControl::add_coupling_transpose(const Eigen::VectorXd& s, double alpha,
+                                          Eigen::VectorXd& out_x) const {
+  for (int f = 0; f < nf_; ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const size_t c = 3 * static_cast<size_t>(f) + k;
+      const Eigen::Vector3d g = (alpha * weight_[c] * s(f)) * (rotation_[f] * rest_edge_[c]);
+      out_x.segment<3>(3 * F_(f, (k + 2) % 3)) += g;
+      out_x.segment<3>(3 * F_(f, (k + 1) % 3)) -= g;
+    }
+  }
+}
+
+void ScaleControl::multiply_scale_matrix(const Eigen::VectorXd& s, Eigen::VectorXd& out) const {
+  out = scale_matrix_ * s;
+}
+
+Eigen::VectorXd ScaleControl::solve_scale_matrix(const Eigen::VectorXd& r) const {
+  return scale_system_.solve(r);
 }
 
 void ScaleControl::add_rhs(double rho, Eigen::VectorXd& b) const {

@@ -77,6 +77,27 @@ class ScaleControl {
   const Eigen::VectorXd& scales() const { return s_; }
   double global_scale() const { return s_bar_; }
 
+  // The joint (x, s) form of the term for step two, with the rotations fixed:
+  //   E_s = x^T L x - 2 s^T C x + s^T H s - 2 r^T s + const,
+  // C the #S x 3#V map x -> (sum_k w_k (R_f e0_k) . e_k(x))_f, H the constant scale matrix and
+  // r = nu s_bar A (fixed reference) or 0 (free). #S = #F, or #F + 1 with a free reference.
+
+  /// #S, the number of scale unknowns.
+  int scale_unknowns() const { return free_reference_ ? nf_ + 1 : nf_; }
+  /// (s) or (s, s_bar): the current scale unknowns; set_scale_unknowns writes them back.
+  Eigen::VectorXd scale_unknowns_vector() const;
+  void set_scale_unknowns(const Eigen::VectorXd& unknowns);
+  /// r.
+  Eigen::VectorXd scale_rhs() const;
+  /// out = C x (#S; 0 for s_bar).
+  void multiply_coupling(const Eigen::VectorXd& x, Eigen::VectorXd& out) const;
+  /// out_x += alpha C^T s.
+  void add_coupling_transpose(const Eigen::VectorXd& s, double alpha, Eigen::VectorXd& out_x) const;
+  /// out = H s.
+  void multiply_scale_matrix(const Eigen::VectorXd& s, Eigen::VectorXd& out) const;
+  /// H^-1 r with the constant factor.
+  Eigen::VectorXd solve_scale_matrix(const Eigen::VectorXd& r) const;
+
  private:
   int nv_ = 0, nf_ = 0;
   Triangles F_;
@@ -93,7 +114,8 @@ class ScaleControl {
   std::vector<double> edge_weight_;  // mu w_fg per interior edge
   double pull_ = 0;
   std::vector<double> face_laplacian_;
-  SparseCholesky scale_system_;  // (#F + 1) x (#F + 1)
+  SparseCholesky scale_system_;  // H, #S x #S
+  SparseMatrix scale_matrix_;    // H
   // State.
   std::vector<Eigen::Matrix3d> rotation_;
   Eigen::VectorXd s_;

@@ -136,12 +136,12 @@ TEST_F(MethodCliTest, BadMethodAndOraWithABaselineAreErrors) {
 TEST_F(MethodCliTest, RigidityComesFromTheFlagOrTheSpecAndIsReported) {
   write("edit.json", R"({"fixed": [)" + column(0) + R"(], "handles": [{"vertices": [)" +
                          column(12) + R"(], "translation": [0.4, 0, 0.2]}]})");
-  // Default: the library's default rigidity, with the rotation-aware start it implies.
+  // Default: the library's default rigidity, from the paper's Laplacian guess.
   CliRun r = run("deform --mesh grid.obj --edit edit.json --out out.obj --report report.json");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   auto j = report();
   EXPECT_EQ(j["options"]["rigidity"], core::kDefaultRigidity);
-  EXPECT_EQ(j["options"]["start"], core::kDefaultRigidity > 0 ? "rigid" : "laplacian");
+  EXPECT_EQ(j["options"]["start"], "laplacian");
   const double default_area = j["final"]["area_log_rms"];
 
   // 0 is the paper's method, from the Laplacian guess.
@@ -161,11 +161,11 @@ TEST_F(MethodCliTest, RigidityComesFromTheFlagOrTheSpecAndIsReported) {
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(report()["options"]["rigidity"], 7.5);
   r = run("deform --mesh grid.obj --edit rigid.json --out out.obj --report report.json "
-          "--rigidity 0.5 --start laplacian");
+          "--rigidity 0.5 --start rigid");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   j = report();
   EXPECT_EQ(j["options"]["rigidity"], 0.5);
-  EXPECT_EQ(j["options"]["start"], "laplacian");
+  EXPECT_EQ(j["options"]["start"], "rigid");
 
   // Bad values are usage errors (flag) or runtime errors (spec), naming the option.
   for (const char* bad : {"-1", "nan", "abc", "inf"}) {

@@ -67,6 +67,8 @@ TEST(ScaleControl, RigidityZeroTakesThePaperPathWhateverCameBefore) {
     SolveOptions rigid;
     rigid.rigidity = 3.0;
     ASSERT_TRUE(used->solve(edit.setup.targets, rigid).ok());
+    rigid.start = StartFrom::Rigid;
+    ASSERT_TRUE(used->solve(edit.setup.targets, rigid).ok());
     used->reset();
     auto again = used->solve(edit.setup.targets, paper);
     ASSERT_TRUE(again.ok()) << again.status().to_string();
@@ -86,12 +88,18 @@ TEST(ScaleControl, SimilarityOfHandlesIsExactAtEveryRigidity) {
   const Eigen::Vector3d t(0.3, -1.2, 2.0);
   for (const auto& [name, mesh, constrained] : pinned_test_meshes()) {
     const Positions expected = ((2.0 * mesh.V * R.transpose()).rowwise() + t.transpose()).eval();
-    for (double rigidity : {0.1, 1.0, 10.0, 100.0}) {
-      SCOPED_TRACE(std::string(name) + " rigidity " + std::to_string(rigidity));
+    for (double rigidity : {0.1, 1.0, 10.0, 100.0, -3.0}) {
+      // -3: rigidity 3 from the rotation-aware start (ARAP's result is not the similarity: it
+      // cannot scale).
+      const bool rigid_start = rigidity < 0;
+      rigidity = std::abs(rigidity);
+      SCOPED_TRACE(std::string(name) + " rigidity " + std::to_string(rigidity) +
+                   (rigid_start ? " rigid start" : ""));
       auto solver = ScaleAwareSolver::create(mesh.V, mesh.F, constrained);
       ASSERT_TRUE(solver.ok()) << solver.status().to_string();
       SolveOptions options;
       options.rigidity = rigidity;
+      if (rigid_start) options.start = StartFrom::Rigid;
       options.max_iterations = 300;
       options.inner_iterations = 30;
       options.tolerance = 1e-12;
@@ -189,7 +197,7 @@ TEST(ScaleControl, ChangingRigidityPerSolveEqualsAFreshSolver) {
   options.rigidity = 1.0;
   ASSERT_TRUE(reused->solve(edit.setup.targets, options).ok());
   options.rigidity = 5.0;
-  options.start = StartFrom::Rigid;  // what a fresh solver's Auto start is at rigidity > 0
+  options.start = StartFrom::Laplacian;  // what a fresh solver's Auto start is
   auto changed = reused->solve(edit.setup.targets, options);
   ASSERT_TRUE(changed.ok()) << changed.status().to_string();
 
