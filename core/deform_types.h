@@ -20,8 +20,8 @@ enum class StartFrom {
   /// Scale-aware only (other methods treat it as Laplacian): a rotation-aware start, the ARAP
   /// result after SolveOptions::rigid_start_iterations iterations from ARAP's own Laplacian guess
   /// (docs/algorithm.md section 8: the Laplacian guess is poor for large twists). Measured in
-  /// bench/results/rigidity_sweep.md: it avoids the twisted bar's folds, but folds the bent
-  /// cylinder, so Auto does not use it.
+  /// bench/results/rigidity_rigid_start/: it avoids the twisted bar's folds, but creases the bent
+  /// cylinders, so Auto does not use it.
   Rigid,
 };
 
@@ -48,12 +48,14 @@ struct SolveOptions {
   /// see face_scales_from_regions in core/ora.h). Non-empty implies the ORA stitch with areas
   /// k^2 x rest area. Scale handle targets inside a region yourself (about its centre, by k).
   Eigen::VectorXd face_scale;
-  /// Scale control (issue 12), scale-aware method only: weight rho >= 0 of an in-loop term that
-  /// keeps local scale smooth and close to the edit's global scale (per-face rotations, per-face
-  /// scales smoothed over the surface and pulled toward one free global scale; see
-  /// core/scale_control.h). 0 is the paper's pure method, bit for bit. Larger values trade the
-  /// paper's angle preservation for ARAP-like area preservation; similarities stay exact at
-  /// every value. Per solve: changing it refactors only a small n x n preconditioner.
+  /// Scale control (issue 12), scale-aware method only: weight rho >= 0 (finite) of an in-loop
+  /// term that keeps local scale smooth and close to the scale the handles imply (per-face
+  /// frames following the step-one normals, per-face scales smoothed over the surface and pulled
+  /// toward that reference; see core/scale_control.h). 0 is the paper's pure method on the same
+  /// code path, bit for bit. Larger values trade the paper's angle preservation for ARAP-like
+  /// area preservation (measured in bench/results/rigidity_sweep.md); similarities stay exact at
+  /// every value. The handle weight becomes lambda (1 + rho). Per solve: a new value refactors
+  /// only the n x n block-trace preconditioner (cached for the last value).
   double rigidity = kDefaultRigidity;
   /// ARAP iterations of the Rigid start (>= 0; 0 is ARAP's Laplacian guess with hard handles).
   int rigid_start_iterations = 5;

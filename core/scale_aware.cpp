@@ -678,8 +678,8 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
   bool rotations_warm = s.rotations_warm;
 
   // Auto starts from the Laplacian guess at every rigidity. The rotation-aware start is an
-  // option: measured (bench/results/rigidity_sweep.md) it removes the twisted bar's folds but
-  // adds folds to the bent cylinder and raises E_theta on the bends, so it is not the default.
+  // option: measured (bench/results/rigidity_rigid_start/) it removes the twisted bar's folds but
+  // creases the bent cylinders and lifts E_theta on the cylinder and the bar.
   const bool from_rigid = options.start == StartFrom::Rigid;
   const bool from_laplacian =
       options.start == StartFrom::Laplacian || (options.start == StartFrom::Auto && !s.has_previous);

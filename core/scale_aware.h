@@ -68,8 +68,12 @@ class ScaleAwareSolver {
                                                        const ScaleAwareSettings& settings = {});
 
   /// Deforms toward #C x 3 targets (row j for constrained(j)).
+  /// With options.rigidity > 0 the scale term of core/scale_control.h joins the energy (built on
+  /// first use); options.start = Rigid starts from a few ARAP iterations (ARAP factored on first
+  /// use).
   /// @return the report (positions and per-iteration history); InvalidArgument for a wrong shape or
-  ///         non-finite target, or targets of a component that coincide (no two distinct positions);
+  ///         non-finite target, targets of a component that coincide (no two distinct positions),
+  ///         rigidity negative or not finite, or rigid_start_iterations < 0;
   ///         Cancelled when `stop` is requested mid-solve (the solver keeps its previous state);
   ///         NumericalFailure if the solve breaks down.
   [[nodiscard]] Result<SolveReport> solve(const Positions& targets, const SolveOptions& options = {},
