@@ -1,5 +1,6 @@
 #include "cli/commands.h"
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <optional>
@@ -59,11 +60,15 @@ Outputs:
 Method:
   --method NAME             scale_aware (default), arap or laplacian (an edit spec may set it)
   --ora                     optimal rigidity approximation after the solve (scale-aware only)
+  --rigidity X              scale control, X >= 0 (scale-aware only): 0 is the paper's method,
+                            larger keeps local scale closer to the handles' (default 3;
+                            an edit spec may set it)
 Solver:
   --iterations N            outer iterations, the budget (default 15; an edit spec may set it)
   --tolerance T             stop when the relative energy change is below T (default 1e-4)
   --inner-iterations K      step-one sweeps per outer iteration (default 5)
-  --start laplacian|previous  starting guess (default: laplacian, the paper's initialisation)
+  --start laplacian|previous|rigid  starting guess (default: laplacian, the paper's
+                            initialisation; rigid: a few ARAP iterations first)
   --lambda L                handle weight (default 100)
   --threads N               solver threads, 0 = all (default 1)
 Output control:
@@ -146,8 +151,10 @@ std::optional<std::string> apply_solver_flags(const ParsedArgs& parsed, RunSetti
       run.options.start = core::StartFrom::Laplacian;
     } else if (*text == "previous") {
       run.options.start = core::StartFrom::Previous;
+    } else if (*text == "rigid") {
+      run.options.start = core::StartFrom::Rigid;
     } else {
-      return "--start must be 'laplacian' or 'previous', got '" + *text + "'";
+      return "--start must be 'laplacian', 'previous' or 'rigid', got '" + *text + "'";
     }
   }
   if (auto text = parsed.get("lambda")) {
@@ -162,6 +169,13 @@ std::optional<std::string> apply_solver_flags(const ParsedArgs& parsed, RunSetti
     run.method = *method;
   }
   if (parsed.has("ora")) run.options.ora = true;
+  if (auto text = parsed.get("rigidity")) {
+    const auto value = parse_double(*text);
+    if (!value || !(*value >= 0) || !std::isfinite(*value)) {
+      return "--rigidity must be a finite number >= 0, got '" + *text + "'";
+    }
+    run.options.rigidity = *value;
+  }
   if (auto text = parsed.get("threads")) {
     const auto value = parse_integer(*text);
     if (!value || *value < 0 || *value > 4096) {
@@ -198,7 +212,7 @@ int run_deform(const std::vector<std::string>& args) {
                                          {"iterations"},     {"tolerance"},  {"inner-iterations"},
                                          {"start"},          {"lambda"},     {"threads"},
                                          {"method"},         {"ora", false}, {"verbose", false},
-                                         {"help", false}};
+                                         {"rigidity"},       {"help", false}};
   if (auto error = parse_args(args, specs, parsed)) return usage_error(command, error->message);
   if (parsed.has("help")) {
     std::fputs(kDeformHelp, stdout);
@@ -243,6 +257,7 @@ int run_deform(const std::vector<std::string>& args) {
   if (spec_options.tolerance) run.options.tolerance = *spec_options.tolerance;
   if (spec_options.inner_iterations) run.options.inner_iterations = *spec_options.inner_iterations;
   if (spec_options.ora) run.options.ora = *spec_options.ora;
+  if (spec_options.rigidity) run.options.rigidity = *spec_options.rigidity;
   if (spec_options.method) {
     auto method = core::parse_method(*spec_options.method);
     if (!method.ok()) return runtime_error(command, method.status());

@@ -122,6 +122,8 @@ const char* start_name(core::StartFrom start) {
       return "laplacian";
     case core::StartFrom::Previous:
       return "previous";
+    case core::StartFrom::Rigid:
+      return "rigid";
   }
   return "auto";
 }
@@ -248,7 +250,9 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
                   {"pcg_tolerance", run.options.pcg_tolerance},
                   {"adaptive_pcg", run.options.adaptive_pcg},
                   {"ora", run.options.ora},
-                  {"threads", run.settings.threads}};
+                  {"threads", run.settings.threads},
+                  {"rigidity", run.options.rigidity},
+                  {"rigid_start_iterations", run.options.rigid_start_iterations}};
   if (!input.magnify.empty()) {
     json regions = json::array();
     for (const core::MagnifyRegion& region : input.magnify) {

@@ -17,7 +17,16 @@ enum class StartFrom {
   Auto,       ///< the previous result when there is one, else the Laplacian-editing guess
   Laplacian,  ///< always the Laplacian-editing guess (paper Section 5.2)
   Previous,   ///< the previous result (the rest mesh before the first solve)
+  /// Scale-aware only (other methods treat it as Laplacian): a rotation-aware start, the ARAP
+  /// result after SolveOptions::rigid_start_iterations iterations from ARAP's own Laplacian guess
+  /// (docs/algorithm.md section 8: the Laplacian guess is poor for large twists). Measured in
+  /// bench/results/rigidity_rigid_start/: it avoids the twisted bar's folds, but creases the bent
+  /// cylinders, so Auto does not use it.
+  Rigid,
 };
+
+/// Default SolveOptions::rigidity, chosen from bench/results/rigidity_sweep.md.
+inline constexpr double kDefaultRigidity = 3.0;
 
 /// Per-solve options. Defaults follow docs/algorithm.md.
 struct SolveOptions {
@@ -50,12 +59,28 @@ struct SolveOptions {
   /// see face_scales_from_regions in core/ora.h). Non-empty implies the ORA stitch with areas
   /// k^2 x rest area. Scale handle targets inside a region yourself (about its centre, by k).
   Eigen::VectorXd face_scale;
+  /// Scale control (issue 12), scale-aware method only: weight rho >= 0 (finite) of an in-loop
+  /// term that keeps local scale smooth and close to the scale the handles imply (per-face
+  /// frames following the step-one normals, per-face scales smoothed over the surface and pulled
+  /// toward that reference; see core/scale_control.h). 0 is the paper's pure method on the same
+  /// code path, bit for bit. Larger values trade the paper's angle preservation for ARAP-like
+  /// area preservation (measured in bench/results/rigidity_sweep.md); similarities stay exact at
+  /// every value. The handle weight becomes lambda (1 + rho). Per solve: a new value refactors
+  /// only the n x n block-trace preconditioner (cached for the last value).
+  double rigidity = kDefaultRigidity;
+  /// ARAP iterations of the Rigid start (>= 0; 0 is ARAP's Laplacian guess with hard handles).
+  int rigid_start_iterations = 5;
 };
 
 /// What one outer iteration did (iteration 0 is the starting guess).
 struct IterationInfo {
   int iteration = 0;
-  double energy = 0;            ///< Eq. 12 objective after step two
+  double energy = 0;            ///< Eq. 12 objective (+ rigidity x scale term) after step two
+  /// The same objective for the iterate entering this iteration, evaluated after this
+  /// iteration's step one (its normals and, with rigidity > 0, the face frames that follow them).
+  /// The scale step and step two are exact minimisers or descent steps, so energy <=
+  /// energy_before up to round-off (iteration 0: equal to energy).
+  double energy_before = 0;
   double e_theta = 0;           ///< radians RMS (0 unless track_metrics)
   double e_phi = 0;
   double elapsed_seconds = 0;   ///< since the solve started

@@ -27,6 +27,14 @@ class SolverDeformer final : public Deformer {
   Method method() const override { return kMethod; }
   Result<SolveReport> solve(const Positions& targets, const SolveOptions& options,
                             const ProgressCallback& progress, std::stop_token stop) override {
+    if constexpr (kMethod == Method::Arap) {
+      // ARAP's rotation-aware start would be itself: a Rigid start is its Laplacian guess.
+      if (options.start == StartFrom::Rigid) {
+        SolveOptions laplacian_start = options;
+        laplacian_start.start = StartFrom::Laplacian;
+        return solver_.solve(targets, laplacian_start, progress, std::move(stop));
+      }
+    }
     return solver_.solve(targets, options, progress, std::move(stop));
   }
   const Positions& positions() const override { return solver_.positions(); }

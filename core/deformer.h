@@ -51,10 +51,10 @@ class Deformer {
   ///  - ScaleAware: ScaleAwareSolver::solve with the options unchanged, so options.lambda must
   ///    equal DeformerSettings::lambda (InvalidArgument otherwise).
   ///  - Arap: ArapSolver::solve; handles land exactly on their targets; options.lambda,
-  ///    inner_iterations, pcg_tolerance and adaptive_pcg are ignored, ora and face_scale
-  ///    rejected.
+  ///    inner_iterations, pcg_tolerance, adaptive_pcg, rigidity and rigid_start_iterations are
+  ///    ignored, start Rigid means Laplacian, ora and face_scale rejected.
   ///  - Laplacian: one direct solve. options.lambda must equal DeformerSettings::lambda; start,
-  ///    max_iterations and tolerance are ignored (nothing iterates), ora and face_scale
+  ///    max_iterations, tolerance, rigidity and rigid_start_iterations are ignored (nothing iterates), ora and face_scale
   ///    rejected. The history holds a single entry, iteration 0 = the result (energy 0: the
   ///    editor's objective is not evaluated; e_theta / e_phi when options.track_metrics),
   ///    iterations = 0, converged = true, and progress is called once.

@@ -12,11 +12,13 @@
 
 #include <Eigen/Geometry>
 
+#include "core/arap.h"
 #include "core/constraints.h"
 #include "core/laplacian.h"
 #include "core/measures.h"
 #include "core/normals_step.h"
 #include "core/ora.h"
+#include "core/scale_control.h"
 #include "core/sparse_cholesky.h"
 #include "core/topology.h"
 #include "core/validate.h"
@@ -64,6 +66,7 @@ struct ScaleAwareSolver::Impl {
   int threads = 1;
   std::optional<LaplacianEditor> laplacian;
   std::optional<RigidityStitcher> stitcher;  // built on the first ORA / magnification request
+  std::optional<ArapSolver> rigid_start;     // built on the first Rigid start
 
   // Step two: A(N) = G^T G + lambda C^T C in a fixed 3x3-block pattern (full symmetric storage,
   // columns 3b..3b+2 hold the blocks of b's sorted closed neighbourhood).
@@ -74,6 +77,16 @@ struct ScaleAwareSolver::Impl {
   std::vector<Eigen::Matrix3d> corner_map;    // 3#F: l R(N_f, theta) per corner
   SparseCholesky cholesky;
   SparseCholesky trace_cholesky;  // BlockTrace preconditioner: n x n, constant
+  // Scale control (issue 12), built on the first solve with rigidity > 0. The block-trace
+  // preconditioner then factors T + rho L_cot (still constant per rho): cached for one rho.
+  std::optional<ScaleControl> scale_control;
+  SparseCholesky trace_rigid_cholesky;
+  double trace_rigid_rho = -1;
+  double preconditioner_rho = 0;  // which factor precondition() uses
+  // The handle weight of step two: lambda, times (1 + rigidity) with scale control, since the
+  // scale term adds about rigidity times Eq. 12's magnitude and the handles must keep their
+  // relative pull (measured: handles drift past 1e-3 of the diagonal otherwise).
+  double handle_weight = 0;
   bool refactor_pending = true;
   double pcg_iteration_flops = 0;
 
@@ -88,12 +101,20 @@ struct ScaleAwareSolver::Impl {
   Status build(const Positions& V0_in, const Triangles& F_in, const Eigen::VectorXi& constrained_in,
                const ScaleAwareSettings& settings_in, const std::stop_token& stop);
   void build_pattern();
-  void assemble(const RowPositions& normals);
+  void assemble(const RowPositions& normals, double rigidity = 0.0);
   SparseMatrix block_trace_matrix() const;
+  Status prepare_rigidity(double rigidity);
+  double joint_energy(const Eigen::VectorXd& pos, const Eigen::VectorXd& target_vec,
+                      double rigidity) const;
   Eigen::VectorXd precondition(const Eigen::VectorXd& r) const;
   double energy(const Eigen::VectorXd& pos, const Eigen::VectorXd& target_vec) const;
   Eigen::VectorXd rhs(const Positions& targets) const;
   void multiply(const Eigen::VectorXd& in, Eigen::VectorXd& out) const;
+  void multiply_joint(const Eigen::VectorXd& in, Eigen::VectorXd& out, double rigidity) const;
+  Eigen::VectorXd precondition_joint(const Eigen::VectorXd& r, double rigidity) const;
+  PcgOutcome pcg_joint(const Eigen::VectorXd& b, Eigen::VectorXd& sol, double rigidity,
+                       double reduction, double tolerance, int max_iterations,
+                       const std::stop_token& stop) const;
   PcgOutcome pcg(const Eigen::VectorXd& b, Eigen::VectorXd& sol, double reduction,
                  double tolerance, int max_iterations, const std::stop_token& stop) const;
   RowPositions normals_of(const Eigen::VectorXd& pos, const RowPositions& fallback) const;
@@ -118,6 +139,7 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   MD_RETURN_IF_ERROR(check_constrained(constrained_in, topology, 2));
 
   settings = settings_in;
+  handle_weight = settings.lambda;
   threads = settings.threads > 0 ? settings.threads : omp_get_max_threads();
   nv = static_cast<int>(V0_in.rows());
   nf = static_cast<int>(F_in.rows());
@@ -220,7 +242,7 @@ void ScaleAwareSolver::Impl::build_pattern() {
   corner_map.resize(3 * static_cast<size_t>(nf));
 }
 
-void ScaleAwareSolver::Impl::assemble(const RowPositions& normals) {
+void ScaleAwareSolver::Impl::assemble(const RowPositions& normals, double rigidity) {
   const bool parallel = nv > 2000 && threads > 1;
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
   for (int f = 0; f < nf; ++f) {
@@ -233,7 +255,7 @@ void ScaleAwareSolver::Impl::assemble(const RowPositions& normals) {
   // Each thread owns whole block columns, so no two threads write the same value. Within a
   // column, faces are visited in ascending order, which keeps A exactly symmetric.
   double* values = A.valuePtr();
-  const double lambda = settings.lambda;
+  const double lambda = handle_weight;
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
   for (int b = 0; b < nv; ++b) {
     double* column = values + col_base[b];
@@ -299,6 +321,15 @@ void ScaleAwareSolver::Impl::assemble(const RowPositions& normals) {
           for (int r = 0; r < 3; ++r) column[d * stride + 3 * rank + r] += blocks[p](r, d);
         }
       }
+      if (rigidity > 0) {
+        // The scale term's fit adds rho (L_cot (x) I3): the same vertex-adjacency pattern.
+        const std::vector<double>& fl = scale_control->face_laplacian();
+        for (int p = 0; p < 3; ++p) {
+          const int rank = face_rank[f][3 * p + q];
+          const double value = rigidity * fl[9 * static_cast<size_t>(f) + 3 * p + q];
+          for (int d = 0; d < 3; ++d) column[d * stride + 3 * rank + d] += value;
+        }
+      }
     }
     if (slot[b] >= 0) {
       // Position of b in its own closed neighbourhood: number of neighbours below b.
@@ -338,25 +369,70 @@ SparseMatrix ScaleAwareSolver::Impl::block_trace_matrix() const {
     }
   }
   for (Eigen::Index j = 0; j < constrained.size(); ++j) {
-    entries.emplace_back(constrained(j), constrained(j), settings.lambda);
+    entries.emplace_back(constrained(j), constrained(j), handle_weight);
   }
   SparseMatrix T(nv, nv);
   T.setFromTriplets(entries.begin(), entries.end());
   return T;
 }
 
+Status ScaleAwareSolver::Impl::prepare_rigidity(double rigidity) {
+  if (settings.preconditioner == StepTwoPreconditioner::LaggedCholesky &&
+      rigidity != preconditioner_rho) {
+    refactor_pending = true;  // A(N) + rho L changed by more than the lag rule can know
+  }
+  preconditioner_rho = rigidity;
+  handle_weight = rigidity == 0 ? settings.lambda : settings.lambda * (1.0 + rigidity);
+  if (rigidity == 0) return Status::success();
+  if (!scale_control) {
+    ScaleControl control;
+    MD_RETURN_IF_ERROR(control.build(V0, F, topology, N0, constrained, settings.scale_pull,
+                                     settings.scale_smooth_length));
+    scale_control.emplace(std::move(control));
+  }
+  if (settings.preconditioner == StepTwoPreconditioner::BlockTrace && trace_rigid_rho != rigidity) {
+    // tr/3 of rho (L (x) I3) is rho L: the preconditioner stays constant for a given rho, so
+    // only a change of rho (a slider move) refactors this n x n matrix.
+    const std::vector<double>& fl = scale_control->face_laplacian();
+    std::vector<Eigen::Triplet<double>> entries;
+    entries.reserve(9 * static_cast<size_t>(nf));
+    for (int f = 0; f < nf; ++f) {
+      for (int p = 0; p < 3; ++p) {
+        for (int q = 0; q < 3; ++q) {
+          entries.emplace_back(F(f, p), F(f, q), rigidity * fl[9 * static_cast<size_t>(f) + 3 * p + q]);
+        }
+      }
+    }
+    SparseMatrix L(nv, nv);
+    L.setFromTriplets(entries.begin(), entries.end());
+    const SparseMatrix T = block_trace_matrix() + L;
+    MD_RETURN_IF_ERROR(trace_rigid_cholesky.analyze(T));
+    MD_RETURN_IF_ERROR(trace_rigid_cholesky.factorize(T));
+    trace_rigid_rho = rigidity;
+  }
+  return Status::success();
+}
+
+double ScaleAwareSolver::Impl::joint_energy(const Eigen::VectorXd& pos,
+                                            const Eigen::VectorXd& target_vec,
+                                            double rigidity) const {
+  const double e = energy(pos, target_vec);
+  return rigidity > 0 ? e + rigidity * scale_control->energy(pos) : e;
+}
+
 Eigen::VectorXd ScaleAwareSolver::Impl::precondition(const Eigen::VectorXd& r) const {
   if (settings.preconditioner == StepTwoPreconditioner::LaggedCholesky) return cholesky.solve(r);
   // (T (x) I3)^-1 r: the interleaved xyz vector is an #V x 3 row-major matrix.
   const Eigen::MatrixXd R = Eigen::Map<const RowPositions>(r.data(), nv, 3);
-  const RowPositions Z = trace_cholesky.solve(R);
+  const RowPositions Z =
+      preconditioner_rho > 0 ? trace_rigid_cholesky.solve(R) : trace_cholesky.solve(R);
   return Eigen::Map<const Eigen::VectorXd>(Z.data(), 3 * static_cast<Eigen::Index>(nv));
 }
 
 Eigen::VectorXd ScaleAwareSolver::Impl::rhs(const Positions& targets) const {
   Eigen::VectorXd b = Eigen::VectorXd::Zero(3 * nv);
   for (Eigen::Index j = 0; j < constrained.size(); ++j) {
-    b.segment<3>(3 * constrained(j)) = settings.lambda * targets.row(j).transpose();
+    b.segment<3>(3 * constrained(j)) = handle_weight * targets.row(j).transpose();
   }
   return b;
 }
@@ -380,7 +456,7 @@ double ScaleAwareSolver::Impl::energy(const Eigen::VectorXd& pos,
   double e = 0;
   for (double s : per_face) e += s;
   for (Eigen::Index j = 0; j < constrained.size(); ++j) {
-    e += settings.lambda *
+    e += handle_weight *
          (pos.segment<3>(3 * constrained(j)) - target_vec.segment<3>(3 * j)).squaredNorm();
   }
   return e;
@@ -449,6 +525,77 @@ PcgOutcome ScaleAwareSolver::Impl::pcg(const Eigen::VectorXd& b, Eigen::VectorXd
   return out;
 }
 
+// Step two with scale control solves for the vertices and the face scales together: the joint
+// energy is one quadratic in (x, s) once the normals and face frames are fixed,
+//   [A + rho L, -rho C^T; -rho C, rho H] [x; s] = [b; rho r],
+// and alternating x- and s-steps converge slowly along the scale mode (measured: the area kept
+// shrinking for 100+ iterations). The preconditioner is block diagonal: the x block's (the
+// block-trace T + rho L, or the lagged factor) and H's constant factor.
+void ScaleAwareSolver::Impl::multiply_joint(const Eigen::VectorXd& in, Eigen::VectorXd& out,
+                                            double rigidity) const {
+  const Eigen::Index n3 = 3 * static_cast<Eigen::Index>(nv);
+  const Eigen::Index m = in.size() - n3;
+  Eigen::VectorXd out_x;
+  multiply(in.head(n3), out_x);
+  scale_control->add_coupling_transpose(in.tail(m), -rigidity, out_x);
+  Eigen::VectorXd cx, hs;
+  scale_control->multiply_coupling(in.head(n3), cx);
+  scale_control->multiply_scale_matrix(in.tail(m), hs);
+  out.resize(in.size());
+  out.head(n3) = out_x;
+  out.tail(m) = rigidity * (hs - cx);
+}
+
+Eigen::VectorXd ScaleAwareSolver::Impl::precondition_joint(const Eigen::VectorXd& r,
+                                                           double rigidity) const {
+  const Eigen::Index n3 = 3 * static_cast<Eigen::Index>(nv);
+  const Eigen::Index m = r.size() - n3;
+  Eigen::VectorXd out(r.size());
+  out.head(n3) = precondition(r.head(n3));
+  out.tail(m) = scale_control->solve_scale_matrix(r.tail(m)) / rigidity;
+  return out;
+}
+
+PcgOutcome ScaleAwareSolver::Impl::pcg_joint(const Eigen::VectorXd& b, Eigen::VectorXd& sol,
+                                             double rigidity, double reduction, double tolerance,
+                                             int max_iterations, const std::stop_token& stop) const {
+  PcgOutcome out;
+  const double b_norm = b.norm();
+  Eigen::VectorXd Ap;
+  multiply_joint(sol, Ap, rigidity);
+  Eigen::VectorXd r = b - Ap;
+  const double threshold = std::max(tolerance * b_norm, reduction * r.norm());
+  if (r.norm() <= threshold) {
+    out.converged = true;
+    return out;
+  }
+  Eigen::VectorXd z = precondition_joint(r, rigidity);
+  Eigen::VectorXd p = z;
+  double rz = r.dot(z);
+  for (int it = 0; it < max_iterations; ++it) {
+    if (stop.stop_requested()) {
+      out.cancelled = true;
+      return out;
+    }
+    multiply_joint(p, Ap, rigidity);
+    const double pAp = p.dot(Ap);
+    if (!(pAp > 0)) break;
+    const double alpha = rz / pAp;
+    sol.noalias() += alpha * p;
+    r.noalias() -= alpha * Ap;
+    ++out.iterations;
+    if (r.norm() <= threshold) {
+      out.converged = true;
+      return out;
+    }
+    z = precondition_joint(r, rigidity);
+    const double rz_next = r.dot(z);
+    p = z + (rz_next / rz) * p;
+    rz = rz_next;
+  }
+  return out;
+}
+
 RowPositions ScaleAwareSolver::Impl::normals_of(const Eigen::VectorXd& pos,
                                                 const RowPositions& fallback) const {
   RowPositions out(nf, 3);
@@ -501,10 +648,10 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
   Impl& s = *impl_;
   const auto start = Clock::now();
   if (options.max_iterations < 0 || options.inner_iterations < 1 || !(options.tolerance >= 0) ||
-      !(options.pcg_tolerance > 0)) {
+      !(options.pcg_tolerance > 0) || options.rigid_start_iterations < 0) {
     return Error(ErrorCode::InvalidArgument,
                  "solve options out of range: max_iterations >= 0, inner_iterations >= 1, "
-                 "tolerance >= 0 and pcg_tolerance > 0 are required");
+                 "tolerance >= 0, pcg_tolerance > 0 and rigid_start_iterations >= 0 are required");
   }
   MD_RETURN_IF_ERROR(check_targets(targets, s.constrained, s.topology, s.bbox_diagonal, true));
   if (options.face_scale.size() != 0) {
@@ -520,11 +667,18 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
       }
     }
   }
+  if (!(options.rigidity >= 0) || !std::isfinite(options.rigidity)) {
+    return Error(ErrorCode::InvalidArgument,
+                 "rigidity must be a finite number >= 0, got " + std::to_string(options.rigidity));
+  }
   if (options.lambda != s.settings.lambda) {
     return Error(ErrorCode::InvalidArgument,
                  "lambda is fixed when the solver is created (" + std::to_string(s.settings.lambda) +
                      "); got " + std::to_string(options.lambda));
   }
+
+  const double rho = options.rigidity;
+  MD_RETURN_IF_ERROR(s.prepare_rigidity(rho));
 
   // Work on copies: a cancelled or failed solve leaves the solver as it was.
   Eigen::VectorXd x = s.x;
@@ -532,8 +686,30 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
   std::vector<Eigen::Quaterniond> rotations = s.rotations;
   bool rotations_warm = s.rotations_warm;
 
+  // Auto starts from the Laplacian guess at every rigidity. The rotation-aware start is an
+  // option: measured (bench/results/rigidity_rigid_start/) it removes the twisted bar's folds but
+  // creases the bent cylinders and lifts E_theta on the cylinder and the bar.
+  const bool from_rigid = options.start == StartFrom::Rigid;
   const bool from_laplacian =
       options.start == StartFrom::Laplacian || (options.start == StartFrom::Auto && !s.has_previous);
+  if (from_rigid) {
+    if (!s.rigid_start) {
+      ArapSettings arap_settings;
+      arap_settings.threads = s.settings.threads;
+      MD_ASSIGN_OR_RETURN(ArapSolver built,
+                          ArapSolver::create(s.V0, s.F, s.constrained, arap_settings));
+      s.rigid_start.emplace(std::move(built));
+    }
+    SolveOptions arap_options;
+    arap_options.max_iterations = options.rigid_start_iterations;
+    arap_options.tolerance = 0;
+    arap_options.start = StartFrom::Laplacian;
+    arap_options.track_metrics = false;
+    MD_ASSIGN_OR_RETURN(const SolveReport guess, s.rigid_start->solve(targets, arap_options, {}, stop));
+    const RowPositions guess_rows = guess.V;
+    x = Eigen::Map<const Eigen::VectorXd>(guess_rows.data(), 3 * s.nv);
+    rotations_warm = false;
+  }
   if (from_laplacian) {
     MD_ASSIGN_OR_RETURN(Positions guess, s.laplacian->solve(targets));
     const RowPositions guess_rows = guess;
@@ -568,8 +744,16 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
   {
     IterationInfo info;
     N = s.normals_of(x, N);
-    s.assemble(N);
-    info.energy = s.energy(x, target_vec);
+    s.assemble(N, rho);
+    if (rho > 0) {
+      // The scale variables are block minimisers of the current vertices: no state to carry.
+      s.scale_control->reset();
+      s.scale_control->set_reference(targets);
+      s.scale_control->update_rotations(x, N);
+      s.scale_control->update_scales(x);
+    }
+    info.energy = s.joint_energy(x, target_vec, rho);
+    info.energy_before = info.energy;
     record(info, x);
     report.history.push_back(info);
     if (progress) progress(info);
@@ -592,7 +776,23 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
 
     // Step two: A(N) x = b by PCG with the cached factor, refactoring when that is cheaper.
     phase = Clock::now();
-    s.assemble(N);
+    s.assemble(N, rho);
+    // The iterate entering this iteration, with this iteration's normals and face frames: the
+    // block steps below (scales, then PCG from x) can only lower it. Step one itself is not a
+    // minimiser of this energy (it fits normals on the Gauss map), so energies of consecutive
+    // iterations are compared through this value, not directly.
+    Eigen::VectorXd b_joint;
+    if (rho > 0) {
+      // The face frames follow the new normals (R_f N0_f = N_f): part of step one.
+      s.scale_control->update_rotations(x, N);
+    }
+    info.energy_before = s.joint_energy(x, target_vec, rho);
+    if (rho > 0) {
+      // An exact scale step first (a good warm start for the joint solve, never an increase).
+      s.scale_control->update_scales(x);
+      b_joint.resize(b.size() + s.scale_control->scale_unknowns());
+      b_joint << b, rho * s.scale_control->scale_rhs();
+    }
     info.assemble_seconds = seconds_since(phase);
     phase = Clock::now();
     const bool lagged = s.settings.preconditioner == StepTwoPreconditioner::LaggedCholesky;
@@ -609,12 +809,23 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     const double tolerance = options.pcg_tolerance;
     // Past this many steps a fresh factorization is cheaper than more lagged PCG: stop there,
     // refactor and finish (bounded waste instead of a fixed cap).
+    // With scale control the lagged factor preconditions only the x block of the joint system,
+    // so a refactorization cannot shorten the coupled part: no early stop there.
     const int max_pcg =
-        lagged ? std::clamp(static_cast<int>(s.settings.refactor_cost_ratio *
+        lagged && rho == 0 ? std::clamp(static_cast<int>(s.settings.refactor_cost_ratio *
                                              s.cholesky.factor_flops() / s.pcg_iteration_flops),
                             4, 200)
                : 500;
-    PcgOutcome outcome = s.pcg(b, x, reduction, tolerance, max_pcg, stop);
+    auto run_pcg = [&]() -> PcgOutcome {
+      if (rho == 0) return s.pcg(b, x, reduction, tolerance, max_pcg, stop);
+      Eigen::VectorXd joint(b_joint.size());
+      joint << x, s.scale_control->scale_unknowns_vector();
+      const PcgOutcome o = s.pcg_joint(b_joint, joint, rho, reduction, tolerance, max_pcg, stop);
+      x = joint.head(x.size());
+      s.scale_control->set_scale_unknowns(joint.tail(joint.size() - x.size()));
+      return o;
+    };
+    PcgOutcome outcome = run_pcg();
     if (outcome.cancelled) return Error(ErrorCode::Cancelled, "solve cancelled");
     info.pcg_iterations = outcome.iterations;
     if (!outcome.converged && !lagged) {
@@ -626,7 +837,7 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
       MD_RETURN_IF_ERROR(s.cholesky.factorize(s.A));
       info.refactored = true;
       ++report.factorizations;
-      outcome = s.pcg(b, x, reduction, tolerance, max_pcg, stop);
+      outcome = run_pcg();
       if (outcome.cancelled) return Error(ErrorCode::Cancelled, "solve cancelled");
       info.pcg_iterations += outcome.iterations;
       if (!outcome.converged) {
@@ -647,7 +858,7 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
                    "step two produced non-finite positions at iteration " + std::to_string(it));
     }
 
-    info.energy = s.energy(x, target_vec);
+    info.energy = s.joint_energy(x, target_vec, rho);
     record(info, x);
     report.history.push_back(info);
     report.iterations = it;

@@ -43,6 +43,12 @@ struct ScaleAwareSettings {
   /// Default 1: a service solves many sessions side by side, and on a loaded 2-core machine
   /// extra threads per solve only contend (measured 4x slower). Results do not depend on it.
   int threads = 1;
+  /// Scale control (SolveOptions::rigidity > 0; see core/scale_control.h), study constants
+  /// rather than user options: they fix the constant scale system, so they are per solver.
+  /// nu: pull of each face's scale toward the free global scale, relative to the fit's 2 A_f.
+  double scale_pull = 4.0;
+  /// xi / sqrt(total rest area): the length over which face scales are smoothed.
+  double scale_smooth_length = 0.05;
 };
 
 /// The scale-aware deformation solver for one mesh and one handle set.
@@ -64,8 +70,12 @@ class ScaleAwareSolver {
                                                        std::stop_token stop = {});
 
   /// Deforms toward #C x 3 targets (row j for constrained(j)).
+  /// With options.rigidity > 0 the scale term of core/scale_control.h joins the energy (built on
+  /// first use); options.start = Rigid starts from a few ARAP iterations (ARAP factored on first
+  /// use).
   /// @return the report (positions and per-iteration history); InvalidArgument for a wrong shape or
-  ///         non-finite target, or targets of a component that coincide (no two distinct positions);
+  ///         non-finite target, targets of a component that coincide (no two distinct positions),
+  ///         rigidity negative or not finite, or rigid_start_iterations < 0;
   ///         Cancelled when `stop` is requested mid-solve (the solver keeps its previous state);
   ///         NumericalFailure if the solve breaks down.
   [[nodiscard]] Result<SolveReport> solve(const Positions& targets, const SolveOptions& options = {},

@@ -297,7 +297,8 @@ Result<EditSpec> parse_spec_json(const json& root) {
     const json& options = root["options"];
     if (!options.is_object()) return invalid("options: expected an object");
     MD_RETURN_IF_ERROR(check_keys(
-        options, {"iterations", "tolerance", "inner_iterations", "method", "ora"}, "options"));
+        options, {"iterations", "tolerance", "inner_iterations", "method", "ora", "rigidity"},
+        "options"));
     if (options.contains("method")) {
       if (!options["method"].is_string()) return invalid("options.method: expected a string");
       spec.options.method = options["method"].get<std::string>();
@@ -316,6 +317,13 @@ Result<EditSpec> parse_spec_json(const json& root) {
                           to_int(options["inner_iterations"], "options.inner_iterations"));
       if (n < 1) return invalid("options.inner_iterations: must be >= 1, got " + std::to_string(n));
       spec.options.inner_iterations = n;
+    }
+    if (options.contains("rigidity")) {
+      MD_ASSIGN_OR_RETURN(const double rigidity, to_number(options["rigidity"], "options.rigidity"));
+      if (!(rigidity >= 0.0)) {
+        return invalid("options.rigidity: must be >= 0, got " + number_text(rigidity));
+      }
+      spec.options.rigidity = rigidity;
     }
     if (options.contains("tolerance")) {
       MD_ASSIGN_OR_RETURN(const double tol, to_number(options["tolerance"], "options.tolerance"));
@@ -651,6 +659,11 @@ Result<std::string> format_edit_spec(const EditSpec& spec) {
     if (spec.options.inner_iterations) options["inner_iterations"] = *spec.options.inner_iterations;
     if (spec.options.method) options["method"] = *spec.options.method;
     if (spec.options.ora) options["ora"] = *spec.options.ora;
+    if (spec.options.rigidity) {
+      if (!std::isfinite(*spec.options.rigidity))
+        return invalid("options.rigidity: is not finite");
+      options["rigidity"] = *spec.options.rigidity;
+    }
     if (!options.empty()) root["options"] = options;
     if (!spec.magnify.empty()) {
       json magnify = json::array();

@@ -20,7 +20,8 @@
 ///   ],
 ///   "magnify": [ { "vertices": [40, 41, 42], "scale": 2.0 } ],   // regions grown by k
 ///   "options": { "iterations": 10, "tolerance": 1e-6, "inner_iterations": 5,
-///                "method": "scale_aware" | "arap" | "laplacian", "ora": true }
+///                "method": "scale_aware" | "arap" | "laplacian", "ora": true,
+///                "rigidity": 1.0 }
 /// }
 /// @endcode
 /// A handle group uses exactly one of the three forms; the rigid form is chosen by any of
@@ -128,6 +129,8 @@ struct EditOptions {
   std::optional<int> inner_iterations;  ///< >= 1
   std::optional<std::string> method;    ///< "scale_aware", "arap" or "laplacian" (checked by caller)
   std::optional<bool> ora;              ///< optimal rigidity approximation after the solve
+  /// Scale control (core::SolveOptions::rigidity), >= 0 and finite; 0 is the paper's method.
+  std::optional<double> rigidity;
 };
 
 /// A region to magnify by `scale` (paper Figs. 12-13): the faces whose three corners are listed.

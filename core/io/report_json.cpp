@@ -5,6 +5,7 @@ namespace meshdeform::io {
 nlohmann::json iteration_to_json(const core::IterationInfo& info) {
   return {{"iteration", info.iteration},
           {"energy", info.energy},
+          {"energy_before", info.energy_before},
           {"e_theta", info.e_theta},
           {"e_phi", info.e_phi},
           {"elapsed_seconds", info.elapsed_seconds},

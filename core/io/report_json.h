@@ -9,7 +9,8 @@
 
 namespace meshdeform::io {
 
-/// One outer iteration: energy, E_theta, E_phi, elapsed time, PCG iterations, normal sweeps,
+/// One outer iteration: energy, energy_before (the entering iterate after step one), E_theta, E_phi,
+/// elapsed time, PCG iterations, normal sweeps,
 /// whether step two refactored, and the per-phase seconds.
 nlohmann::json iteration_to_json(const core::IterationInfo& info);
 

@@ -11,6 +11,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "core/deform_types.h"
 #include "core/io/mesh_io.h"
 #include "core/procedural.h"
 #include "tests/support/mesh_factories.h"
@@ -129,6 +130,54 @@ TEST_F(MethodCliTest, BadMethodAndOraWithABaselineAreErrors) {
   r = run("deform --mesh grid.obj --edit bad.json --out out.obj");
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("fem"), std::string::npos) << r.err;
+}
+
+
+TEST_F(MethodCliTest, RigidityComesFromTheFlagOrTheSpecAndIsReported) {
+  write("edit.json", R"({"fixed": [)" + column(0) + R"(], "handles": [{"vertices": [)" +
+                         column(12) + R"(], "translation": [0.4, 0, 0.2]}]})");
+  // Default: the library's default rigidity, from the paper's Laplacian guess.
+  CliRun r = run("deform --mesh grid.obj --edit edit.json --out out.obj --report report.json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  auto j = report();
+  EXPECT_EQ(j["options"]["rigidity"], core::kDefaultRigidity);
+  EXPECT_EQ(j["options"]["start"], "laplacian");
+  const double default_area = j["final"]["area_log_rms"];
+
+  // 0 is the paper's method, from the Laplacian guess.
+  r = run("deform --mesh grid.obj --edit edit.json --out out.obj --report report.json --rigidity 0");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  j = report();
+  EXPECT_EQ(j["options"]["rigidity"], 0.0);
+  EXPECT_EQ(j["options"]["start"], "laplacian");
+  const double paper_area = j["final"]["area_log_rms"];
+  EXPECT_LT(default_area, paper_area);
+  for (const auto& it : j["history"]) EXPECT_TRUE(it.contains("energy_before"));
+
+  // From the spec; the flag wins over the spec.
+  write("rigid.json", R"({"fixed": [)" + column(0) + R"(], "handles": [{"vertices": [)" +
+                          column(12) + R"(], "translation": [0.4, 0, 0.2]}], "options": {"rigidity": 7.5}})");
+  r = run("deform --mesh grid.obj --edit rigid.json --out out.obj --report report.json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(report()["options"]["rigidity"], 7.5);
+  r = run("deform --mesh grid.obj --edit rigid.json --out out.obj --report report.json "
+          "--rigidity 0.5 --start rigid");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  j = report();
+  EXPECT_EQ(j["options"]["rigidity"], 0.5);
+  EXPECT_EQ(j["options"]["start"], "rigid");
+
+  // Bad values are usage errors (flag) or runtime errors (spec), naming the option.
+  for (const char* bad : {"-1", "nan", "abc", "inf"}) {
+    SCOPED_TRACE(bad);
+    r = run(std::string("deform --mesh grid.obj --edit edit.json --out out.obj --rigidity ") + bad);
+    EXPECT_EQ(r.exit_code, 2);
+    EXPECT_NE(r.err.find("--rigidity"), std::string::npos) << r.err;
+  }
+  write("bad.json", R"({"fixed": [0, 1], "options": {"rigidity": -2}})");
+  r = run("deform --mesh grid.obj --edit bad.json --out out.obj");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("options.rigidity"), std::string::npos) << r.err;
 }
 
 }  // namespace

@@ -84,6 +84,7 @@ TEST(ScaleAwareSolver, SingleTriangleFollowsTheRightHandRule) {
   options.start = StartFrom::Laplacian;
   options.max_iterations = 100;
   options.tolerance = 1e-14;
+  options.rigidity = 0;  // Eq. 12's rotation sense; the scale term has its own similarity test
   auto moved = deform_scale_aware(tri.V, tri.F, constrained, rows_of(expected, constrained), options);
   ASSERT_TRUE(moved.ok()) << moved.status().to_string();
   EXPECT_LT((moved->V - expected).cwiseAbs().maxCoeff(), 1e-9);
@@ -107,10 +108,18 @@ TEST(ScaleAwareSolver, DeformationLowersAngleErrorBelowTheLaplacianStart) {
     const Eigen::Vector3d p = targets.row(j).transpose();
     targets.row(j) = (R * (p - Eigen::Vector3d(0.5, 0, 0)) + Eigen::Vector3d(0.5, 0, 0.3)).transpose();
   }
-  auto report = deform_scale_aware(m.V, m.F, constrained, targets);
+  // The paper's method (rigidity 0) lowers both; with the default scale control E_theta still
+  // falls but E_phi ends slightly above this smooth Laplacian start (measured 0.050 vs 0.042):
+  // the scale term trades some dihedral fidelity for area.
+  SolveOptions paper;
+  paper.rigidity = 0;
+  auto report = deform_scale_aware(m.V, m.F, constrained, targets, paper);
   ASSERT_TRUE(report.ok()) << report.status().to_string();
   EXPECT_LT(report->history.back().e_theta, report->history.front().e_theta);
   EXPECT_LT(report->history.back().e_phi, report->history.front().e_phi);
+  auto scaled = deform_scale_aware(m.V, m.F, constrained, targets);
+  ASSERT_TRUE(scaled.ok()) << scaled.status().to_string();
+  EXPECT_LT(scaled->history.back().e_theta, scaled->history.front().e_theta);
 }
 
 TEST(ScaleAwareSolver, WarmStartedRepeatOfTheSameTargetsIsAlreadyConverged) {
@@ -124,6 +133,7 @@ TEST(ScaleAwareSolver, WarmStartedRepeatOfTheSameTargetsIsAlreadyConverged) {
   SolveOptions options;
   options.max_iterations = 500;
   options.tolerance = 1e-6;
+  options.rigidity = 0;
   auto first = solver->solve(targets, options);
   ASSERT_TRUE(first.ok());
   ASSERT_TRUE(first->converged);
@@ -133,6 +143,18 @@ TEST(ScaleAwareSolver, WarmStartedRepeatOfTheSameTargetsIsAlreadyConverged) {
   // Linear convergence leaves a little motion after a 1e-6 relative-energy stop.
   EXPECT_LT((second->V - first->V).cwiseAbs().maxCoeff(), 1e-4);
   EXPECT_EQ(solver->positions(), second->V);
+
+  // With scale control the outer loop converges more slowly (the face frames follow the normals),
+  // so a relative-energy stop leaves more motion: measured 7 more iterations, 5e-4 (diagonal 2).
+  options.rigidity = kDefaultRigidity;
+  solver->reset();
+  auto scaled_first = solver->solve(targets, options);
+  ASSERT_TRUE(scaled_first.ok());
+  ASSERT_TRUE(scaled_first->converged);
+  auto scaled_second = solver->solve(targets, options);
+  ASSERT_TRUE(scaled_second.ok());
+  EXPECT_LT(scaled_second->iterations, scaled_first->iterations);
+  EXPECT_LT((scaled_second->V - scaled_first->V).cwiseAbs().maxCoeff(), 1e-3);
 }
 
 TEST(ScaleAwareSolver, ResultsAreDeterministic) {
@@ -260,11 +282,18 @@ TEST(ScaleAwareSolver, EverySuiteEditEndsBelowTheLaplacianStartInETheta) {
     SCOPED_TRACE(bench.name);
     auto setup = constraints_from_selection(bench.mesh.V, bench.selection, bench.transform);
     ASSERT_TRUE(setup.ok()) << setup.status().to_string();
-    auto report = deform_scale_aware(bench.mesh.V, bench.mesh.F, setup->constrained, setup->targets);
-    ASSERT_TRUE(report.ok()) << report.status().to_string();
-    ASSERT_GE(report->history.size(), 2u);
-    EXPECT_LT(report->history.back().e_theta, report->history.front().e_theta);
-    EXPECT_TRUE(report->V.allFinite());
+    for (double rigidity : {0.0, kDefaultRigidity}) {
+      SCOPED_TRACE(rigidity);
+      SolveOptions options;
+      options.rigidity = rigidity;
+      options.start = StartFrom::Laplacian;
+      auto report = deform_scale_aware(bench.mesh.V, bench.mesh.F, setup->constrained,
+                                       setup->targets, options);
+      ASSERT_TRUE(report.ok()) << report.status().to_string();
+      ASSERT_GE(report->history.size(), 2u);
+      EXPECT_LT(report->history.back().e_theta, report->history.front().e_theta);
+      EXPECT_TRUE(report->V.allFinite());
+    }
   }
 }
 

@@ -401,5 +401,34 @@ TEST(EditSpecMagnify, ParsesRoundTripsAndRejectsBadRegions) {
   EXPECT_FALSE(bad_ora.ok());
 }
 
+
+TEST(EditSpecRigidity, ParsesRoundTripsAndRejectsBadValues) {
+  auto spec = parse_edit_spec(R"({"fixed": [0, 1], "options": {"rigidity": 2.5}})");
+  ASSERT_TRUE(spec.ok()) << spec.status().to_string();
+  EXPECT_EQ(spec->options.rigidity, std::optional<double>(2.5));
+  auto text = format_edit_spec(*spec);
+  ASSERT_TRUE(text.ok());
+  auto again = parse_edit_spec(*text);
+  ASSERT_TRUE(again.ok()) << again.status().to_string();
+  EXPECT_EQ(again->options.rigidity, spec->options.rigidity);
+  auto zero = parse_edit_spec(R"({"options": {"rigidity": 0}})");
+  ASSERT_TRUE(zero.ok()) << zero.status().to_string();
+  EXPECT_EQ(zero->options.rigidity, std::optional<double>(0.0));
+  auto absent = parse_edit_spec(R"({"fixed": [0]})");
+  ASSERT_TRUE(absent.ok());
+  EXPECT_FALSE(absent->options.rigidity.has_value());
+
+  auto negative = parse_edit_spec(R"({"options": {"rigidity": -1}})");
+  ASSERT_FALSE(negative.ok());
+  EXPECT_NE(negative.status().message().find("options.rigidity: must be >= 0"), std::string::npos)
+      << negative.status().message();
+  auto text_value = parse_edit_spec(R"({"options": {"rigidity": "high"}})");
+  ASSERT_FALSE(text_value.ok());
+  EXPECT_NE(text_value.status().message().find("options.rigidity"), std::string::npos);
+  EditSpec programmatic;
+  programmatic.options.rigidity = std::nan("");
+  EXPECT_FALSE(format_edit_spec(programmatic).ok());
+}
+
 }  // namespace
 }  // namespace meshdeform::io
