@@ -254,6 +254,7 @@ Result<DeformResult> result_from_proto(const v1::DeformResult& in, const char* r
   out.e_theta = in.e_theta();
   out.e_phi = in.e_phi();
   out.area_log_rms = in.area_log_rms();
+  out.rigidity = in.rigidity();
   out.iterations = static_cast<int>(in.iterations());
   out.converged = in.converged();
   out.solve_seconds = in.solve_seconds();
@@ -294,6 +295,7 @@ Status move_to_proto(const MoveSpec& spec, v1::MoveHandlesRequest* out) {
   }
   out->set_method(method_to_proto(spec.method));
   out->set_ora(spec.ora);
+  if (spec.rigidity) out->set_rigidity(*spec.rigidity);
   out->set_max_iterations(static_cast<std::uint32_t>(spec.max_iterations));
   if (spec.tolerance) out->set_tolerance(*spec.tolerance);
   out->set_editor(spec.editor);
@@ -499,6 +501,7 @@ Result<Session> Client::create_session_from_bytes(std::string bytes, io::MeshFor
   request.set_format(format_to_proto(format));
   request.set_weld(create.weld);
   if (create.lambda) request.set_lambda(*create.lambda);
+  if (create.rigidity) request.set_rigidity(*create.rigidity);
   v1::CreateSessionResponse response;
   MD_RETURN_IF_ERROR(impl_->unary("CreateSession", call, nullptr,
                                   &v1::DeformationService::Stub::CreateSession, request,
@@ -513,6 +516,7 @@ Result<Session> Client::create_session_from_sample(const std::string& name,
   request.set_sample(name);
   request.set_weld(create.weld);
   if (create.lambda) request.set_lambda(*create.lambda);
+  if (create.rigidity) request.set_rigidity(*create.rigidity);
   v1::CreateSessionResponse response;
   MD_RETURN_IF_ERROR(impl_->unary("CreateSession", call, nullptr,
                                   &v1::DeformationService::Stub::CreateSession, request,

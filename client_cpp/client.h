@@ -142,6 +142,8 @@ struct Session {
 struct CreateOptions {
   bool weld = false;             ///< weld coincident vertices (STL always is)
   std::optional<double> lambda;  ///< soft handle weight, > 0 (server default 100)
+  /// Scale control of the session's moves that set none (server default 3; see MoveSpec).
+  std::optional<double> rigidity;
 };
 
 /// A similarity transform of one handle group, relative to the group's anchors (its positions
@@ -167,6 +169,9 @@ struct MoveSpec {
   std::vector<VertexTarget> targets;
   core::Method method = core::Method::ScaleAware;
   bool ora = false;                 ///< optimal rigidity approximation (scale-aware only)
+  /// Scale control of the scale-aware method in [0, 10000] (0 = the paper's pure method;
+  /// larger = more ARAP-like area); unset: the session's.
+  std::optional<double> rigidity;
   int max_iterations = 0;           ///< 0: the server's default (2); at most 1000
   std::optional<double> tolerance;  ///< relative energy change that stops early (default 1e-4)
   std::string editor;               ///< free-form label forwarded to watchers
@@ -184,6 +189,7 @@ struct DeformResult {
   double e_theta = 0;                  ///< RMS corner-angle error against the rest mesh (radians)
   double e_phi = 0;                    ///< RMS dihedral-angle error (radians)
   double area_log_rms = 0;             ///< RMS of log(area'/area) over faces
+  double rigidity = 0;                 ///< scale control the solve used (0: ARAP, Laplacian)
   int iterations = 0;
   bool converged = false;
   double solve_seconds = 0;

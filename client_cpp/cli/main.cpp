@@ -58,7 +58,7 @@ Global options (anywhere on the line):
 
 Commands (the token may also come from the MESHDEFORM_TOKEN environment variable, which keeps
 it out of the process list):
-  create (--mesh FILE [--weld] | --sample NAME) [--lambda X]
+  create (--mesh FILE [--weld] | --sample NAME) [--lambda X] [--rigidity X]
       Creates a session; prints {"session_id", "edit_token", "view_token", ...,
       "suggested_groups"}. The mesh format comes from the extension (obj off ply stl glb gltf).
   handles --session ID --token T (--sel FILE | --groups JSON|FILE) [--prepare METHOD]
@@ -67,12 +67,14 @@ it out of the process list):
       [{"role":"fixed","vertices":[...]},{"role":"handle","vertices":[...]}] inline or in a file
       (the "suggested_groups" printed by create).
   move --session ID --token T (--def FILE | --edit JSON|FILE) [--method M] [--ora]
-       [--iterations N] [--tolerance X] [--editor NAME] [--timeout SECONDS]
+       [--rigidity X] [--iterations N] [--tolerance X] [--editor NAME] [--timeout SECONDS]
       Moves handles and solves; prints the result summary. A .def 4x4 transform moves every
       handle group from its anchors (its positions when 'handles' ran); it must be a similarity
       (rotation, uniform scale, translation). A JSON edit
       spec (see core/io/deform_spec.h) sets its own groups (fixed first, then one per handle
       entry) when they differ from the session's. METHOD: scale_aware, arap, laplacian.
+      --rigidity X: scale control of the scale-aware method, 0..10000 (0 = the paper's pure
+      method; default: the session's, set by create --rigidity, else 3).
   watch --session ID --token T [--max-updates N] [--seconds S]
       Prints one JSON line per committed revision (the first is a snapshot) until the session
       closes, N updates were printed or S seconds passed.
@@ -109,9 +111,10 @@ const std::set<std::string> kGlobalValues = {"server",   "timeout",         "max
                                              "tls-ca",   "tls-server-name", "tls-cert",
                                              "tls-key"};
 const std::map<std::string, std::set<std::string>> kCommandValues = {
-    {"create", {"mesh", "sample", "lambda"}},
+    {"create", {"mesh", "sample", "lambda", "rigidity"}},
     {"handles", {"session", "token", "sel", "groups", "prepare"}},
-    {"move", {"session", "token", "def", "edit", "method", "iterations", "tolerance", "editor"}},
+    {"move",
+     {"session", "token", "def", "edit", "method", "rigidity", "iterations", "tolerance", "editor"}},
     {"watch", {"session", "token", "max-updates", "seconds"}},
     {"get", {"session", "token", "out", "revision"}},
     {"info", {"session", "token"}},
@@ -282,6 +285,7 @@ json result_json(const mc::DeformResult& r) {
           {"e_theta", r.e_theta},
           {"e_phi", r.e_phi},
           {"area_log_rms", r.area_log_rms},
+          {"rigidity", r.rigidity},
           {"iterations", r.iterations},
           {"converged", r.converged},
           {"solve_seconds", r.solve_seconds},
@@ -304,6 +308,9 @@ int cmd_create(const mc::Client& client, const Args& args) {
   mc::CreateOptions create;
   create.weld = args.flags.count("weld") > 0;
   if (auto lambda = args.get("lambda")) create.lambda = parse_double_or_throw("lambda", *lambda);
+  if (auto rigidity = args.get("rigidity")) {
+    create.rigidity = parse_double_or_throw("rigidity", *rigidity);
+  }
   Result<mc::Session> session = Error(ErrorCode::Internal, "unreachable");
   if (has_mesh) {
     const std::string path = *args.get("mesh");
@@ -458,6 +465,7 @@ int cmd_move(const mc::Client& client, const Args& args) {
     if (edit.options.iterations) spec.max_iterations = *edit.options.iterations;
     if (edit.options.tolerance) spec.tolerance = *edit.options.tolerance;
     if (edit.options.ora) spec.ora = *edit.options.ora;
+    if (edit.options.rigidity) spec.rigidity = *edit.options.rigidity;
     if (edit.options.inner_iterations) {
       std::cerr << "meshdeform-client: move: warning: options.inner_iterations is not a service "
                    "option; ignored\n";
@@ -510,6 +518,9 @@ int cmd_move(const mc::Client& client, const Args& args) {
   // Flags override the spec's options.
   if (auto m = args.get("method")) spec.method = method_or_usage(*m);
   if (args.flags.count("ora")) spec.ora = true;
+  if (auto rigidity = args.get("rigidity")) {
+    spec.rigidity = parse_double_or_throw("rigidity", *rigidity);
+  }
   if (auto it = args.get("iterations")) {
     spec.max_iterations = static_cast<int>(parse_int_or_throw("iterations", *it, 1, 1000));
   }

@@ -172,6 +172,11 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
                    "give exactly one of mesh bytes and a sample name (got " +
                        std::string(has_bytes ? "both" : "neither") + ")");
     }
+    if (request.rigidity && !is_valid_rigidity(*request.rigidity)) {
+      return Error(ErrorCode::InvalidArgument,
+                   "rigidity " + std::to_string(*request.rigidity) + " is outside [0, " +
+                       std::to_string(kMaxRigidity) + "]");
+    }
     const double lambda = request.settings.lambda;
     if (!std::isfinite(lambda) || lambda <= 0) {
       return Error(ErrorCode::InvalidArgument,
@@ -214,6 +219,7 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
                         [store](std::size_t bytes, const Session& requester) {
                           return store->reserve(bytes, requester);
                         }));
+    if (request.rigidity) session->set_default_rigidity(*request.rigidity);
     // The caller left while the session was built: commit nothing (it would never be used).
     if (stop.stop_requested()) return cancelled();
     if (state_dir_) {

@@ -352,6 +352,12 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     return Error(ErrorCode::InvalidArgument,
                  "tolerance " + std::to_string(request.tolerance) + " is not finite and >= 0");
   }
+  if (request.rigidity && !is_valid_rigidity(*request.rigidity)) {
+    return Error(ErrorCode::InvalidArgument,
+                 "rigidity " + std::to_string(*request.rigidity) + " is outside [0, " +
+                     std::to_string(kMaxRigidity) + "]");
+  }
+  const double rigidity = request.rigidity.value_or(default_rigidity_);
   // Row of each constrained vertex in anchors/targets.
   auto row_of = [&constrained](int v) {
     return static_cast<Eigen::Index>(std::lower_bound(constrained.begin(), constrained.end(), v) -
@@ -452,6 +458,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   options.lambda = settings_.lambda;
   options.ora = request.ora;
   options.face_scale = face_scale;
+  options.rigidity = rigidity;
   // commit() measures E_theta / E_phi once; per-iteration tracking would measure the mesh three
   // more times per interactive move (rest, guess, each iteration).
   options.track_metrics = false;
@@ -469,26 +476,27 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   }
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " was closed");
 
-  DeformResult result = commit(std::move(report).value(), request.method, targets, base_positions,
-                               built, request.editor, /*refinement=*/false, entry);
+  DeformResult result = commit(std::move(report).value(), request.method, rigidity, targets,
+                               base_positions, built, request.editor, /*refinement=*/false, entry);
   counters_->moves_committed.fetch_add(1);
   last_move_ticks_.store(std::chrono::steady_clock::now().time_since_epoch().count());
   if (options_.refine_budget > 0 && !result.converged) {
-    refine_ = RefineState{request.method, request.ora, std::move(face_scale), request.tolerance,
-                          options_.refine_budget};
+    refine_ = RefineState{request.method,           request.ora, std::move(face_scale),
+                          request.tolerance,        options_.refine_budget, rigidity};
   } else {
     refine_.reset();
   }
   return result;
 }
 
-DeformResult Session::commit(core::SolveReport report, core::Method method,
+DeformResult Session::commit(core::SolveReport report, core::Method method, double rigidity,
                              const Positions& targets,
                              const std::shared_ptr<const Positions>& base_positions, bool built,
                              const std::string& editor, bool refinement, CachedDeformer* entry) {
   const int nv = static_cast<int>(rest_.V.rows());
   auto result = std::make_shared<DeformResult>();
   result->method = method;
+  result->rigidity = method == core::Method::ScaleAware ? rigidity : 0.0;
   result->positions = std::make_shared<const Positions>(std::move(report.V));
   const Positions& V = *result->positions;
   for (int v = 0; v < nv; ++v) {
@@ -576,6 +584,7 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
   options.lambda = settings_.lambda;
   options.ora = state.ora;
   options.face_scale = state.face_scale;
+  options.rigidity = state.rigidity;
   options.track_metrics = false;  // as in move(): commit() measures once
   Result<core::SolveReport> report =
       local.stop_requested()
@@ -599,8 +608,9 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
     return Error(ErrorCode::NotFound, "session " + id_.value + " was closed");
   }
   const int iterations = report->iterations;
-  DeformResult result = commit(std::move(report).value(), state.method, targets, base_positions,
-                               /*built=*/false, "refinement", /*refinement=*/true, entry);
+  DeformResult result = commit(std::move(report).value(), state.method, state.rigidity, targets,
+                               base_positions, /*built=*/false, "refinement", /*refinement=*/true,
+                               entry);
   counters_->refinements_committed.fetch_add(1);
   refine_->remaining -= std::max(iterations, 1);
   if (result.converged || refine_->remaining <= 0) refine_.reset();
@@ -631,6 +641,7 @@ SessionInfo Session::info() const {
   info.revision = revision_;
   info.groups = groups_;
   info.last_method = last_method_;
+  info.rigidity = default_rigidity_;
   info.watchers = static_cast<int>(watchers_.size());
   info.cached_deformers = cached_deformers_.load();
   return info;

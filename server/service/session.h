@@ -83,6 +83,9 @@ class Session : public std::enable_shared_from_this<Session> {
   bool can_view(const Token& token) const;
   /// The view token (handed to editors, who may share it; never logged).
   const Token& view_token() const { return view_token_; }
+  /// The scale control (core::SolveOptions::rigidity) of scale-aware moves that do not set one.
+  /// Call before the session is shared. @pre is_valid_rigidity(rigidity).
+  void set_default_rigidity(double rigidity) { default_rigidity_ = rigidity; }
 
   /// Sets the handle groups, anchors them at the current positions (targets = anchors) and builds
   /// (or reuses) the factorization of `request.prepare` for the constrained set.
@@ -187,7 +190,8 @@ class Session : public std::enable_shared_from_this<Session> {
   void update_estimate();
   /// Turns a solver report into the next revision, publishes it and updates the deformer entry.
   /// Strand only.
-  DeformResult commit(core::SolveReport report, core::Method method, const Positions& targets,
+  DeformResult commit(core::SolveReport report, core::Method method, double rigidity,
+                      const Positions& targets,
                       const std::shared_ptr<const Positions>& base_positions, bool built,
                       const std::string& editor, bool refinement, CachedDeformer* entry);
 
@@ -198,6 +202,7 @@ class Session : public std::enable_shared_from_this<Session> {
     Eigen::VectorXd face_scale;  ///< magnification of the move being refined (empty: none)
     double tolerance = 1e-4;
     int remaining = 0;  ///< outer iterations left in the budget
+    double rigidity = 0;  ///< scale control of the move being refined
   };
   std::shared_ptr<const DeformResult> snapshot_locked() const;
 
@@ -208,6 +213,7 @@ class Session : public std::enable_shared_from_this<Session> {
   core::Measures rest_measures_;
   int boundary_loops_ = 0;
   core::DeformerSettings settings_;
+  double default_rigidity_ = core::kDefaultRigidity;  ///< for moves that do not set one
   ServiceOptions options_;
   std::shared_ptr<ServiceCounters> counters_;
   ReserveFn reserve_;

@@ -90,6 +90,9 @@ struct MoveRequest {
   std::vector<VertexTarget> targets;
   core::Method method = core::Method::ScaleAware;
   bool ora = false;        ///< optimal rigidity approximation (scale-aware only)
+  /// Scale control of the scale-aware method (core::SolveOptions::rigidity; 0 = the paper's
+  /// pure method); unset: the session's (CreateSessionRequest::rigidity). [0, kMaxRigidity].
+  std::optional<double> rigidity;
   /// Regions to magnify in this move and its background refinement (scale-aware only); absolute
   /// like the moves: an empty list magnifies nothing. A face in several regions takes the last.
   std::vector<MagnifyRegion> magnify;
@@ -104,6 +107,7 @@ struct MoveRequest {
 struct DeformResult {
   std::uint64_t revision = 0;  ///< 0 is the rest mesh; every committed move adds one
   core::Method method = core::Method::ScaleAware;
+  double rigidity = 0;          ///< scale control the solve used (0 for ARAP / Laplacian)
   std::shared_ptr<const Positions> positions;  ///< #V x 3, the full new positions
   /// Vertices whose position differs (exactly, threshold 0) from the previous revision, ascending.
   std::vector<int> changed;
@@ -143,6 +147,7 @@ struct SessionInfo {
   std::uint64_t revision = 0;
   std::vector<HandleGroup> groups;
   std::optional<core::Method> last_method;  ///< method of the last committed move
+  double rigidity = 0;                      ///< scale control of moves that do not set one
   std::size_t estimated_bytes = 0;          ///< what the memory budget charges this session
   int cached_deformers = 0;
   int watchers = 0;
@@ -159,6 +164,9 @@ struct CreateSessionRequest {
   std::string sample;                         ///< see DeformationService::sample_names()
   bool weld = false;                          ///< weld coincident vertices (STL always is)
   core::DeformerSettings settings;            ///< lambda etc., fixed for the session
+  /// Scale control of the session's scale-aware moves that do not set their own (unset:
+  /// core::kDefaultRigidity). [0, kMaxRigidity].
+  std::optional<double> rigidity;
   /// The front end's name for the caller (as for rate limits): uploads are admitted per client.
   std::string client;
 };
@@ -173,6 +181,15 @@ struct CreatedSession {
   int dropped_unreferenced = 0;
   std::vector<HandleGroup> suggested_groups;  ///< samples: the benchmark's fixed and handle sets
 };
+
+/// The largest scale control a request may ask for (core::SolveOptions::rigidity): far past
+/// ARAP-like behaviour, and the solve stays well conditioned.
+inline constexpr double kMaxRigidity = 1e4;
+
+/// Whether `rigidity` is a valid scale control: finite, in [0, kMaxRigidity].
+inline bool is_valid_rigidity(double rigidity) {
+  return rigidity >= 0.0 && rigidity <= kMaxRigidity;  // false for NaN
+}
 
 /// The calls limited per client (DeformationService::admit).
 enum class RateLimitedCall { CreateSession, MoveHandles };

@@ -169,6 +169,9 @@ Result<service::CreateSessionRequest> create_request_from_proto(
     }
     out.settings.lambda = request.lambda();
   }
+  if (request.has_rigidity()) {
+    out.rigidity = request.rigidity();  // range checked by the service
+  }
   return out;
 }
 
@@ -257,6 +260,7 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
     }
     out.max_iterations = static_cast<int>(request.max_iterations());
   }
+  if (request.has_rigidity()) out.rigidity = request.rigidity();  // range: the service
   if (request.has_tolerance()) {
     if (!std::isfinite(request.tolerance())) return invalid("tolerance is non-finite");
     out.tolerance = request.tolerance();
@@ -326,6 +330,7 @@ void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* ou
   vec_to_proto(info.bbox_max, out->mutable_bbox_max());
   out->set_revision(info.revision);
   groups_to_proto(info.groups, out->mutable_groups());
+  out->set_rigidity(info.rigidity);
   out->set_last_method(info.last_method ? method_to_proto(*info.last_method)
                                         : v1::METHOD_UNSPECIFIED);
   out->set_estimated_bytes(info.estimated_bytes);
@@ -350,6 +355,7 @@ void result_metrics_to_proto(const service::DeformResult& result, v1::DeformResu
   out->set_e_theta(result.e_theta);
   out->set_e_phi(result.e_phi);
   out->set_area_log_rms(result.area_log_rms);
+  out->set_rigidity(result.rigidity);
   out->set_iterations(static_cast<std::uint32_t>(result.iterations));
   out->set_converged(result.converged);
   out->set_solve_seconds(result.solve_seconds);

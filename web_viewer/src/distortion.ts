@@ -46,6 +46,47 @@ export function vertexDistortion(
   return out;
 }
 
+/** Twice the area of every face (|cross|), flat [f0, f1, ...]. */
+export function faceAreas2(p: ArrayLike<number>, indices: ArrayLike<number>): Float64Array {
+  const m = indices.length / 3;
+  const out = new Float64Array(m);
+  for (let f = 0; f < m; f++) {
+    const a = indices[f * 3] * 3, b = indices[f * 3 + 1] * 3, d = indices[f * 3 + 2] * 3;
+    const ux = p[b] - p[a], uy = p[b + 1] - p[a + 1], uz = p[b + 2] - p[a + 2];
+    const vx = p[d] - p[a], vy = p[d + 1] - p[a + 1], vz = p[d + 2] - p[a + 2];
+    out[f] = Math.hypot(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx);
+  }
+  return out;
+}
+
+/**
+ * Per-vertex area (scale) distortion: the mean of log(area / rest area) over the incident faces,
+ * signed (positive: grown, negative: shrunk). Zero under rigid motion; a uniform scale s gives
+ * 2 log s everywhere. The angle map hides scale drift by design; this shows it (issue 12).
+ */
+export function vertexAreaLog(
+  restAreas2: Float64Array,
+  p: ArrayLike<number>,
+  indices: ArrayLike<number>,
+  vertexCount: number,
+): Float32Array {
+  const cur = faceAreas2(p, indices);
+  const sum = new Float64Array(vertexCount);
+  const cnt = new Uint32Array(vertexCount);
+  for (let f = 0; f < cur.length; f++) {
+    const rest = restAreas2[f];
+    const d = rest > 0 && cur[f] > 0 ? Math.log(cur[f] / rest) : 0;
+    for (let c = 0; c < 3; c++) {
+      const v = indices[f * 3 + c];
+      sum[v] += d;
+      cnt[v]++;
+    }
+  }
+  const out = new Float32Array(vertexCount);
+  for (let v = 0; v < vertexCount; v++) out[v] = cnt[v] ? sum[v] / cnt[v] : 0;
+  return out;
+}
+
 // Viridis control points (perceptually uniform, colour-blind friendly).
 const VIRIDIS: [number, number, number][] = [
   [0.267, 0.005, 0.329], [0.283, 0.141, 0.458], [0.254, 0.265, 0.53], [0.207, 0.372, 0.553],

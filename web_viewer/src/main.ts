@@ -8,7 +8,8 @@ import {
 } from "./gen/meshdeform/v1/deformation_pb";
 import { kSessionId, makeClient } from "./client";
 import { MoveCoalescer } from "./coalescer";
-import { cornerAngles, ramp, rampCss, scaleMax, vertexDistortion } from "./distortion";
+import { rigidityLabel, rigidityStep, rigidityValue } from "./rigidity";
+import { cornerAngles, faceAreas2, ramp, rampCss, scaleMax, vertexAreaLog, vertexDistortion } from "./distortion";
 import { parseGlb } from "./glb";
 import { UndoStack } from "./history";
 import { Interaction, type Tool } from "./interaction";
@@ -62,6 +63,7 @@ interface Session {
   editToken: string | null;
   indices: Uint32Array;
   restAngles: Float32Array;
+  restAreas2: Float64Array;
   state: PositionState;
   selection: SelectionState;
   groups: HandleGroup[];
@@ -171,11 +173,15 @@ class App {
     const n = mesh.positions.length / 3;
     if (n !== info.vertices) throw new Error(`GLB has ${n} vertices, session ${info.vertices}`);
     this.closeCurrent();
+    // The slider starts at the session's scale control (what its moves use unless told).
+    $in("rigidity").value = String(rigidityStep(info.rigidity));
+    this.showRigidity();
     let resolveSnapshot!: () => void;
     const gotSnapshot = new Promise<void>((r) => (resolveSnapshot = r));
     const state = new PositionState(n);
     const s: Session = {
       creds, role, viewToken, editToken, indices: mesh.indices, restAngles: cornerAngles(mesh.positions, mesh.indices),
+      restAreas2: faceAreas2(mesh.positions, mesh.indices),
       state, selection: new SelectionState(n), groups: [], handleGroup: -1, anchorCentroid: null,
       watchGen: ++this.watchGenCounter, watchAbort: null, gotSnapshot, resolveSnapshot,
     };
@@ -213,7 +219,7 @@ class App {
     el.textContent = role === "view" ? "Watching (read-only)" : "Editing";
     el.classList.toggle("view", role === "view");
     this.viewer.gizmo.enabled = role === "edit";
-    for (const id of ["tool-move", "tool-brush", "tool-lasso", "apply-handles", "undo", "redo", "upload-input", "method", "ora", "iterations", "magnify"]) {
+    for (const id of ["tool-move", "tool-brush", "tool-lasso", "apply-handles", "undo", "redo", "upload-input", "method", "ora", "rigidity", "iterations", "magnify"]) {
       ($(id) as HTMLInputElement).disabled = role === "view";
     }
     this.updateUndoButtons();
@@ -313,7 +319,18 @@ class App {
   }
 
   private optsKey(): string {
-    return [$sel("method").value, $in("ora").checked, this.iterations(), $in("magnify").value, this.session?.selection.magnifyIndices().length ?? 0].join("|");
+    return [$sel("method").value, $in("ora").checked, this.rigidity(), this.iterations(), $in("magnify").value, this.session?.selection.magnifyIndices().length ?? 0].join("|");
+  }
+
+  private rigidity(): number {
+    return rigidityValue(Number($in("rigidity").value));
+  }
+
+  private showRigidity(): void {
+    $("rigidity-val").textContent = rigidityLabel(this.rigidity());
+    // Only the scale-aware method has a scale term.
+    $in("rigidity").disabled =
+      this.method() !== Method.SCALE_AWARE || document.body.classList.contains("viewer-readonly");
   }
 
   private iterations(): number {
@@ -339,6 +356,7 @@ class App {
         moves: [toGroupMove(s.handleGroup, t.state, [pivot.x, pivot.y, pivot.z])],
         method: this.method(),
         ora: $in("ora").checked,
+        rigidity: this.rigidity(),
         maxIterations: this.iterations(),
         encoding: ENCODING,
         editor: "web-viewer",
@@ -504,10 +522,21 @@ class App {
     const rgb = new Float32Array(n * 3);
     const heat = $in("heatmap").checked;
     $("legend").hidden = !heat;
-    if (heat) {
+    if (heat && $sel("heatmap-mode").value === "area") {
+      // |log(area / rest area)|: scale drift, which the angle map hides by design.
+      const signed = vertexAreaLog(s.restAreas2, s.state.positions, s.indices, n);
+      const d = signed.map(Math.abs);
+      const max = scaleMax(d, 0.01);
+      $("legend-min").textContent = "×1";
+      $("legend-max").textContent = `×${Math.exp(max).toFixed(2)} or ÷${Math.exp(max).toFixed(2)}`;
+      $("legend-what").textContent = "face area vs rest (mean |log ratio|)";
+      for (let i = 0; i < n; i++) rgb.set(ramp(d[i] / max), i * 3);
+    } else if (heat) {
       const d = vertexDistortion(s.restAngles, s.state.positions, s.indices, n);
       const max = scaleMax(d, THREE.MathUtils.degToRad(0.5));
+      $("legend-min").textContent = "0°";
       $("legend-max").textContent = `${THREE.MathUtils.radToDeg(max).toFixed(1)}°`;
+      $("legend-what").textContent = "mean |Δ corner angle|";
       for (let i = 0; i < n; i++) rgb.set(ramp(d[i] / max), i * 3);
     } else {
       for (let i = 0; i < n; i++) {
@@ -589,12 +618,16 @@ class App {
     $in("brush-radius").addEventListener("input", radius);
     radius();
     for (const id of ["method", "ora", "iterations"]) $(id).addEventListener("change", () => this.resendIfMoved());
+    $in("rigidity").addEventListener("input", () => this.showRigidity());
+    $in("rigidity").addEventListener("change", () => this.resendIfMoved());  // re-solves live
+    $sel("method").addEventListener("change", () => this.showRigidity());
     $in("magnify").addEventListener("input", () => ($("magnify-val").textContent = Number($in("magnify").value).toFixed(2)));
     $in("magnify").addEventListener("change", () => {
       if (this.session && this.session.selection.magnifyIndices().length === 0) this.banner.message("Paint a “magnify region” first (Brush or Lasso, mode magnify region).");
       this.resendIfMoved();
     });
     $in("heatmap").addEventListener("change", () => this.recolor());
+    $sel("heatmap-mode").addEventListener("change", () => this.recolor());
     $("reset-view").addEventListener("click", () => this.viewer.frame());
     $("undo").addEventListener("click", () => this.undoRedo(false));
     $("redo").addEventListener("click", () => this.undoRedo(true));

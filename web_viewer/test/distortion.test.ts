@@ -1,5 +1,5 @@
 import { describe, expect, it } from "vitest";
-import { cornerAngles, ramp, scaleMax, vertexDistortion } from "../src/distortion";
+import { cornerAngles, faceAreas2, ramp, scaleMax, vertexAreaLog, vertexDistortion } from "../src/distortion";
 
 // A small open grid mesh (3x3 vertices, 8 triangles).
 function grid(): { p: Float32Array; f: Uint32Array } {
@@ -53,5 +53,37 @@ describe("distortion heat map", () => {
     expect(ramp(-5)).toEqual(lo);
     expect(ramp(NaN)).toEqual(lo);
     expect(scaleMax(new Float32Array([0, 0, 0]))).toBe(1e-3);
+  });
+});
+
+describe("area heat map", () => {
+  const transform = (p: Float32Array, scale: number): Float32Array => {
+    const q = new Float32Array(p.length);
+    const c = Math.cos(0.7), s = Math.sin(0.7);
+    for (let i = 0; i < p.length / 3; i++) {
+      const [x, y, z] = [p[i * 3], p[i * 3 + 1], p[i * 3 + 2]];
+      q[i * 3] = scale * (c * x - s * y) + 1;
+      q[i * 3 + 1] = scale * (s * x + c * y) - 2;
+      q[i * 3 + 2] = scale * z + 0.5;
+    }
+    return q;
+  };
+  it("is zero under a rigid motion and 2 log s under a uniform scale s", () => {
+    const { p, f } = grid();
+    const rest = faceAreas2(p, f);
+    for (const v of vertexAreaLog(rest, transform(p, 1), f, 9)) expect(Math.abs(v)).toBeLessThan(1e-5);
+    for (const v of vertexAreaLog(rest, transform(p, 1.5), f, 9)) expect(v).toBeCloseTo(2 * Math.log(1.5), 4);
+  });
+  it("is positive where faces grew and negative where they shrank", () => {
+    const { p, f } = grid();
+    const rest = faceAreas2(p, f);
+    const q = Float32Array.from(p);
+    q[8 * 3] += 1; q[8 * 3 + 1] += 1;  // pull the corner vertex 8 outward: its faces grow
+    const d = vertexAreaLog(rest, q, f, 9);
+    expect(d[8]).toBeGreaterThan(0.1);
+    expect(d[0]).toBe(0);  // far corner untouched
+    const r = Float32Array.from(p);
+    r[8 * 3] -= 0.5; r[8 * 3 + 1] -= 0.5;  // push it inward: they shrink
+    expect(vertexAreaLog(rest, r, f, 9)[8]).toBeLessThan(-0.1);
   });
 });
