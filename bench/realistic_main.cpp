@@ -994,7 +994,7 @@ Status run(int argc, char** argv) {
   const std::filesystem::path dir(options.out_dir);
   MD_RETURN_IF_ERROR(write_file(dir / (options.stem + ".md"), md));
   MD_RETURN_IF_ERROR(write_file(dir / (options.stem + ".json"),
-                                to_json(machine, load_end, options, rows).dump(1) + "\n"));
+                                to_json(machine, load_end, options, rows).dump() + "\n"));
   MD_RETURN_IF_ERROR(write_file(dir / (options.stem + "_scaling.svg"), scaling_svg(rows)));
   std::cerr << "wrote " << (dir / options.stem).string() << ".{md,json} and _scaling.svg\n";
   return Status::success();
