@@ -143,7 +143,11 @@ Result<Method> parse_method(std::string_view name) {
 Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& V0,
                                                 const Triangles& F,
                                                 const Eigen::VectorXi& constrained,
-                                                const DeformerSettings& settings) {
+                                                const DeformerSettings& settings,
+                                                std::stop_token stop) {
+  if (stop.stop_requested()) {
+    return Error(ErrorCode::Cancelled, "precompute cancelled (deadline or client)");
+  }
   switch (method) {
     case Method::ScaleAware: {
       ScaleAwareSettings s;
@@ -151,7 +155,7 @@ Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& 
       s.threads = settings.threads;
       s.refactor_cost_ratio = settings.refactor_cost_ratio;
       s.preconditioner = settings.preconditioner;
-      MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(V0, F, constrained, s));
+      MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(V0, F, constrained, s, stop));
       return std::unique_ptr<Deformer>(std::make_unique<ScaleAwareDeformer>(std::move(solver)));
     }
     case Method::Arap: {

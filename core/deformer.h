@@ -91,10 +91,12 @@ class Deformer {
 ///         cannot pin (scale-aware: fewer than two constrained vertices; ARAP and Laplacian:
 ///         none), or settings out of range (lambda not positive and finite, or
 ///         refactor_cost_ratio not positive, for the methods that use them); NumericalFailure if
-///         a factorization fails.
+///         a factorization fails; Cancelled when `stop` is requested before or between the
+///         precompute's phases (a running factorization itself finishes).
 [[nodiscard]] Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& V0,
                                                               const Triangles& F,
                                                               const Eigen::VectorXi& constrained,
-                                                              const DeformerSettings& settings = {});
+                                                              const DeformerSettings& settings = {},
+                                                              std::stop_token stop = {});
 
 }  // namespace meshdeform::core

@@ -99,7 +99,7 @@ struct ScaleAwareSolver::Impl {
   bool rotations_warm = false;
 
   Status build(const Positions& V0_in, const Triangles& F_in, const Eigen::VectorXi& constrained_in,
-               const ScaleAwareSettings& settings_in);
+               const ScaleAwareSettings& settings_in, const std::stop_token& stop);
   void build_pattern();
   void assemble(const RowPositions& normals, double rigidity = 0.0);
   SparseMatrix block_trace_matrix() const;
@@ -122,7 +122,12 @@ struct ScaleAwareSolver::Impl {
 
 Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_in,
                                      const Eigen::VectorXi& constrained_in,
-                                     const ScaleAwareSettings& settings_in) {
+                                     const ScaleAwareSettings& settings_in,
+                                     const std::stop_token& stop) {
+  const auto check_stop = [&stop]() -> Status {
+    if (!stop.stop_requested()) return Status::success();
+    return Error(ErrorCode::Cancelled, "precompute cancelled (deadline or client)");
+  };
   if (!(settings_in.lambda > 0) || !std::isfinite(settings_in.lambda)) {
     return Error(ErrorCode::InvalidArgument, "lambda must be positive and finite");
   }
@@ -151,14 +156,17 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   corner_ratio = rest.ratio;
   N0 = face_normals(V0_in, F_in);
 
+  MD_RETURN_IF_ERROR(check_stop());
   MD_ASSIGN_OR_RETURN(LaplacianEditor editor,
                       LaplacianEditor::create(V0_in, F_in, topology, constrained,
                                               LaplacianWeights::Cotangent, settings.lambda));
   laplacian.emplace(std::move(editor));
+  MD_RETURN_IF_ERROR(check_stop());
 
   build_pattern();
   // The rest normals give the first numeric factor; later systems reuse it as a preconditioner.
   assemble(N0);
+  MD_RETURN_IF_ERROR(check_stop());
   if (settings.preconditioner == StepTwoPreconditioner::BlockTrace) {
     const SparseMatrix T = block_trace_matrix();
     MD_RETURN_IF_ERROR(trace_cholesky.analyze(T));
@@ -613,9 +621,10 @@ ScaleAwareSolver::~ScaleAwareSolver() = default;
 
 Result<ScaleAwareSolver> ScaleAwareSolver::create(const Positions& V0, const Triangles& F,
                                                   const Eigen::VectorXi& constrained,
-                                                  const ScaleAwareSettings& settings) {
+                                                  const ScaleAwareSettings& settings,
+                                                  std::stop_token stop) {
   auto impl = std::make_unique<Impl>();
-  MD_RETURN_IF_ERROR(impl->build(V0, F, constrained, settings));
+  MD_RETURN_IF_ERROR(impl->build(V0, F, constrained, settings, stop));
   return ScaleAwareSolver(std::move(impl));
 }
 

@@ -62,10 +62,12 @@ class ScaleAwareSolver {
   ///         validation, or a connected component with fewer than two constrained vertices
   ///         (the energy is invariant to translation and scale, so such a component is not pinned:
   ///         the message names the component and one of its vertices); NumericalFailure if a
-  ///         factorization fails.
+  ///         factorization fails; Cancelled when `stop` is requested (checked between the
+  ///         precompute's phases: a CHOLMOD factorization itself runs to its end).
   [[nodiscard]] static Result<ScaleAwareSolver> create(const Positions& V0, const Triangles& F,
                                                        const Eigen::VectorXi& constrained,
-                                                       const ScaleAwareSettings& settings = {});
+                                                       const ScaleAwareSettings& settings = {},
+                                                       std::stop_token stop = {});
 
   /// Deforms toward #C x 3 targets (row j for constrained(j)).
   /// With options.rigidity > 0 the scale term of core/scale_control.h joins the energy (built on

@@ -21,10 +21,22 @@ void use_single_threaded_blas() {
   });
 }
 
+// Eigen keeps the CHOLMOD factor protected; the conversion needs it.
+class SupernodalLlt : public Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> {
+ public:
+  bool to_simplicial() {
+    if (m_cholmodFactor == nullptr || !m_cholmodFactor->is_super) return m_cholmodFactor != nullptr;
+    return cholmod_change_factor(CHOLMOD_REAL, /*to_ll=*/1, /*to_super=*/0, /*to_packed=*/1,
+                                 /*to_monotonic=*/1, m_cholmodFactor, &cholmod()) != 0;
+  }
+  bool is_simplicial() const { return m_cholmodFactor != nullptr && !m_cholmodFactor->is_super; }
+};
+
 }  // namespace
 
 struct SparseCholesky::Impl {
-  Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
+  SupernodalLlt llt;
+  bool simplicial_solves = false;
   bool analyzed = false;
   bool factorized = false;
   double factor_flops = 0;
@@ -51,7 +63,8 @@ Status SparseCholesky::analyze(const SparseMatrix& A) {
 }
 
 Status SparseCholesky::factorize(const SparseMatrix& A) {
-  if (!impl_->analyzed) MD_RETURN_IF_ERROR(analyze(A));
+  // A converted (simplicial) factor would be refactored simplicially, slowly: analyse again.
+  if (!impl_->analyzed || impl_->llt.is_simplicial()) MD_RETURN_IF_ERROR(analyze(A));
   impl_->llt.factorize(A);
   impl_->factorized = impl_->llt.info() == Eigen::Success;
   if (!impl_->factorized) {
@@ -59,8 +72,15 @@ Status SparseCholesky::factorize(const SparseMatrix& A) {
                  "Cholesky factorization of a " + std::to_string(A.rows()) + " x " +
                      std::to_string(A.cols()) + " system failed (matrix not positive definite)");
   }
+  if (impl_->simplicial_solves && !impl_->llt.to_simplicial()) {
+    return Error(ErrorCode::Internal, "converting the Cholesky factor of a " +
+                                          std::to_string(A.rows()) + " x " +
+                                          std::to_string(A.cols()) + " system failed");
+  }
   return Status::success();
 }
+
+void SparseCholesky::set_simplicial_solves(bool on) { impl_->simplicial_solves = on; }
 
 Eigen::MatrixXd SparseCholesky::solve(const Eigen::MatrixXd& b) const {
   MD_ASSERT(impl_->factorized);

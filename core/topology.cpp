@@ -117,4 +117,31 @@ Result<MeshTopology> build_topology(const Triangles& F, int vertex_count) {
   return t;
 }
 
+int count_boundary_loops(const Triangles& F, int vertex_count) {
+  std::unordered_map<long long, int> undirected;
+  auto key = [vertex_count](int a, int b) {
+    return static_cast<long long>(std::min(a, b)) * vertex_count + std::max(a, b);
+  };
+  for (int f = 0; f < F.rows(); ++f)
+    for (int k = 0; k < 3; ++k) ++undirected[key(F(f, k), F(f, (k + 1) % 3))];
+  std::vector<int> next(static_cast<std::size_t>(vertex_count), -1);
+  for (int f = 0; f < F.rows(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const int a = F(f, k), b = F(f, (k + 1) % 3);
+      if (undirected[key(a, b)] == 1) next[static_cast<std::size_t>(a)] = b;
+    }
+  }
+  int loops = 0;
+  std::vector<char> seen(next.size(), 0);
+  for (std::size_t start = 0; start < next.size(); ++start) {
+    if (next[start] < 0 || seen[start]) continue;
+    ++loops;
+    for (int v = static_cast<int>(start); v >= 0 && !seen[static_cast<std::size_t>(v)];
+         v = next[static_cast<std::size_t>(v)]) {
+      seen[static_cast<std::size_t>(v)] = 1;
+    }
+  }
+  return loops;
+}
+
 }  // namespace meshdeform::core

@@ -37,4 +37,9 @@ struct MeshTopology {
 ///         or a non-manifold edge (shared by more than two faces), naming the first one.
 [[nodiscard]] Result<MeshTopology> build_topology(const Triangles& F, int vertex_count);
 
+/// The closed loops of boundary edges (holes and open borders) of a validated mesh (manifold,
+/// consistently oriented, manifold vertices: every boundary vertex has exactly one outgoing
+/// boundary half-edge). @param[in] F #F x 3; vertex_count #V. @return the number of loops.
+int count_boundary_loops(const Triangles& F, int vertex_count);
+
 }  // namespace meshdeform::core

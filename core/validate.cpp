@@ -234,7 +234,10 @@ Status validate_triangle_mesh(const Positions& V, const Triangles& F) {
   return Status::success();
 }
 
-Result<CleanReport> clean_mesh(MeshData& mesh, bool weld) {
+Result<CleanReport> clean_mesh(MeshData& mesh, bool weld, std::stop_token stop) {
+  const auto cancelled = [] {
+    return Error(ErrorCode::Cancelled, "cleaning the mesh was cancelled (deadline or client)");
+  };
   // Remapping needs indices in range; report those on the input numbering.
   if (mesh.V.rows() == 0 || mesh.F.rows() == 0) return check_basic(mesh.V, mesh.F);
   for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
@@ -251,6 +254,7 @@ Result<CleanReport> clean_mesh(MeshData& mesh, bool weld) {
   if (weld) {
     std::map<std::array<double, 3>, int> first_at;
     for (Eigen::Index i = 0; i < nv; ++i) {
+      if ((i & 4095) == 0 && stop.stop_requested()) return cancelled();
       // Non-finite positions are never welded (NaN != NaN); validation reports them below.
       if (!mesh.V.row(i).allFinite()) continue;
       // + 0.0 maps -0.0 to +0.0, which compare equal as doubles.
@@ -299,6 +303,7 @@ Result<CleanReport> clean_mesh(MeshData& mesh, bool weld) {
     for (int k = 0; k < 3; ++k) cleaned.F(f, k) = report.old_to_new(mesh.F(f, k));
   }
 
+  if (stop.stop_requested()) return cancelled();
   const Status status = validate_triangle_mesh(cleaned.V, cleaned.F);
   if (!status.ok()) {
     if (report.welded_vertices == 0 && report.dropped_unreferenced == 0) return status;

@@ -2,6 +2,8 @@
 /// @file validate.h
 /// Mesh validation and lossless cleaning. Every error names the first offending element.
 
+#include <stop_token>
+
 #include <Eigen/Core>
 
 #include "core/mesh_data.h"
@@ -46,8 +48,10 @@ struct CleanReport {
 /// A face that repeats a vertex after welding is not dropped: it is reported like any other
 /// validation error. Errors found after renumbering are prefixed with "after cleaning (...)"
 /// because they name indices of the cleaned mesh; indices out of range are reported on the input.
+/// @param[in] stop      checked between passes and every few thousand vertices of the weld.
 /// @return the report, or InvalidArgument with the first validation error of the cleaned mesh
-///         (mesh untouched).
-[[nodiscard]] Result<CleanReport> clean_mesh(MeshData& mesh, bool weld);
+///         (mesh untouched); Cancelled when `stop` is requested (mesh untouched).
+[[nodiscard]] Result<CleanReport> clean_mesh(MeshData& mesh, bool weld,
+                                             std::stop_token stop = {});
 
 }  // namespace meshdeform::core

@@ -14,6 +14,7 @@ cmake -S "$root" -B "$root/build-asan" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DMESHDEFORM_SANITIZE=address,undefined -DMESHDEFORM_BUILD_BENCH=OFF \
   -DMESHDEFORM_BUILD_SERVER=ON -DMESHDEFORM_BUILD_TESTS=ON -DMESHDEFORM_BUILD_CLI=ON "$@" >/dev/null
 cmake --build "$root/build-asan" -j"$(nproc)"
+[ "${MESHDEFORM_SANITIZE_BUILD_ONLY:-0}" = "1" ] && exit 0  # scripts/test-under-load.sh
 # halt_on_error makes UBSan findings fatal (by default it only prints them); LeakSanitizer works
 # in this environment, so leaks fail too.
 export ASAN_OPTIONS="halt_on_error=1:abort_on_error=0:detect_leaks=1:strict_string_checks=1:detect_stack_use_after_return=1"

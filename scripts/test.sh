@@ -2,7 +2,8 @@
 # The whole test suite, in three stages; any failure fails the run:
 #  1. installs what is missing, builds everything in ./build (the benchmarks too, so they cannot
 #     rot) and the browser viewer (web_viewer/dist), and runs CTest: the C++ suites, the viewer's
-#     vitest tests and its end-to-end tests in headless Chromium;
+#     vitest tests and its end-to-end tests in headless Chromium; then the kill check
+#     (scripts/kill-check.sh: a SIGKILLed test leaves no server process behind);
 #  2. every C++ test again under ASan + UBSan, the gRPC suites included (scripts/test-sanitize.sh,
 #     ./build-asan; no benchmarks, no JavaScript);
 #  3. a short bounded fuzz run of every parser (scripts/fuzz.sh, clang + libFuzzer, ./build-fuzz),
@@ -18,7 +19,9 @@ start=$SECONDS
 "$root/scripts/build.sh" -DMESHDEFORM_BUILD_TESTS=ON -DMESHDEFORM_BUILD_BENCH=ON -DMESHDEFORM_BUILD_CLI=ON \
   -DMESHDEFORM_BUILD_SERVER=ON -DMESHDEFORM_VIEWER_TESTS=ON
 ctest --test-dir "$root/build" --output-on-failure --timeout 600 -j"$(nproc)"
-stage "stage 1 (build + tests) done"
+# A test binary killed with SIGKILL mid-run leaves no server behind and no open stdout.
+"$root/scripts/kill-check.sh" "$root/build"
+stage "stage 1 (build + tests + kill check) done"
 
 if [ "${MESHDEFORM_SKIP_SANITIZE:-0}" != "1" ]; then
   "$root/scripts/test-sanitize.sh"

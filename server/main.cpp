@@ -56,6 +56,10 @@ struct Flags {
   double move_rate = 200.0;   // per client, moves per second (0 = unlimited)
   double move_burst = 400;
   bool trust_forwarded_for = false;
+  int heavy_per_client = 4;   // uploads/precomputes admitted at once per client
+  int heavy_total = 16;       // ... and over all clients
+  int heavy_lanes = 0;        // workers that may run them (0 = workers - 1)
+  bool test_hooks = false;    // SIGUSR1 expires every idle session now (tests only)
 };
 
 constexpr const char* kUsage =
@@ -68,7 +72,7 @@ constexpr const char* kUsage =
     "  --memory-budget-mib N       estimated memory for all sessions; least recently used idle\n"
     "                              sessions are evicted to make room (default 2048)\n"
     "  --max-message-mib N         largest request/response, e.g. a mesh upload (default 64)\n"
-    "  --workers N                 solver threads (default 0 = one per core)\n"
+    "  --workers N                 solver threads (default 0 = one per core, at least 2)\n"
     "  --shutdown-grace-seconds N  on SIGTERM/SIGINT, time to finish calls (default 10)\n"
     "  --refine-budget N           outer iterations the server keeps refining a session in the\n"
     "                              background after a move while its handles rest, publishing\n"
@@ -98,6 +102,14 @@ constexpr const char* kUsage =
     "  --move-rate R               moves each client may make per second (default 200; 0 =\n"
     "                              unlimited)\n"
     "  --move-burst N              ... and at once (default 400)\n"
+    "  --heavy-per-client N        uploads (CreateSession parses) and SetHandles precomputes each\n"
+    "                              client may have queued or running at once (default 4); over\n"
+    "                              it, or over --heavy-total: RESOURCE_EXHAUSTED at once\n"
+    "  --heavy-total N             ... over all clients (default 16)\n"
+    "  --heavy-lanes N             workers that may run that heavy work (default 0 = workers - 1,\n"
+    "                              at least 1): the others keep serving moves and reads\n"
+    "  --test-hooks                for tests only: SIGUSR1 expires every idle session at once (as\n"
+    "                              if --idle-ttl-seconds had passed) and logs \"expired_by_signal\"\n"
     "  --trust-forwarded-for       name clients by the x-forwarded-for header for those limits;\n"
     "                              only behind a proxy that sets it (nginx: grpc_set_header\n"
     "                              X-Forwarded-For $remote_addr), else clients pick their name\n";
@@ -122,8 +134,12 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
       help = true;
       return true;
     }
-    if (arg == "--trust-forwarded-for") {  // the one flag without a value
+    if (arg == "--trust-forwarded-for") {  // flags without a value
       flags.trust_forwarded_for = true;
+      continue;
+    }
+    if (arg == "--test-hooks") {
+      flags.test_hooks = true;
       continue;
     }
     if (const std::size_t eq = arg.find('='); eq != std::string_view::npos) {
@@ -187,6 +203,12 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
       ok = parse_number<double>(value, 0, 1e6, flags.move_rate);
     } else if (arg == "--move-burst") {
       ok = parse_number<double>(value, 1, 1e6, flags.move_burst);
+    } else if (arg == "--heavy-per-client") {
+      ok = parse_number(value, 1, 1024, flags.heavy_per_client);
+    } else if (arg == "--heavy-total") {
+      ok = parse_number(value, 1, 4096, flags.heavy_total);
+    } else if (arg == "--heavy-lanes") {
+      ok = parse_number(value, 0, 1024, flags.heavy_lanes);
     } else if (arg == "--shutdown-grace-seconds") {
       ok = parse_number(value, 0, 3600, flags.shutdown_grace_seconds);
     } else {
@@ -225,6 +247,7 @@ int main(int argc, char** argv) {
   sigemptyset(&signals);
   sigaddset(&signals, SIGINT);
   sigaddset(&signals, SIGTERM);
+  if (flags.test_hooks) sigaddset(&signals, SIGUSR1);  // see --test-hooks
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
   meshdeform::service::ServiceOptions options;
@@ -238,6 +261,8 @@ int main(int argc, char** argv) {
   options.state_dir = flags.state_dir;
   options.create_rate = {flags.create_rate, flags.create_burst};
   options.move_rate = {flags.move_rate, flags.move_burst};
+  options.heavy_work = {flags.heavy_per_client, flags.heavy_total};
+  options.heavy_lanes = flags.heavy_lanes;
   if (!flags.state_dir.empty()) {
     if (auto dir = meshdeform::service::StateDirectory::open(flags.state_dir); !dir.ok()) {
       log_event(LogLevel::Error, "state_dir_unusable",
@@ -355,7 +380,17 @@ int main(int argc, char** argv) {
   });
 
   int received = 0;
-  sigwait(&signals, &received);
+  while (true) {
+    sigwait(&signals, &received);
+    if (received != SIGUSR1) break;
+    // Test hook: an explicit expiry instead of a short TTL, so that tests do not depend on how
+    // fast this machine runs them.
+    const std::size_t removed = service.evict_expired(
+        std::chrono::steady_clock::now() + std::chrono::seconds(flags.idle_ttl_seconds) +
+        std::chrono::seconds(1));
+    log_event(LogLevel::Info, "expired_by_signal",
+              LogFields().add("removed", static_cast<std::uint64_t>(removed)));
+  }
   log_event(LogLevel::Info, "shutdown",
             LogFields().add("signal", received).add("grace_seconds", flags.shutdown_grace_seconds));
   // Health checks say NOT_SERVING at once (balancers stop sending); then stop accepting calls and,

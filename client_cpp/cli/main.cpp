@@ -28,6 +28,7 @@
 #include "client_cpp/client.h"
 #include "core/io/deform_spec.h"
 #include "core/io/mesh_io.h"
+#include "core/similarity.h"
 
 namespace {
 
@@ -406,22 +407,15 @@ int cmd_handles(const mc::Client& client, const Args& args) {
 /// A 4x4 affine transform as a group move about the origin, if its linear part is a rotation
 /// times a positive uniform scale (the only transforms GroupMove expresses).
 std::optional<mc::GroupMove> similarity_move(const Eigen::Matrix4d& T, int group) {
-  const Eigen::Vector4d last_row = T.row(3).transpose();
-  if ((last_row - Eigen::Vector4d(0, 0, 0, 1)).cwiseAbs().maxCoeff() > 1e-12) return std::nullopt;
-  const Eigen::Matrix3d A = T.topLeftCorner<3, 3>();
-  const double det = A.determinant();
-  if (!(det > 0)) return std::nullopt;
-  const double s = std::cbrt(det);
-  const Eigen::Matrix3d R = A / s;
-  if ((R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() > 1e-9) {
-    return std::nullopt;
-  }
+  const std::optional<meshdeform::core::GroupSimilarity> similarity =
+      meshdeform::core::similarity_from_matrix(T);
+  if (!similarity) return std::nullopt;
   mc::GroupMove move;
   move.group = group;
-  move.rotation = Eigen::Quaterniond(R).normalized();
-  move.scale = s;
-  move.pivot = Eigen::Vector3d::Zero();  // target = s R anchor + t
-  move.translation = T.topRightCorner<3, 1>();
+  move.rotation = Eigen::Quaterniond(similarity->rotation).normalized();
+  move.scale = similarity->scale;
+  move.pivot = similarity->pivot;  // the origin: target = s R anchor + t
+  move.translation = similarity->translation;
   return move;
 }
 

@@ -12,6 +12,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
+#include <cstdlib>
 #include <ctime>
 #include <exception>
 #include <filesystem>
@@ -281,6 +282,29 @@ void LoadRun::note_setup_failure(SessionState& session, const std::string& call,
   session.result.setup_error = truncated(status.error_message());
 }
 
+// Runs one setup call, retrying while the server refuses it as RESOURCE_EXHAUSTED (heavy-work
+// admission or a rate limit: N sessions set up at once are a burst of uploads and precomputes),
+// waiting as the retry-after-ms trailer says (else 50 ms, doubling to 1 s), until the deadline.
+template <typename Call>
+grpc::Status call_with_retry(Clock::time_point deadline, Call&& call) {
+  std::chrono::milliseconds backoff(50);
+  while (true) {
+    grpc::ClientContext context;
+    set_deadline(context, deadline);
+    grpc::Status status = call(context);
+    if (status.error_code() != grpc::StatusCode::RESOURCE_EXHAUSTED) return status;
+    std::chrono::milliseconds wait = backoff;
+    const auto& trailers = context.GetServerTrailingMetadata();
+    if (const auto it = trailers.find("retry-after-ms"); it != trailers.end()) {
+      wait = std::chrono::milliseconds(std::atoll(std::string(it->second.data(), it->second.size()).c_str()));
+    }
+    wait = std::clamp(wait, std::chrono::milliseconds(10), std::chrono::milliseconds(1000));
+    if (Clock::now() + wait >= deadline) return status;
+    std::this_thread::sleep_for(wait);
+    backoff = std::min(backoff * 2, std::chrono::milliseconds(1000));
+  }
+}
+
 bool LoadRun::set_up(SessionState& session) {
   SessionResult& result = session.result;
   const Clock::time_point setup_deadline = std::min(Clock::now() + kSetupCallDeadline, run_end_);
@@ -294,10 +318,10 @@ bool LoadRun::set_up(SessionState& session) {
   }
   v1::CreateSessionResponse created;
   {
-    grpc::ClientContext context;
-    set_deadline(context, setup_deadline);
     const Clock::time_point sent = Clock::now();
-    const grpc::Status status = session.stub->CreateSession(&context, create, &created);
+    const grpc::Status status = call_with_retry(setup_deadline, [&](grpc::ClientContext& context) {
+      return session.stub->CreateSession(&context, create, &created);
+    });
     result.create_ms = ms_between(sent, Clock::now());
     if (!status.ok()) {
       note_setup_failure(session, "CreateSession", status);
@@ -339,12 +363,12 @@ bool LoadRun::set_up(SessionState& session) {
     return false;
   }
   {
-    grpc::ClientContext context;
-    context.AddMetadata("x-session-id", session.session_id);
-    set_deadline(context, setup_deadline);
     v1::SetHandlesResponse response;
     const Clock::time_point sent = Clock::now();
-    const grpc::Status status = session.stub->SetHandles(&context, set_handles, &response);
+    const grpc::Status status = call_with_retry(setup_deadline, [&](grpc::ClientContext& context) {
+      context.AddMetadata("x-session-id", session.session_id);
+      return session.stub->SetHandles(&context, set_handles, &response);
+    });
     result.set_handles_ms = ms_between(sent, Clock::now());
     if (!status.ok()) {
       note_setup_failure(session, "SetHandles", status);

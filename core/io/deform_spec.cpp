@@ -1,5 +1,8 @@
 #include "core/io/deform_spec.h"
 
+#include "core/io/json_depth.h"
+#include "core/similarity.h"
+
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <array>
@@ -70,10 +73,11 @@ Result<T> with_path(Result<T> result, const std::filesystem::path& path) {
 
 // Calls `visit(token, line_number)` for every whitespace-separated token outside '#' lines.
 template <typename Visit>
-Status for_each_token(std::string_view text, Visit&& visit) {
+Status for_each_token(std::string_view text, WorkMeter& work, Visit&& visit) {
   std::size_t pos = 0;
   int line_number = 0;
   while (pos < text.size()) {
+    MD_RETURN_IF_ERROR(work.step());
     const std::size_t end = std::min(text.find('\n', pos), text.size());
     std::string_view line = text.substr(pos, end - pos);
     pos = end + 1;
@@ -89,7 +93,10 @@ Status for_each_token(std::string_view text, Visit&& visit) {
       while (i < line.size() &&
              std::string_view(" \t\r\f\v").find(line[i]) == std::string_view::npos)
         ++i;
-      if (i > start) MD_RETURN_IF_ERROR(visit(line.substr(start, i - start), line_number));
+      if (i > start) {
+        MD_RETURN_IF_ERROR(work.step());
+        MD_RETURN_IF_ERROR(visit(line.substr(start, i - start), line_number));
+      }
     }
   }
   return Status::success();
@@ -382,13 +389,15 @@ Result<Positions> group_targets(const HandleGroup& group, const Positions& V,
       }
       if (!std::isfinite(group.scale)) return invalid(where + ".scale: is not finite");
       if (!group.translation.allFinite()) return invalid(where + ".translation: is not finite");
-      const Eigen::RowVector3d pivot = group.pivot ? Eigen::RowVector3d(group.pivot->transpose())
-                                                   : Eigen::RowVector3d(rest.colwise().mean());
-      if (!pivot.allFinite()) return invalid(where + ".pivot: is not finite");
-      for (Eigen::Index i = 0; i < n; ++i) {
-        out.row(i) = pivot + group.translation.transpose() +
-                     (R * (group.scale * (rest.row(i) - pivot).transpose())).transpose();
+      core::GroupSimilarity transform;
+      transform.rotation = R;
+      transform.scale = group.scale;
+      transform.translation = group.translation;
+      transform.pivot = group.pivot;
+      if (!core::similarity_pivot(transform, rest).allFinite()) {
+        return invalid(where + ".pivot: is not finite");
       }
+      out = core::apply_similarity(transform, rest);
       break;
     }
     case HandleForm::Matrix: {
@@ -433,11 +442,16 @@ auto guarded(const char* what, F&& body) -> decltype(body()) {
 
 // ------------------------------------------------------------------------------------------ .sel
 
-Result<Eigen::VectorXi> parse_sel(std::string_view text, int expected_vertex_count) {
+Result<Eigen::VectorXi> parse_sel(std::string_view text, int expected_vertex_count,
+                                  const ReadControl& control) {
   return guarded("parsing .sel", [&]() -> Result<Eigen::VectorXi> {
+    WorkMeter work(control);
     std::vector<int> values;
-    if (expected_vertex_count > 0) values.reserve(static_cast<std::size_t>(expected_vertex_count));
-    MD_RETURN_IF_ERROR(for_each_token(text, [&](std::string_view token, int line) -> Status {
+    // Every entry takes at least one byte and a separator: reserve no more than the text holds.
+    if (expected_vertex_count > 0) {
+      values.reserve(std::min(static_cast<std::size_t>(expected_vertex_count), text.size() / 2 + 1));
+    }
+    MD_RETURN_IF_ERROR(for_each_token(text, work, [&](std::string_view token, int line) -> Status {
       int value = -1;
       const auto [ptr, ec] = std::from_chars(token.data(), token.data() + token.size(), value);
       if (ec != std::errc() || ptr != token.data() + token.size() || value < 0 || value > 2) {
@@ -487,10 +501,11 @@ Status write_sel(const std::filesystem::path& path, const Eigen::VectorXi& selec
 
 // ------------------------------------------------------------------------------------------ .def
 
-Result<Eigen::Matrix4d> parse_def(std::string_view text) {
+Result<Eigen::Matrix4d> parse_def(std::string_view text, const ReadControl& control) {
   return guarded("parsing .def", [&]() -> Result<Eigen::Matrix4d> {
+    WorkMeter work(control);
     std::vector<double> values;
-    MD_RETURN_IF_ERROR(for_each_token(text, [&](std::string_view token, int line) -> Status {
+    MD_RETURN_IF_ERROR(for_each_token(text, work, [&](std::string_view token, int line) -> Status {
       std::string_view digits = token;
       if (!digits.empty() && digits.front() == '+') digits.remove_prefix(1);
       double value = 0.0;
@@ -546,8 +561,17 @@ Status write_def(const std::filesystem::path& path, const Eigen::Matrix4d& trans
 
 // ------------------------------------------------------------------------------------ JSON spec
 
-Result<EditSpec> parse_edit_spec(std::string_view json_text) {
+Result<EditSpec> parse_edit_spec(std::string_view json_text, const ReadControl& control) {
   return guarded("parsing edit spec", [&]() -> Result<EditSpec> {
+    WorkMeter work(control);
+    // The scan, the parse and the walks below are each linear in the text.
+    MD_RETURN_IF_ERROR(work.step(json_text.size() / 16 + 1));
+    // check_finite_json and nlohmann's destructor walk the tree recursively: refuse deep nesting
+    // before parsing (a few MB of '[' would otherwise overflow the stack).
+    if (json_nesting_depth(json_text, kMaxJsonDepth) > kMaxJsonDepth) {
+      return invalid("edit spec nests arrays/objects deeper than " +
+                     std::to_string(kMaxJsonDepth) + " levels");
+    }
     json root;
     try {
       root =
@@ -556,6 +580,7 @@ Result<EditSpec> parse_edit_spec(std::string_view json_text) {
     } catch (const json::exception& e) {
       return invalid(std::string("edit spec is not valid JSON: ") + e.what());
     }
+    MD_RETURN_IF_ERROR(work.poll());
     MD_RETURN_IF_ERROR(check_finite_json(root, "edit spec"));
     return parse_spec_json(root);
   });

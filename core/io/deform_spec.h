@@ -34,6 +34,7 @@
 #include <string_view>
 #include <vector>
 
+#include "core/io/read_control.h"
 #include "core/mesh_data.h"
 #include "core/procedural.h"
 #include "core/status.h"
@@ -46,9 +47,12 @@ namespace meshdeform::io {
 /// 2 handle), separated by any whitespace.
 /// @param[in] text                   file contents.
 /// @param[in] expected_vertex_count  #V of the mesh; a negative value accepts any count.
+/// @param[in] control                stop token and work counter (work is linear in the text).
 /// @return #V roles; InvalidArgument naming the line and value of a non-integer or a value outside
-///         {0, 1, 2}, or stating both counts when the number of entries differs from #V.
-[[nodiscard]] Result<Eigen::VectorXi> parse_sel(std::string_view text, int expected_vertex_count);
+///         {0, 1, 2}, or stating both counts when the number of entries differs from #V;
+///         Cancelled when control.stop is requested.
+[[nodiscard]] Result<Eigen::VectorXi> parse_sel(std::string_view text, int expected_vertex_count,
+                                               const ReadControl& control = {});
 
 /// Reads a .sel file (see parse_sel).
 /// @return the roles; NotFound if the file does not exist; parse_sel's errors prefixed by the path.
@@ -67,9 +71,12 @@ namespace meshdeform::io {
 
 /// Parses a .def transform: '#' comment lines, then 16 numbers forming a row-major 4x4 matrix
 /// (x' = T * [x; 1]) applied to every handle vertex.
+/// @param[in] control  stop token and work counter (work is linear in the text).
 /// @return the matrix; InvalidArgument naming the line and token of a non-number or non-finite
-///         value, or stating the count when there are not exactly 16 numbers.
-[[nodiscard]] Result<Eigen::Matrix4d> parse_def(std::string_view text);
+///         value, or stating the count when there are not exactly 16 numbers; Cancelled when
+///         control.stop is requested.
+[[nodiscard]] Result<Eigen::Matrix4d> parse_def(std::string_view text,
+                                               const ReadControl& control = {});
 
 /// Reads a .def file (see parse_def).
 /// @return the matrix; NotFound if the file does not exist; parse_def's errors prefixed by the
@@ -144,8 +151,11 @@ struct EditSpec {
 /// and option ranges; index ranges need the mesh and are checked by resolve_edit.
 /// @return the spec; InvalidArgument naming the offending key path (e.g. "handles[1].translation:
 ///         expected 3 numbers, got 2") for malformed JSON, unknown keys, wrong types or lengths,
-///         non-finite numbers, a group with zero or several forms, or both rotation and quaternion.
-[[nodiscard]] Result<EditSpec> parse_edit_spec(std::string_view json_text);
+///         non-finite numbers, a group with zero or several forms, both rotation and quaternion,
+///         or arrays/objects nested deeper than kMaxJsonDepth (refused before parsing); Cancelled
+///         when control.stop is requested. Work is linear in the text (control.work_steps).
+[[nodiscard]] Result<EditSpec> parse_edit_spec(std::string_view json_text,
+                                              const ReadControl& control = {});
 
 /// Reads a JSON edit spec file (see parse_edit_spec).
 /// @return the spec; NotFound if the file does not exist; parse errors prefixed by the path.

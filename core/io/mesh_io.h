@@ -13,11 +13,21 @@
 /// Reading from memory never touches the filesystem: external glTF buffers/images are refused and
 /// OBJ material libraries are ignored. Every reader returns InvalidArgument on malformed, truncated
 /// or empty (no vertices or no faces) input; none of them throws or crashes.
+///
+/// Work bounded by bytes (hostile input): every loop of every reader either consumes input or is
+/// bounded by a constant times the input size, so a small file cannot buy a long parse. Counts
+/// declared in a header (PLY elements and lists, OFF counts, binary STL triangles, glTF accessor
+/// counts) are checked against the bytes that remain before any loop runs over them or any memory
+/// is reserved; rows that would consume no input (a PLY element without properties) are skipped
+/// in O(1); glTF instancing (nodes sharing a mesh) may not expand the output past a fixed multiple
+/// of the input; JSON nesting is limited before a JSON parser sees it. `ReadControl::work_steps`
+/// counts the loop steps so that tests assert the bound instead of timing it.
 
 #include <filesystem>
 #include <string>
 #include <string_view>
 
+#include "core/io/read_control.h"
 #include "core/mesh_data.h"
 #include "core/status.h"
 #include "core/validate.h"
@@ -49,8 +59,11 @@ const char* format_name(MeshFormat format);
 /// Reads a mesh from bytes (e.g. a request). Never accesses the filesystem.
 /// @param[in] bytes   whole file contents.
 /// @param[in] format  how to interpret them (STL: binary vs ASCII is detected).
-/// @return the raw mesh (not validated); InvalidArgument for malformed or empty content.
-[[nodiscard]] Result<MeshData> read_mesh_from_memory(std::string_view bytes, MeshFormat format);
+/// @param[in] control  stop token and work counter (optional).
+/// @return the raw mesh (not validated); InvalidArgument for malformed or empty content;
+///         Cancelled when control.stop is requested.
+[[nodiscard]] Result<MeshData> read_mesh_from_memory(std::string_view bytes, MeshFormat format,
+                                                     const ReadControl& control = {});
 
 /// Writes a mesh; the format comes from the extension. OBJ/OFF/PLY (ASCII) keep full double
 /// precision (max_digits10 digits); STL is binary float32; GLB/glTF store float32 POSITION and
@@ -73,6 +86,8 @@ struct LoadOptions {
   /// Weld exactly coincident vertices for every format. STL is always welded (a triangle soup
   /// has no shared vertices); other formats are welded only when this is true.
   bool weld = false;
+  /// Stops reading and cleaning (Cancelled) and counts their work.
+  ReadControl control;
 };
 
 /// A mesh read and cleaned by load_mesh.
@@ -89,7 +104,8 @@ struct LoadedMesh {
                                            const LoadOptions& options = {});
 
 /// Reads a mesh from bytes, then cleans and validates it (see LoadOptions).
-/// @return the mesh and cleaning report; errors of read_mesh_from_memory or core::clean_mesh.
+/// @return the mesh and cleaning report; errors of read_mesh_from_memory or core::clean_mesh;
+///         Cancelled when options.control.stop is requested.
 [[nodiscard]] Result<LoadedMesh> load_mesh_from_memory(std::string_view bytes, MeshFormat format,
                                                        const LoadOptions& options = {});
 

@@ -124,8 +124,9 @@ DeformationService::DeformationService(ServiceOptions options)
       }()),
       counters_(std::make_shared<ServiceCounters>()),
       limiter_(options_.create_rate, options_.move_rate, options_.clock),
+      heavy_(options_.heavy_work),
       store_(options_),
-      pool_(options_.workers) {
+      pool_(options_.workers, options_.heavy_lanes) {
   if (options_.state_dir.empty()) return;
   Result<StateDirectory> dir = StateDirectory::open(options_.state_dir);
   if (!dir.ok()) {
@@ -162,7 +163,8 @@ std::vector<std::string> DeformationService::sample_names() {
           "bumpy_plane_small", "cylinder_small", "bar_small", "cactus_small"};
 }
 
-Result<CreatedSession> DeformationService::create_session(const CreateSessionRequest& request) {
+Result<CreatedSession> DeformationService::create_session(const CreateSessionRequest& request,
+                                                          std::stop_token stop) {
   return run_guarded([&]() -> Result<CreatedSession> {
     const bool has_bytes = !request.mesh_bytes.empty(), has_sample = !request.sample.empty();
     if (has_bytes == has_sample) {
@@ -185,6 +187,7 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
     } else {
       io::LoadOptions load;
       load.weld = request.weld;
+      load.control.stop = stop;
       MD_ASSIGN_OR_RETURN(io::LoadedMesh loaded,
                           io::load_mesh_from_memory(request.mesh_bytes, request.format, load));
       mesh = std::move(loaded.mesh);
@@ -196,6 +199,10 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
                    "mesh has " + std::to_string(mesh.V.rows()) + " vertices, the limit is " +
                        std::to_string(options_.max_vertices));
     }
+    const auto cancelled = [] {
+      return Error(ErrorCode::Cancelled, "create_session cancelled (deadline or client)");
+    };
+    if (stop.stop_requested()) return cancelled();
     created.id = SessionId{random_hex(kSessionIdBytes)};
     created.edit_token = Token{random_hex(kTokenBytes)};
     created.view_token = Token{random_hex(kTokenBytes)};
@@ -207,6 +214,8 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
                         [store](std::size_t bytes, const Session& requester) {
                           return store->reserve(bytes, requester);
                         }));
+    // The caller left while the session was built: commit nothing (it would never be used).
+    if (stop.stop_requested()) return cancelled();
     if (state_dir_) {
       session->set_state_directory(&*state_dir_);
       session->persist();
@@ -219,14 +228,32 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
 
 void DeformationService::create_session_async(CreateSessionRequest request, std::stop_token stop,
                                               std::function<void(Result<CreatedSession>)> done) {
-  pool_.submit([this, request = std::move(request), stop = std::move(stop),
-                done = std::move(done)] {
-    if (stop.stop_requested() || shutdown_.stop_requested()) {
-      done(Error(ErrorCode::Cancelled, "create_session cancelled before it started"));
-      return;
-    }
-    done(create_session(request));
-  });
+  Result<HeavyWorkAdmission::Ticket> admitted = heavy_.admit(request.client, "CreateSession");
+  if (!admitted.ok()) {
+    done(admitted.status());
+    return;
+  }
+  // std::function needs a copyable callable: the ticket travels in a shared_ptr.
+  auto ticket = std::make_shared<HeavyWorkAdmission::Ticket>(std::move(admitted).value());
+  std::string client = request.client;  // read before `request` moves into the task
+  pool_.submit(
+      [this, ticket, request = std::move(request), stop = std::move(stop),
+       done = std::move(done)] {
+        if (stop.stop_requested() || shutdown_.stop_requested()) {
+          ticket->release();
+          uploads_cancelled_.fetch_add(1);
+          done(Error(ErrorCode::Cancelled, "create_session cancelled before it started"));
+          return;
+        }
+        const CombinedStop combined(stop, shutdown_.get_token());
+        Result<CreatedSession> created = create_session(request, combined.token());
+        ticket->release();  // before done: a client that retries at once is admitted
+        if (!created.ok() && created.status().code() == ErrorCode::Cancelled) {
+          uploads_cancelled_.fetch_add(1);
+        }
+        done(std::move(created));
+      },
+      TaskClass::Heavy, std::move(client));
 }
 
 void DeformationService::get_mesh_async(SessionId id, Token token, io::MeshFormat format,
@@ -326,7 +353,7 @@ Result<std::shared_ptr<Session>> DeformationService::find_for_edit(const Session
 }
 
 void DeformationService::post(const std::shared_ptr<Session>& session, std::function<void()> task,
-                              bool is_refinement) {
+                              bool is_refinement, Session::StrandStep step) {
   if (!is_refinement) session->preempt_refinement();
   session->inflight().fetch_add(1);
   SessionStore* store = &store_;
@@ -341,16 +368,20 @@ void DeformationService::post(const std::shared_ptr<Session>& session, std::func
     } done{session.get(), store};
     task();
   };
-  if (!session->enqueue(std::move(wrapped))) return;  // the strand is already scheduled
-  // One pool task per step of the strand: other sessions' edits interleave between steps.
+  const std::optional<Session::StrandStep> first = session->enqueue(std::move(wrapped), step);
+  if (!first) return;  // the strand is already scheduled
+  // One pool task per step of the strand: other sessions' edits interleave between steps, and
+  // each step runs in its own class (a SetHandles precompute on a heavy lane, a move on any).
   struct Drain {
     std::shared_ptr<Session> session;
     WorkerPool* pool;
     void operator()() const {
-      if (session->run_next()) pool->submit(Drain{session, pool});
+      if (const std::optional<Session::StrandStep> next = session->run_next()) {
+        pool->submit(Drain{session, pool}, next->task_class, next->client);
+      }
     }
   };
-  pool_.submit(Drain{session, &pool_});
+  pool_.submit(Drain{session, &pool_}, first->task_class, first->client);
 }
 
 void DeformationService::set_handles_async(const SessionId& id, const Token& edit_token,
@@ -362,16 +393,31 @@ void DeformationService::set_handles_async(const SessionId& id, const Token& edi
     return;
   }
   std::shared_ptr<Session> session = std::move(found).value();
-  post(session, [this, session, request = std::move(request), stop = std::move(stop),
-                 done = std::move(done)] {
-    Result<SessionInfo> result = run_guarded([&]() -> Result<SessionInfo> {
-      if (stop.stop_requested() || shutdown_.stop_requested()) {
-        return Error(ErrorCode::Cancelled, "set_handles cancelled before it started");
-      }
-      return session->set_handles(request);
-    });
-    done(std::move(result));
-  });
+  Result<HeavyWorkAdmission::Ticket> admitted = heavy_.admit(request.client, "SetHandles");
+  if (!admitted.ok()) {
+    done(admitted.status());
+    return;
+  }
+  auto ticket = std::make_shared<HeavyWorkAdmission::Ticket>(std::move(admitted).value());
+  Session::StrandStep step{TaskClass::Heavy, request.client};  // before `request` moves
+  post(
+      session,
+      [this, session, ticket, request = std::move(request), stop = std::move(stop),
+       done = std::move(done)] {
+        Result<SessionInfo> result = run_guarded([&]() -> Result<SessionInfo> {
+          if (stop.stop_requested() || shutdown_.stop_requested()) {
+            return Error(ErrorCode::Cancelled, "set_handles cancelled before it started");
+          }
+          const CombinedStop combined(stop, shutdown_.get_token());
+          return session->set_handles(request, combined.token());
+        });
+        ticket->release();
+        if (!result.ok() && result.status().code() == ErrorCode::Cancelled) {
+          precomputes_cancelled_.fetch_add(1);
+        }
+        done(std::move(result));
+      },
+      /*is_refinement=*/false, std::move(step));
 }
 
 Result<SessionInfo> DeformationService::set_handles(const SessionId& id, const Token& edit_token,
@@ -538,6 +584,15 @@ ServiceStats DeformationService::stats() const {
   stats.sessions = store_.size();
   stats.estimated_bytes = store_.total_bytes();
   stats.workers = pool_.size();
+  stats.heavy_rejected = heavy_.rejected();
+  stats.heavy_admitted = heavy_.admitted();
+  stats.uploads_cancelled = uploads_cancelled_.load();
+  stats.precomputes_cancelled = precomputes_cancelled_.load();
+  const QueueDepths depths = pool_.depths();
+  stats.heavy_running = depths.heavy_running;
+  stats.queued_normal = depths.normal;
+  stats.queued_heavy = depths.heavy;
+  stats.queued_background = depths.background;
   return stats;
 }
 

@@ -28,6 +28,7 @@
 
 #include "core/io/mesh_io.h"
 #include "core/status.h"
+#include "server/service/admission.h"
 #include "server/service/delay_queue.h"
 #include "server/service/persistence.h"
 #include "server/service/rate_limiter.h"
@@ -54,21 +55,30 @@ class DeformationService {
   static std::vector<std::string> sample_names();
 
   /// Creates a session from mesh bytes (cleaned and validated by io::load_mesh_from_memory) or a
-  /// sample. Also sweeps expired sessions.
+  /// sample. Also sweeps expired sessions. Parsing and cleaning stop when `stop` is requested
+  /// (Cancelled); their work is bounded by the size of the bytes (io's "work bounded by bytes").
   /// @return ids, tokens and the summary; InvalidArgument for both or neither of bytes and sample,
   ///         an unknown sample (listing the known ones) or a bad mesh (naming the element);
   ///         ResourceExhausted for a mesh over max_vertices (naming both counts), max_sessions
   ///         open sessions, or a memory budget that eviction of idle sessions cannot meet.
-  [[nodiscard]] Result<CreatedSession> create_session(const CreateSessionRequest& request);
-  /// create_session on the worker pool (parsing a large upload can take a while: it must not
-  /// hold a transport thread). Cancelled if `stop` is requested before it starts. `done` runs on
-  /// a worker thread.
+  [[nodiscard]] Result<CreatedSession> create_session(const CreateSessionRequest& request,
+                                                      std::stop_token stop = {});
+  /// create_session on the worker pool as heavy work (parsing a large upload can take a while: it
+  /// must not hold a transport thread, nor the workers that serve moves). Admission control first:
+  /// ResourceExhausted (at once, nothing queued) when request.client already has
+  /// ServiceOptions::heavy_work.per_client uploads/precomputes admitted or the server has
+  /// heavy_work.total. Cancelled if `stop` is requested before it starts or mid-parse (the worker
+  /// is freed within a few thousand parse steps). `done` runs on a worker thread, or on the
+  /// caller's thread when refused.
   void create_session_async(CreateSessionRequest request, std::stop_token stop,
                             std::function<void(Result<CreatedSession>)> done);
 
-  /// Sets the handle groups on the worker pool; see Session::set_handles for the errors, plus
-  /// NotFound (unknown/expired/closed session), PermissionDenied (not the edit token) and
-  /// Cancelled if `stop` is requested before it starts. `done` runs on a worker thread.
+  /// Sets the handle groups on the worker pool as heavy work (its precompute factors matrices);
+  /// see Session::set_handles for the errors, plus NotFound (unknown/expired/closed session),
+  /// PermissionDenied (not the edit token), ResourceExhausted from admission control as for
+  /// create_session_async (request.client), and Cancelled if `stop` is requested before it
+  /// starts or between the precompute's phases. `done` runs on a worker thread, or on the
+  /// caller's thread when refused.
   void set_handles_async(const SessionId& id, const Token& edit_token, SetHandlesRequest request,
                          std::stop_token stop, std::function<void(Result<SessionInfo>)> done);
   /// Blocking set_handles_async.
@@ -131,6 +141,9 @@ class DeformationService {
   Status admit(std::string_view client, RateLimitedCall call,
                std::chrono::milliseconds* retry_after = nullptr);
 
+  /// The admission control of heavy work (tests hold tickets through it).
+  HeavyWorkAdmission& heavy_work() { return heavy_; }
+
   /// Where front ends record their calls (MetricsRegistry::record_rpc).
   MetricsRegistry& metrics() { return counters_->metrics; }
   /// The Prometheus text exposition of stats() and the recorded metrics (for GET /metrics).
@@ -144,7 +157,7 @@ class DeformationService {
   /// Queues `task` on the session's strand and the strand on the pool. An edit (not
   /// `is_refinement`) preempts a running refinement slice of the session.
   void post(const std::shared_ptr<Session>& session, std::function<void()> task,
-            bool is_refinement = false);
+            bool is_refinement = false, Session::StrandStep step = {});
   /// If the session wants refinement, queues one slice at background priority (it runs when no
   /// edit of any session waits) and, after it, the next.
   /// `after_move`: wait for ServiceOptions::refine_delay of rest first.
@@ -161,6 +174,9 @@ class DeformationService {
   std::atomic<std::uint64_t> rate_limited_creates_{0};
   std::atomic<std::uint64_t> rate_limited_moves_{0};
   std::atomic<std::uint64_t> stale_copies_dropped_{0};
+  std::atomic<std::uint64_t> uploads_cancelled_{0};
+  std::atomic<std::uint64_t> precomputes_cancelled_{0};
+  HeavyWorkAdmission heavy_;  // declared before pool_: tickets held by queued tasks outlive it
   SessionStore store_;
   WorkerPool pool_;  // destroyed (drained, joined) before the store
   DelayQueue delays_;  // declared last: destroyed first, so no timer posts into a dead pool

@@ -181,6 +181,27 @@ std::string MetricsRegistry::render(const ServiceStats& stats) const {
          "call=\"CreateSession\"");
   sample(out, "meshdeform_rate_limited_total", static_cast<double>(stats.rate_limited_moves),
          "call=\"MoveHandles\"");
+  header(out, "meshdeform_queue_depth", "gauge", "Worker-pool tasks waiting, by class.");
+  sample(out, "meshdeform_queue_depth", static_cast<double>(stats.queued_normal),
+         "class=\"normal\"");
+  sample(out, "meshdeform_queue_depth", static_cast<double>(stats.queued_heavy),
+         "class=\"heavy\"");
+  sample(out, "meshdeform_queue_depth", static_cast<double>(stats.queued_background),
+         "class=\"background\"");
+  gauge("meshdeform_heavy_work_admitted",
+        "Uploads and SetHandles precomputes admitted now (queued or running).",
+        static_cast<double>(stats.heavy_admitted));
+  gauge("meshdeform_heavy_work_running", "Uploads and SetHandles precomputes running now.",
+        static_cast<double>(stats.heavy_running));
+  counter("meshdeform_heavy_work_rejected_total",
+          "Uploads and SetHandles refused by admission control (per client or in total).",
+          static_cast<double>(stats.heavy_rejected));
+  header(out, "meshdeform_work_cancelled_total", "counter",
+         "Heavy work stopped mid-way by its call's deadline or cancellation, by kind.");
+  sample(out, "meshdeform_work_cancelled_total", static_cast<double>(stats.uploads_cancelled),
+         "kind=\"upload\"");
+  sample(out, "meshdeform_work_cancelled_total", static_cast<double>(stats.precomputes_cancelled),
+         "kind=\"precompute\"");
   return out;
 }
 

@@ -1,5 +1,7 @@
 #include "server/service/session.h"
 
+#include "core/similarity.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -13,35 +15,6 @@
 
 namespace meshdeform::service {
 namespace {
-
-/// Closed loops of boundary edges. On a validated mesh (manifold, consistently oriented, manifold
-/// vertices) every boundary vertex has exactly one outgoing boundary half-edge.
-int count_boundary_loops(const Triangles& F, int vertex_count) {
-  std::unordered_map<long long, int> undirected;
-  auto key = [vertex_count](int a, int b) {
-    return static_cast<long long>(std::min(a, b)) * vertex_count + std::max(a, b);
-  };
-  for (int f = 0; f < F.rows(); ++f)
-    for (int k = 0; k < 3; ++k) ++undirected[key(F(f, k), F(f, (k + 1) % 3))];
-  std::vector<int> next(static_cast<std::size_t>(vertex_count), -1);
-  for (int f = 0; f < F.rows(); ++f) {
-    for (int k = 0; k < 3; ++k) {
-      const int a = F(f, k), b = F(f, (k + 1) % 3);
-      if (undirected[key(a, b)] == 1) next[static_cast<std::size_t>(a)] = b;
-    }
-  }
-  int loops = 0;
-  std::vector<char> seen(next.size(), 0);
-  for (std::size_t start = 0; start < next.size(); ++start) {
-    if (next[start] < 0 || seen[start]) continue;
-    ++loops;
-    for (int v = static_cast<int>(start); v >= 0 && !seen[static_cast<std::size_t>(v)];
-         v = next[static_cast<std::size_t>(v)]) {
-      seen[static_cast<std::size_t>(v)] = 1;
-    }
-  }
-  return loops;
-}
 
 bool finite3(const Eigen::Vector3d& v) { return v.allFinite(); }
 
@@ -85,7 +58,7 @@ Result<std::shared_ptr<Session>> Session::create(SessionId id, Token edit_token,
   session->edit_token_ = std::move(edit_token);
   session->view_token_ = std::move(view_token);
   session->rest_measures_ = core::compute_measures(mesh.V, mesh.F, topology);
-  session->boundary_loops_ = count_boundary_loops(mesh.F, static_cast<int>(mesh.V.rows()));
+  session->boundary_loops_ = core::count_boundary_loops(mesh.F, static_cast<int>(mesh.V.rows()));
   session->topology_ = std::move(topology);
   session->rest_ = std::move(mesh);
   session->settings_ = settings;
@@ -260,7 +233,7 @@ void Session::update_estimate() {
 
 Result<Session::CachedDeformer*> Session::get_or_build(core::Method method,
                                                        const std::vector<int>& constrained,
-                                                       bool* built) {
+                                                       bool* built, std::stop_token stop) {
   *built = false;
   for (CachedDeformer& entry : deformers_) {
     if (entry.method == method && entry.constrained == constrained) {
@@ -284,7 +257,7 @@ Result<Session::CachedDeformer*> Session::get_or_build(core::Method method,
   const Eigen::VectorXi idx =
       Eigen::Map<const Eigen::VectorXi>(constrained.data(), static_cast<Eigen::Index>(constrained.size()));
   MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
-                      core::make_deformer(method, rest_.V, rest_.F, idx, settings_));
+                      core::make_deformer(method, rest_.V, rest_.F, idx, settings_, stop));
   counters_->deformer_constructions.fetch_add(1);
   *built = true;
   // A fresh deformer sits at the rest pose, i.e. revision 0's positions only.
@@ -293,7 +266,7 @@ Result<Session::CachedDeformer*> Session::get_or_build(core::Method method,
   return &deformers_.back();
 }
 
-Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request) {
+Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::stop_token stop) {
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
   if (!is_fresh()) return stale_copy(id_);  // never overwrite a newer revision of another replica
   refine_.reset();  // new anchors: the old solve is not worth continuing
@@ -327,7 +300,8 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request) {
   std::sort(constrained.begin(), constrained.end());
   MD_RETURN_IF_ERROR(check_pinnable(request.prepare, constrained));
   bool built = false;
-  MD_ASSIGN_OR_RETURN(CachedDeformer * entry, get_or_build(request.prepare, constrained, &built));
+  MD_ASSIGN_OR_RETURN(CachedDeformer * entry,
+                      get_or_build(request.prepare, constrained, &built, stop));
   (void)entry;
 
   {
@@ -409,18 +383,18 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     if (qnorm < 1e-12) {
       return Error(ErrorCode::InvalidArgument, where + "rotation quaternion has zero length");
     }
-    const Eigen::Matrix3d R = Eigen::Quaterniond(move.rotation.coeffs() / qnorm).toRotationMatrix();
-    Eigen::Vector3d pivot = Eigen::Vector3d::Zero();
-    if (move.pivot) {
-      pivot = *move.pivot;
-    } else {
-      for (int v : group.vertices) pivot += anchors.row(row_of(v)).transpose();
-      pivot /= static_cast<double>(group.vertices.size());
+    core::GroupSimilarity transform;
+    transform.rotation = Eigen::Quaterniond(move.rotation.coeffs() / qnorm).toRotationMatrix();
+    transform.scale = move.scale;
+    transform.translation = move.translation;
+    transform.pivot = move.pivot;
+    Positions group_anchors(static_cast<Eigen::Index>(group.vertices.size()), 3);
+    for (std::size_t i = 0; i < group.vertices.size(); ++i) {
+      group_anchors.row(static_cast<Eigen::Index>(i)) = anchors.row(row_of(group.vertices[i]));
     }
-    for (int v : group.vertices) {
-      const Eigen::Index r = row_of(v);
-      const Eigen::Vector3d a = anchors.row(r).transpose();
-      targets.row(r) = (pivot + move.scale * (R * (a - pivot)) + move.translation).transpose();
+    const Positions moved = core::apply_similarity(transform, group_anchors);
+    for (std::size_t i = 0; i < group.vertices.size(); ++i) {
+      targets.row(row_of(group.vertices[i])) = moved.row(static_cast<Eigen::Index>(i));
     }
   }
   const int nv = static_cast<int>(rest_.V.rows());
@@ -733,32 +707,32 @@ void Session::touch(std::chrono::steady_clock::time_point now) {
   last_used_ = std::max(last_used_, now);
 }
 
-bool Session::enqueue(std::function<void()> task) {
+std::optional<Session::StrandStep> Session::enqueue(std::function<void()> task, StrandStep step) {
   std::lock_guard lock(strand_mutex_);
-  strand_.push_back(std::move(task));
-  if (strand_running_) return false;
+  strand_.push_back({std::move(task), step});
+  if (strand_running_) return std::nullopt;
   strand_running_ = true;
-  return true;
+  return step;
 }
 
-bool Session::run_next() {
+std::optional<Session::StrandStep> Session::run_next() {
   std::function<void()> task;
   {
     std::lock_guard lock(strand_mutex_);
     if (strand_.empty()) {
       strand_running_ = false;
-      return false;
+      return std::nullopt;
     }
-    task = std::move(strand_.front());
+    task = std::move(strand_.front().task);
     strand_.pop_front();
   }
   task();
   std::lock_guard lock(strand_mutex_);
   if (strand_.empty()) {
     strand_running_ = false;
-    return false;
+    return std::nullopt;
   }
-  return true;
+  return strand_.front().step;
 }
 
 }  // namespace meshdeform::service

@@ -21,6 +21,7 @@
 #include "server/service/persistence.h"
 #include "server/service/types.h"
 #include "server/service/watcher.h"
+#include "server/service/worker_pool.h"
 
 namespace meshdeform::service {
 
@@ -89,8 +90,10 @@ class Session : public std::enable_shared_from_this<Session> {
   ///         a vertex in two groups (naming it); FailedPrecondition if the method cannot pin a
   ///         connected component (scale-aware needs two constrained vertices per component, ARAP
   ///         and Laplacian one); ResourceExhausted over the memory budget; NotFound once closed;
-  ///         NumericalFailure if the factorization fails.
-  [[nodiscard]] Result<SessionInfo> set_handles(const SetHandlesRequest& request);
+  ///         NumericalFailure if the factorization fails; Cancelled when `stop` is requested
+  ///         (before or between the precompute's phases; nothing changes).
+  [[nodiscard]] Result<SessionInfo> set_handles(const SetHandlesRequest& request,
+                                                std::stop_token stop = {});
 
   /// Applies a move and solves, warm-starting the cached deformer of (method, constrained set)
   /// from its last result (a deformer whose last result is not the current revision, e.g. after
@@ -151,11 +154,18 @@ class Session : public std::enable_shared_from_this<Session> {
   std::atomic<int>& inflight() { return inflight_; }
   int inflight_count() const { return inflight_.load(); }
 
-  /// Strand: the service queues edits here; `run_next` pops one (false when empty).
-  /// @return true if the caller must schedule a drain (the strand was idle).
-  bool enqueue(std::function<void()> task);
-  /// Runs the oldest queued edit; @return true if more remain.
-  bool run_next();
+  /// How the strand's next step is to be scheduled on the pool.
+  struct StrandStep {
+    TaskClass task_class = TaskClass::Normal;
+    std::string client;  ///< who asked (fairness of heavy work)
+  };
+  /// Strand: the service queues edits here, each with its cost class and client; `run_next`
+  /// pops one.
+  /// @return how to schedule a drain if the caller must schedule one (the strand was idle);
+  ///         nullopt otherwise.
+  std::optional<StrandStep> enqueue(std::function<void()> task, StrandStep step);
+  /// Runs the oldest queued edit. @return how to schedule the next one if more remain.
+  std::optional<StrandStep> run_next();
 
  private:
   struct CachedDeformer {
@@ -173,7 +183,7 @@ class Session : public std::enable_shared_from_this<Session> {
   ///         index out of range, or a region covering no whole face (naming the region).
   Result<Eigen::VectorXd> magnify_scales(const MoveRequest& request) const;
   Result<CachedDeformer*> get_or_build(core::Method method, const std::vector<int>& constrained,
-                                       bool* built);
+                                       bool* built, std::stop_token stop = {});
   void update_estimate();
   /// Turns a solver report into the next revision, publishes it and updates the deformer entry.
   /// Strand only.
@@ -229,7 +239,11 @@ class Session : public std::enable_shared_from_this<Session> {
   std::stop_source refine_stop_;  ///< of the running refinement slice; guarded by refine_mutex_
 
   std::mutex strand_mutex_;
-  std::deque<std::function<void()>> strand_;
+  struct StrandTask {
+    std::function<void()> task;
+    StrandStep step;
+  };
+  std::deque<StrandTask> strand_;
   bool strand_running_ = false;
 
   std::atomic<bool> closed_{false};

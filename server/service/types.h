@@ -19,6 +19,7 @@
 #include "core/deformer.h"
 #include "core/io/mesh_io.h"
 #include "core/mesh_data.h"
+#include "server/service/admission.h"
 
 namespace meshdeform::service {
 
@@ -53,6 +54,8 @@ struct SetHandlesRequest {
   std::vector<HandleGroup> groups;  ///< no vertex may be in two groups
   /// The method whose factorization to build now (others are built on their first move).
   core::Method prepare = core::Method::ScaleAware;
+  /// The front end's name for the caller (as for rate limits): heavy work is admitted per client.
+  std::string client;
 };
 
 /// A similarity transform of one handle group, relative to the group's anchor positions (its
@@ -156,6 +159,8 @@ struct CreateSessionRequest {
   std::string sample;                         ///< see DeformationService::sample_names()
   bool weld = false;                          ///< weld coincident vertices (STL always is)
   core::DeformerSettings settings;            ///< lambda etc., fixed for the session
+  /// The front end's name for the caller (as for rate limits): uploads are admitted per client.
+  std::string client;
 };
 
 /// CreateSession output.
@@ -205,6 +210,11 @@ struct ServiceOptions {
   /// 2 sessions per second (bursts of 30) and 200 moves per second (bursts of 400).
   RateLimit create_rate{2.0, 30.0};
   RateLimit move_rate{200.0, 400.0};
+  /// Heavy work (CreateSession parsing/cleaning, SetHandles precompute) admitted at once per
+  /// client and in total; beyond, ResourceExhausted (admission.h).
+  HeavyWorkLimits heavy_work;
+  /// Workers that may run heavy work; 0 = workers - 1 (at least 1): the rest keep serving moves.
+  int heavy_lanes = 0;
   Clock clock;                     ///< default: std::chrono::steady_clock::now
 };
 
@@ -227,6 +237,14 @@ struct ServiceStats {
   /// In-memory sessions dropped because another replica sharing the state directory had changed
   /// (or removed) their file since (find_or_restore restores the newer state instead).
   std::uint64_t stale_copies_dropped = 0;
+  std::uint64_t heavy_rejected = 0;          ///< uploads/precomputes refused by admission control
+  std::uint64_t uploads_cancelled = 0;       ///< CreateSession parses stopped by deadline/cancel
+  std::uint64_t precomputes_cancelled = 0;   ///< SetHandles precomputes stopped by deadline/cancel
+  int heavy_admitted = 0;                    ///< heavy tasks admitted now (queued or running)
+  int heavy_running = 0;                     ///< heavy tasks running now
+  std::size_t queued_normal = 0;             ///< worker-pool tasks waiting, by class
+  std::size_t queued_heavy = 0;
+  std::size_t queued_background = 0;
   std::size_t sessions = 0;
   std::size_t estimated_bytes = 0;
   std::size_t resident_bytes = 0;            ///< the process's resident set (Linux), 0 if unknown

@@ -280,6 +280,7 @@ grpc::ServerUnaryReactor* DeformServiceImpl::CreateSession(grpc::CallbackServerC
   return start_async(call, [&](StoppableUnaryReactor* reactor) -> Status {
     MD_ASSIGN_OR_RETURN(service::CreateSessionRequest converted,
                         create_request_from_proto(*request));
+    converted.client = client_identity(*context, identity_);  // uploads are admitted per client
     service_.create_session_async(
         std::move(converted), reactor->stop_token(),
         finish_with<service::CreatedSession>(
@@ -292,10 +293,10 @@ grpc::ServerUnaryReactor* DeformServiceImpl::CreateSession(grpc::CallbackServerC
 grpc::ServerUnaryReactor* DeformServiceImpl::SetHandles(grpc::CallbackServerContext* context,
                                                         const v1::SetHandlesRequest* request,
                                                         v1::SetHandlesResponse* response) {
-  (void)context;
   const CallRecord call(service_, "SetHandles", request->session_id());
   return start_async(call, [&](StoppableUnaryReactor* reactor) -> Status {
     MD_ASSIGN_OR_RETURN(service::SetHandlesRequest converted, set_handles_from_proto(*request));
+    converted.client = client_identity(*context, identity_);  // precomputes are admitted per client
     service_.set_handles_async(
         service::SessionId{request->session_id()}, service::Token{request->token()},
         std::move(converted), reactor->stop_token(),

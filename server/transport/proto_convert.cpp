@@ -426,6 +426,12 @@ void server_stats_to_proto(const service::ServiceStats& stats, double uptime_sec
   out->set_workers(static_cast<std::uint32_t>(std::max(stats.workers, 0)));
   out->set_uptime_seconds(uptime_seconds);
   out->set_watchers(static_cast<std::uint32_t>(std::max(stats.watchers, 0)));
+  out->set_heavy_work_admitted(static_cast<std::uint32_t>(std::max(stats.heavy_admitted, 0)));
+  out->set_heavy_work_running(static_cast<std::uint32_t>(std::max(stats.heavy_running, 0)));
+  out->set_heavy_work_rejected(stats.heavy_rejected);
+  out->set_uploads_cancelled(stats.uploads_cancelled);
+  out->set_precomputes_cancelled(stats.precomputes_cancelled);
+  out->set_queued_tasks(stats.queued_normal + stats.queued_heavy + stats.queued_background);
 }
 
 }  // namespace meshdeform::transport

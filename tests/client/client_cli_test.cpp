@@ -1,12 +1,11 @@
 // meshdeform-client (the CLI binary) against the real meshdeform-server on loopback: the round
 // trip create -> handles -> move -> get (checked against the core library's own solve), watch,
 // info, close, stats, the token from the environment, and the exit codes (0 ok, 1 server error
-// naming its code, 2 usage). The CLI runs through posix_spawn with its output in files; every
+// naming its code, 2 usage). The CLI runs as a test::ChildProcess with its output in files; every
 // run is bounded.
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <signal.h>
-#include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -29,6 +28,7 @@
 #include "core/io/mesh_io.h"
 #include "core/procedural.h"
 #include "tests/support/mesh_factories.h"
+#include "tests/support/child_process.h"
 #include "tests/support/server_process.h"
 
 extern char** environ;
@@ -83,47 +83,20 @@ class ClientCliTest : public ::testing::Test {
     if (with_server) args.insert(args.begin(), {"--server", server_->address()});
     args.insert(args.begin(), MESHDEFORM_CLIENT_CLI_PATH);
     const fs::path out = dir_ / "stdout.txt", err = dir_ / "stderr.txt";
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, out.c_str(),
-                                     O_WRONLY | O_CREAT | O_TRUNC, 0600);
-    posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, err.c_str(),
-                                     O_WRONLY | O_CREAT | O_TRUNC, 0600);
-    std::vector<char*> argv;
-    for (std::string& a : args) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    std::vector<std::string> env_strings;
-    for (char** e = environ; *e; ++e) {
-      if (std::string_view(*e).rfind("MESHDEFORM_TOKEN=", 0) != 0) env_strings.emplace_back(*e);
-    }
-    env_strings.insert(env_strings.end(), extra_env.begin(), extra_env.end());
-    std::vector<char*> envp;
-    for (std::string& e : env_strings) envp.push_back(e.data());
-    envp.push_back(nullptr);
-    pid_t pid = -1;
-    const int rc = posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), envp.data());
-    posix_spawn_file_actions_destroy(&actions);
+    test::ChildStreams streams;
+    streams.stdout_path = out.string();
+    streams.stderr_path = err.string();
+    streams.env = extra_env;
+    streams.unset_env = {"MESHDEFORM_TOKEN"};
     CliRun result;
-    if (rc != 0) {
-      result.err = "posix_spawn failed: " + std::to_string(rc);
+    std::string error;
+    std::optional<test::ChildProcess> child = test::ChildProcess::spawn(args, streams, error);
+    if (!child) {
+      result.err = "spawn failed: " + error;
       return result;
     }
-    int status = 0;
-    bool exited = false;
-    for (int i = 0; i < 6000 && !exited; ++i) {  // 60 s
-      const pid_t done = waitpid(pid, &status, WNOHANG);
-      if (done == pid) {
-        exited = true;
-      } else {
-        std::this_thread::sleep_for(std::chrono::milliseconds(10));
-      }
-    }
-    if (!exited) {
-      kill(pid, SIGKILL);
-      waitpid(pid, &status, 0);
-    } else if (WIFEXITED(status)) {
-      result.exit_code = WEXITSTATUS(status);
-    }
+    const std::optional<int> status = child->wait(std::chrono::seconds(60));  // else killed
+    if (status && WIFEXITED(*status)) result.exit_code = WEXITSTATUS(*status);
     result.out = slurp(out);
     result.err = slurp(err);
     return result;

@@ -8,7 +8,6 @@
 #include <gtest/gtest.h>
 #include <openssl/ssl.h>
 #include <signal.h>
-#include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -30,6 +29,7 @@
 #include <vector>
 
 #include "client_cpp/client.h"
+#include "tests/support/child_process.h"
 #include "tests/support/server_process.h"
 
 extern char** environ;
@@ -149,31 +149,17 @@ struct ExitRun {
 ExitRun run_server_to_exit(const std::vector<std::string>& extra, const fs::path& dir) {
   std::vector<std::string> args = {MESHDEFORM_SERVER_PATH, "--listen", "127.0.0.1:0"};
   args.insert(args.end(), extra.begin(), extra.end());
-  std::vector<char*> argv;
-  for (std::string& arg : args) argv.push_back(arg.data());
-  argv.push_back(nullptr);
   const fs::path err_path = dir / "server_stderr.txt";
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, err_path.c_str(),
-                                   O_WRONLY | O_CREAT | O_TRUNC, 0644);
-  pid_t pid = -1;
-  const int rc = posix_spawn(&pid, args[0].c_str(), &actions, nullptr, argv.data(), environ);
-  posix_spawn_file_actions_destroy(&actions);
+  test::ChildStreams streams;
+  streams.stderr_path = err_path.string();
   ExitRun run;
-  if (rc != 0) return run;
-  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(20);
-  int status = 0;
-  while (waitpid(pid, &status, WNOHANG) != pid) {
-    if (std::chrono::steady_clock::now() >= deadline) {
-      kill(pid, SIGKILL);
-      waitpid(pid, &status, 0);
-      run.err = slurp(err_path);
-      return run;
-    }
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  std::string error;
+  std::optional<test::ChildProcess> child = test::ChildProcess::spawn(args, streams, error);
+  if (!child) return run;
+  const std::optional<int> status = child->wait(std::chrono::seconds(60));  // else killed
+  if (status) {
+    run.exit_code = WIFEXITED(*status) ? WEXITSTATUS(*status) : 128 + WTERMSIG(*status);
   }
-  run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
   run.err = slurp(err_path);
   return run;
 }

@@ -1,5 +1,7 @@
 #include "core/procedural.h"
 
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -13,7 +15,6 @@
 
 #include <Eigen/Geometry>
 #include <Eigen/LU>
-#include <gtest/gtest.h>
 
 #include "core/validate.h"
 
@@ -260,6 +261,193 @@ TEST(Procedural, ConstraintsFromSelectionRejectsBadInput) {
       constraints_from_selection(bench.mesh.V, Eigen::VectorXi::Ones(n), bench.transform);
   ASSERT_TRUE(all_free.ok());
   EXPECT_EQ(all_free->constrained.size(), 0);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Irregular variants (issue 13): real input is not a regular grid.
+// ---------------------------------------------------------------------------------------------
+
+/// Coefficient of variation of the edge lengths and the share of corners below 10 degrees.
+struct Regularity {
+  double edge_length_cv = 0;
+  double share_below_10_degrees = 0;
+  double min_angle_degrees = 180;
+};
+
+Regularity regularity(const MeshData& mesh) {
+  std::map<std::pair<int, int>, double> edges;
+  Regularity stats;
+  int sharp = 0;
+  for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const int a = mesh.F(f, k), b = mesh.F(f, (k + 1) % 3), c = mesh.F(f, (k + 2) % 3);
+      edges[std::minmax(a, b)] = (mesh.V.row(a) - mesh.V.row(b)).norm();
+      const Eigen::Vector3d e1 = mesh.V.row(b) - mesh.V.row(a), e2 = mesh.V.row(c) - mesh.V.row(a);
+      const double angle = std::atan2(e1.cross(e2).norm(), e1.dot(e2)) * 180 / kPi;
+      stats.min_angle_degrees = std::min(stats.min_angle_degrees, angle);
+      if (angle < 10) ++sharp;
+    }
+  }
+  double sum = 0, sum2 = 0;
+  for (const auto& [key, length] : edges) {
+    sum += length;
+    sum2 += length * length;
+  }
+  const double n = static_cast<double>(edges.size()), mean = sum / n;
+  stats.edge_length_cv = std::sqrt(std::max(0.0, sum2 / n - mean * mean)) / mean;
+  stats.share_below_10_degrees = sharp / (3.0 * static_cast<double>(mesh.F.rows()));
+  return stats;
+}
+
+/// Largest distance from a vertex of role `role` in `a` to the nearest vertex of that role in b.
+double one_sided_role_distance(const DeformationBenchmark& a, const DeformationBenchmark& b,
+                               int role) {
+  double worst = 0;
+  for (Eigen::Index i = 0; i < a.mesh.V.rows(); ++i) {
+    if (a.selection(i) != role) continue;
+    double nearest = 1e300;
+    for (Eigen::Index j = 0; j < b.mesh.V.rows(); ++j) {
+      if (b.selection(j) != role) continue;
+      nearest = std::min(nearest, (a.mesh.V.row(i) - b.mesh.V.row(j)).squaredNorm());
+    }
+    worst = std::max(worst, std::sqrt(nearest));
+  }
+  return worst;
+}
+
+double max_edge_length(const MeshData& mesh) {
+  double longest = 0;
+  for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      longest =
+          std::max(longest, (mesh.V.row(mesh.F(f, k)) - mesh.V.row(mesh.F(f, (k + 1) % 3))).norm());
+    }
+  }
+  return longest;
+}
+
+TEST(ProceduralIrregular, ValidManifoldsWithTheRegularTopology) {
+  const auto regular = make_suite(SuiteScale::Small);
+  const auto irregular = make_irregular_suite(SuiteScale::Small, 7);
+  ASSERT_TRUE(irregular.ok()) << irregular.status().to_string();
+  ASSERT_EQ(irregular->size(), regular.size());
+  for (size_t k = 0; k < regular.size(); ++k) {
+    const auto& bench = (*irregular)[k];
+    EXPECT_EQ(bench.name, regular[k].name + "_irregular");
+    expect_well_formed(bench);
+    // Same topology (Euler characteristic); boundary vertices are never collapsed, only split.
+    const auto euler = [](const MeshData& mesh) {
+      std::set<std::pair<int, int>> edges;
+      for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
+        for (int j = 0; j < 3; ++j) edges.insert(std::minmax(mesh.F(f, j), mesh.F(f, (j + 1) % 3)));
+      }
+      return mesh.V.rows() - static_cast<Eigen::Index>(edges.size()) + mesh.F.rows();
+    };
+    EXPECT_EQ(euler(bench.mesh), euler(regular[k].mesh)) << bench.name;
+    EXPECT_GE(boundary_edge_count(bench.mesh.F), boundary_edge_count(regular[k].mesh.F))
+        << bench.name;
+    EXPECT_EQ(boundary_edge_count(bench.mesh.F) == 0, boundary_edge_count(regular[k].mesh.F) == 0)
+        << bench.name;
+    // About the regular vertex count.
+    EXPECT_GT(bench.mesh.V.rows(), 0.7 * static_cast<double>(regular[k].mesh.V.rows()));
+    EXPECT_LT(bench.mesh.V.rows(), 1.5 * static_cast<double>(regular[k].mesh.V.rows()));
+    EXPECT_TRUE(bench.transform.isApprox(regular[k].transform)) << bench.name;
+  }
+}
+
+TEST(ProceduralIrregular, DeterministicForASeedAndDifferentAcrossSeeds) {
+  const auto regular = make_cylinder(20, 21);
+  const auto a = make_irregular(regular, 3);
+  const auto b = make_irregular(regular, 3);
+  const auto c = make_irregular(regular, 4);
+  ASSERT_TRUE(a.ok() && b.ok() && c.ok());
+  EXPECT_EQ(a->mesh.V, b->mesh.V);  // bitwise
+  EXPECT_EQ(a->mesh.F, b->mesh.F);
+  EXPECT_EQ(a->selection, b->selection);
+  EXPECT_FALSE(a->mesh.V.rows() == c->mesh.V.rows() && a->mesh.V == c->mesh.V);
+}
+
+TEST(ProceduralIrregular, MeasurablyIrregular) {
+  const auto regular = make_suite(SuiteScale::Small);
+  const auto irregular = make_irregular_suite(SuiteScale::Small, 1);
+  ASSERT_TRUE(irregular.ok());
+  for (size_t k = 0; k < regular.size(); ++k) {
+    SCOPED_TRACE(regular[k].name);
+    const Regularity before = regularity(regular[k].mesh);
+    const Regularity after = regularity((*irregular)[k].mesh);
+    // The regular models: edge lengths within ~30% of each other, no corner below 10 degrees.
+    EXPECT_LT(before.edge_length_cv, 0.3);
+    EXPECT_EQ(before.share_below_10_degrees, 0.0);
+    // The variants: lengths spread (density contrast 4), ~1-2% of the corners are slivers'
+    // sharp ones, yet none is a needle (every corner above 1 degree).
+    EXPECT_GT(after.edge_length_cv, 0.35);
+    EXPECT_GT(after.edge_length_cv, 1.3 * before.edge_length_cv);
+    EXPECT_GT(after.share_below_10_degrees, 0.008);
+    EXPECT_LT(after.share_below_10_degrees, 0.05);
+    EXPECT_GT(after.min_angle_degrees, 1.0);
+  }
+}
+
+TEST(ProceduralIrregular, HandleAndFixedRegionsStayWhereTheyWere) {
+  const auto regular = make_suite(SuiteScale::Small);
+  const auto irregular = make_irregular_suite(SuiteScale::Small, 1);
+  ASSERT_TRUE(irregular.ok());
+  for (size_t k = 0; k < regular.size(); ++k) {
+    SCOPED_TRACE(regular[k].name);
+    const auto& bench = (*irregular)[k];
+    // Every fixed (handle) vertex of either mesh lies within one regular edge length of a fixed
+    // (handle) vertex of the other: the same geometric regions, at a different sampling.
+    const double h = max_edge_length(regular[k].mesh);
+    for (const int role : {0, 2}) {
+      EXPECT_LT(one_sided_role_distance(bench, regular[k], role), h) << "role " << role;
+      EXPECT_LT(one_sided_role_distance(regular[k], bench, role), h) << "role " << role;
+    }
+    const auto setup = constraints_from_selection(bench.mesh.V, bench.selection, bench.transform);
+    ASSERT_TRUE(setup.ok());
+    EXPECT_GT(setup->constrained.size(), 2);
+  }
+}
+
+TEST(ProceduralIrregular, OptionsOffKeepTheMeshRegular) {
+  IrregularOptions off;
+  off.density_contrast = 1;
+  off.skinny_fraction = 0;
+  off.jitter = 0;
+  off.flip_fraction = 0;
+  const auto regular = make_bar(20, 6);
+  const auto same = make_irregular(regular, 1, off);
+  ASSERT_TRUE(same.ok());
+  EXPECT_EQ(regularity(same->mesh).share_below_10_degrees, 0.0);
+  EXPECT_NEAR(static_cast<double>(same->mesh.V.rows()), static_cast<double>(regular.mesh.V.rows()),
+              0.1 * static_cast<double>(regular.mesh.V.rows()));
+}
+
+TEST(ProceduralIrregular, RejectsAWrongSelection) {
+  auto bench = make_bar(20, 6);
+  bench.selection.conservativeResize(bench.selection.size() - 1);
+  const auto result = make_irregular(bench, 1);
+  ASSERT_FALSE(result.ok());
+  EXPECT_EQ(result.status().code(), ErrorCode::InvalidArgument);
+}
+
+TEST(ProceduralSpot, LoopSubdivisionQuadruplesAndEditsCarryAcrossLevels) {
+  // A small closed genus-0 stand-in (the bar), since core tests do not read files.
+  const auto bar = make_bar(8, 2);
+  const auto once = subdivide_loop(bar.mesh, 1);
+  ASSERT_TRUE(once.ok()) << once.status().to_string();
+  // Closed triangle mesh: V' = V + E = V + 3F/2, F' = 4F.
+  EXPECT_EQ(once->V.rows(), bar.mesh.V.rows() + 3 * bar.mesh.F.rows() / 2);
+  EXPECT_EQ(once->F.rows(), 4 * bar.mesh.F.rows());
+  EXPECT_TRUE(validate_triangle_mesh(once->V, once->F).ok());
+  EXPECT_FALSE(subdivide_loop(bar.mesh, 7).ok());
+  for (const SpotEdit edit : {SpotEdit::Stretch, SpotEdit::Bend, SpotEdit::Twist}) {
+    const auto coarse = make_spot_edit(bar.mesh, edit);
+    const auto fine = make_spot_edit(*once, edit);
+    ASSERT_TRUE(coarse.ok() && fine.ok());
+    EXPECT_TRUE(coarse->transform.isApprox(fine->transform, 0.05)) << spot_edit_name(edit);
+    EXPECT_GT((fine->selection.array() == 0).count(), (coarse->selection.array() == 0).count());
+    EXPECT_GT((fine->selection.array() == 2).count(), (coarse->selection.array() == 2).count());
+  }
 }
 
 }  // namespace

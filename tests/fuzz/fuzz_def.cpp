@@ -13,7 +13,12 @@
 using namespace meshdeform;
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
-  auto transform = io::parse_def(std::string_view(reinterpret_cast<const char*>(data), size));
+  std::uint64_t steps = 0;
+  io::ReadControl control;
+  control.work_steps = &steps;
+  auto transform =
+      io::parse_def(std::string_view(reinterpret_cast<const char*>(data), size), control);
+  fuzz::check_work_bounded(steps, size);
   if (!transform.ok()) {
     fuzz::check_error(transform.status());
     return 0;

@@ -10,7 +10,12 @@
 using namespace meshdeform;
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
-  auto spec = io::parse_edit_spec(std::string_view(reinterpret_cast<const char*>(data), size));
+  std::uint64_t steps = 0;
+  io::ReadControl control;
+  control.work_steps = &steps;
+  auto spec =
+      io::parse_edit_spec(std::string_view(reinterpret_cast<const char*>(data), size), control);
+  fuzz::check_work_bounded(steps, size);
   if (!spec.ok()) {
     fuzz::check_error(spec.status());
     return 0;

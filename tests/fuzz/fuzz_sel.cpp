@@ -13,7 +13,11 @@ using namespace meshdeform;
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   const std::string_view text(reinterpret_cast<const char*>(data), size);
-  auto any = io::parse_sel(text, -1);
+  std::uint64_t steps = 0;
+  io::ReadControl control;
+  control.work_steps = &steps;
+  auto any = io::parse_sel(text, -1, control);
+  fuzz::check_work_bounded(steps, size);
   if (!any.ok()) {
     fuzz::check_error(any.status());
   } else {

@@ -7,6 +7,7 @@
 /// that clean_mesh accepts is valid, and what a writer/formatter produces reads back to the same
 /// value. A broken property aborts through fuzz_check, so libFuzzer reports it like a crash.
 
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -25,6 +26,18 @@ inline void fuzz_check(bool condition, const char* what) {
     std::fprintf(stderr, "fuzz property violated: %s\n", what);
     std::abort();
   }
+}
+
+/// Work allowed per input byte by the io rule "work bounded by bytes" (core/io/mesh_io.h): a
+/// reader that loops over a declared count its bytes do not back exceeds it on some input.
+inline constexpr std::uint64_t kStepsPerByte = 4;
+inline constexpr std::uint64_t kStepsConstant = 64;
+
+/// The work a reader did must be bounded by its input (what the hostile-input tests check on
+/// crafted headers, here on every input the fuzzer makes).
+inline void check_work_bounded(std::uint64_t steps, std::size_t bytes) {
+  fuzz_check(steps <= kStepsPerByte * bytes + kStepsConstant,
+             "reader work not bounded by its input size");
 }
 
 /// Bitwise equality of two meshes (NaN coordinates compare equal to themselves).
@@ -78,7 +91,11 @@ inline void check_clean(const MeshData& raw, bool weld) {
 /// welding); a mesh that cleans is written back in the same format and must read back equal
 /// (exactly for the double formats, OBJ/OFF/PLY; same shape for float32 STL/glTF).
 inline void check_mesh_bytes(std::string_view bytes, io::MeshFormat format) {
-  auto raw = io::read_mesh_from_memory(bytes, format);
+  std::uint64_t steps = 0;
+  io::ReadControl control;
+  control.work_steps = &steps;
+  auto raw = io::read_mesh_from_memory(bytes, format, control);
+  check_work_bounded(steps, bytes.size());
   if (!raw.ok()) {
     check_error(raw.status());
     return;

@@ -4,7 +4,6 @@
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <signal.h>
-#include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -18,6 +17,7 @@
 #include <thread>
 #include <vector>
 
+#include "tests/support/child_process.h"
 #include "tests/support/server_process.h"
 
 extern char** environ;
@@ -68,38 +68,21 @@ class LoadtestTest : public ::testing::Test {
     const std::string err_path = (dir_ / "stderr.txt").string();
     std::vector<std::string> words = {MESHDEFORM_LOADTEST_PATH};
     words.insert(words.end(), args.begin(), args.end());
-    std::vector<char*> argv;
-    for (std::string& word : words) argv.push_back(word.data());
-    argv.push_back(nullptr);
-
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
-    posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, out_path.c_str(),
-                                     O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, err_path.c_str(),
-                                     O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    pid_t pid = -1;
-    const int rc =
-        posix_spawn(&pid, MESHDEFORM_LOADTEST_PATH, &actions, nullptr, argv.data(), environ);
-    posix_spawn_file_actions_destroy(&actions);
-    if (rc != 0) {
-      ADD_FAILURE() << "cannot spawn " << MESHDEFORM_LOADTEST_PATH << ": " << rc;
+    test::ChildStreams streams;
+    streams.stdout_path = out_path;
+    streams.stderr_path = err_path;
+    std::string error;
+    std::optional<test::ChildProcess> child = test::ChildProcess::spawn(words, streams, error);
+    if (!child) {
+      ADD_FAILURE() << "cannot spawn " << MESHDEFORM_LOADTEST_PATH << ": " << error;
       return result;
     }
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    int status = 0;
-    pid_t waited = 0;
-    while ((waited = waitpid(pid, &status, WNOHANG)) == 0 &&
-           std::chrono::steady_clock::now() < deadline) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
-    if (waited == 0) {
+    const std::optional<int> status = child->wait(timeout);
+    if (!status) {
       result.is_timed_out = true;
-      kill(pid, SIGKILL);
-      waitpid(pid, &status, 0);
-    } else if (waited == pid && WIFEXITED(status)) {
-      result.exit_code = WEXITSTATUS(status);
+      child->kill_and_reap();
+    } else if (WIFEXITED(*status)) {
+      result.exit_code = WEXITSTATUS(*status);
     }
     result.out = read_text(out_path);
     result.err = read_text(err_path);

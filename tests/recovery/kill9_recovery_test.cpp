@@ -68,7 +68,7 @@ TEST(Kill9RecoveryTest, NoAcknowledgedRevisionIsLost) {
   std::mutex mutex;
   std::vector<double> acked_positions;
   std::atomic<int> acked_moves{0};
-  std::thread editor([&] {
+  std::jthread editor([&] {  // bounded loop; joined on every path
     for (int i = 1; i <= 400; ++i) {
       v1::MoveHandlesRequest move;
       move.set_session_id(created.session_id());

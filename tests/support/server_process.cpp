@@ -2,15 +2,12 @@
 
 #include <fcntl.h>
 #include <signal.h>
-#include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <cerrno>
 #include <cstring>
 #include <regex>
-
-extern char** environ;
 
 namespace meshdeform::test {
 
@@ -25,25 +22,21 @@ std::unique_ptr<ServerProcess> ServerProcess::start(const std::string& binary,
   }
   std::vector<std::string> args = {binary, "--listen", "127.0.0.1:0"};
   args.insert(args.end(), extra_flags.begin(), extra_flags.end());
-  std::vector<char*> argv;
-  for (std::string& arg : args) argv.push_back(arg.data());
-  argv.push_back(nullptr);
-
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_adddup2(&actions, pipe_fds[1], STDERR_FILENO);
-  pid_t pid = -1;
-  const int rc = posix_spawn(&pid, binary.c_str(), &actions, nullptr, argv.data(), environ);
-  posix_spawn_file_actions_destroy(&actions);
+  // stdout goes nowhere (the server logs to stderr): a child holding the test's stdout kept
+  // ctest waiting on the pipe for minutes after a test crashed.
+  ChildStreams streams;
+  streams.stderr_fd = pipe_fds[1];
+  std::string spawn_error;
+  std::optional<ChildProcess> child = ChildProcess::spawn(args, streams, spawn_error);
   close(pipe_fds[1]);
-  if (rc != 0) {
+  if (!child) {
     close(pipe_fds[0]);
-    error = "cannot spawn " + binary + ": " + std::strerror(rc);
+    error = "cannot spawn " + binary + ": " + spawn_error;
     return nullptr;
   }
 
   std::unique_ptr<ServerProcess> server(new ServerProcess());
-  server->pid_ = pid;
+  server->child_ = std::move(child);
   server->stderr_fd_ = pipe_fds[0];
   server->reader_ = std::thread([raw = server.get()] { raw->read_stderr(); });
 
@@ -67,8 +60,8 @@ std::unique_ptr<ServerProcess> ServerProcess::start(const std::string& binary,
 }
 
 ServerProcess::~ServerProcess() {
-  if (pid_ > 0 && !stop(SIGTERM, std::chrono::seconds(20))) {
-    stop(SIGKILL, std::chrono::seconds(20));
+  if (child_ && child_->is_running() && !stop(SIGTERM, std::chrono::seconds(20))) {
+    child_->kill_and_reap();
   }
   if (reader_.joinable()) reader_.join();  // EOF once the process (and its pipe) is gone
   if (stderr_fd_ >= 0) close(stderr_fd_);
@@ -92,18 +85,8 @@ int ServerProcess::http_port(std::chrono::milliseconds timeout) const {
 }
 
 std::optional<int> ServerProcess::stop(int signal, std::chrono::milliseconds timeout) {
-  if (pid_ <= 0) return std::nullopt;
-  kill(pid_, signal);
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  while (true) {
-    int status = 0;
-    if (waitpid(pid_, &status, WNOHANG) == pid_) {
-      pid_ = -1;
-      return status;
-    }
-    if (std::chrono::steady_clock::now() >= deadline) return std::nullopt;
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
+  if (!child_) return std::nullopt;
+  return child_->stop(signal, timeout);
 }
 
 std::string ServerProcess::log() const {
@@ -117,6 +100,25 @@ bool ServerProcess::wait_for_log(const std::string& needle,
   return changed_.wait_for(lock, timeout,
                            [&] { return log_.find(needle) != std::string::npos || eof_; }) &&
          log_.find(needle) != std::string::npos;
+}
+
+bool ServerProcess::expire_idle_sessions(std::chrono::milliseconds timeout) {
+  const std::string needle = "\"event\":\"expired_by_signal\"";
+  auto count = [&] {
+    std::size_t n = 0;
+    for (std::size_t at = log_.find(needle); at != std::string::npos;
+         at = log_.find(needle, at + 1)) {
+      ++n;
+    }
+    return n;
+  };
+  std::unique_lock lock(mutex_);
+  const std::size_t before = count();
+  lock.unlock();
+  if (pid() <= 0 || kill(pid(), SIGUSR1) != 0) return false;
+  lock.lock();
+  return changed_.wait_for(lock, timeout, [&] { return count() > before || eof_; }) &&
+         count() > before;
 }
 
 void ServerProcess::read_stderr() {

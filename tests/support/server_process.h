@@ -4,6 +4,8 @@
 /// with `--listen 127.0.0.1:0` plus extra flags, reads its stderr (on a thread, so the server
 /// never blocks on a full pipe) until the structured `"event":"listening"` line gives the bound
 /// port, and stops it (SIGTERM, then SIGKILL after a bound) when destroyed. Every wait is bounded.
+/// The server is a ChildProcess: it dies with the test process however that ends, and its stdout
+/// goes to /dev/null.
 /// POSIX only; no gRPC here.
 
 #include <chrono>
@@ -14,6 +16,8 @@
 #include <string>
 #include <thread>
 #include <vector>
+
+#include "tests/support/child_process.h"
 
 namespace meshdeform::test {
 
@@ -30,7 +34,8 @@ class ServerProcess {
   ~ServerProcess();
 
   int port() const { return port_; }
-  int pid() const { return pid_; }
+  /// The server's pid, or -1 once it has exited and been reaped.
+  int pid() const { return child_ ? child_->pid() : -1; }
   /// "127.0.0.1:PORT", for grpc::CreateChannel.
   std::string address() const;
   /// The --http-listen port, from the `"event":"http_listening"` line (logged just after the
@@ -48,11 +53,16 @@ class ServerProcess {
   /// Waits at most `timeout` for `needle` to appear in the log. @return whether it did.
   bool wait_for_log(const std::string& needle, std::chrono::milliseconds timeout) const;
 
+  /// Expires every idle session now: needs the server started with --test-hooks (SIGUSR1), an
+  /// explicit trigger instead of a short --idle-ttl-seconds that a loaded machine would trip.
+  /// Waits at most `timeout` for the server to log that it did. @return whether it did.
+  bool expire_idle_sessions(std::chrono::milliseconds timeout = std::chrono::seconds(60));
+
  private:
   ServerProcess() = default;
   void read_stderr();
 
-  int pid_ = -1;
+  std::optional<ChildProcess> child_;
   int stderr_fd_ = -1;
   int port_ = 0;
   mutable std::mutex mutex_;

@@ -659,7 +659,7 @@ TEST_F(GrpcWebTest, ManyWatchersSomeLeavingWhileMovesArrive) {
   }
   EXPECT_EQ(watchers(), static_cast<std::uint32_t>(kWatchers));
   // Every other browser leaves while moves are being published.
-  std::thread leaver([&clients] {
+  std::jthread leaver([&clients] {  // joined on every path, an early ASSERT included
     for (int i = 0; i < kWatchers; i += 2) clients[i]->close();
   });
   v1::MoveHandlesResponse moved;

@@ -240,7 +240,7 @@ TEST_F(HttpTlsTest, ChunkedStreamOverTls) {
   ASSERT_TRUE(tls.ok()) << tls.status().message();
   HttpServerOptions options;
   options.tls = std::move(tls).value();
-  std::vector<std::thread> writers;
+  std::vector<std::jthread> writers;
   auto started = HttpServer::start_async(
       "127.0.0.1:0",
       [&writers](HttpRequest, std::shared_ptr<HttpExchange> exchange) {
@@ -268,7 +268,7 @@ TEST_F(HttpTlsTest, ChunkedStreamOverTls) {
     }
     EXPECT_NE(connection.received().find("\r\n0\r\n\r\n"), std::string::npos);
   }
-  for (std::thread& writer : writers) writer.join();
+  for (std::jthread& writer : writers) writer.join();
   (*started)->stop();
 }
 

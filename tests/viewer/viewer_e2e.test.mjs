@@ -30,7 +30,12 @@ function withTimeout(p, ms, what) {
 
 function startServer() {
   return new Promise((resolve, reject) => {
-    server = spawn(serverPath, ["--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0", "--web-root", dist, "--log-level", "info"], { stdio: ["ignore", "ignore", "pipe"] });
+    const args = ["--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0", "--web-root", dist, "--log-level", "info"];
+    // The server dies with this test process however it ends (util-linux setpriv sets
+    // PR_SET_PDEATHSIG before exec), and never holds the test's stdout.
+    server = existsSync("/usr/bin/setpriv")
+      ? spawn("/usr/bin/setpriv", ["--pdeathsig", "KILL", serverPath, ...args], { stdio: ["ignore", "ignore", "pipe"] })
+      : spawn(serverPath, args, { stdio: ["ignore", "ignore", "pipe"] });
     const timer = setTimeout(() => reject(new Error("server did not report http_listening\n" + serverLog)), 20_000);
     server.on("error", (e) => { clearTimeout(timer); reject(e); });
     server.on("exit", (code) => { clearTimeout(timer); reject(new Error(`server exited (${code})\n${serverLog}`)); });

@@ -1,0 +1,1024 @@
+// meshdeform-bench-realistic (issue 13): the solvers on input that looks like real meshes, side
+// by side with CGAL's ARAP in one run. Models: irregular variants of the Table 1 suite
+// (core::make_irregular_suite) and Spot Loop-subdivided to ~47k / 187k / 750k vertices with
+// bounding-box edits (core::make_spot_edit). Each method runs in its own forked child process, so
+// its peak resident set is its own; timings are medians over --repeat rounds, interleaved (ours,
+// CGAL, ours, CGAL...) so that load on the shared machine hits every method alike.
+// Writes a Markdown report (stdout and <out-dir>/realistic.md), <out-dir>/realistic.json and a
+// log-log plot <out-dir>/realistic_scaling.svg.
+
+#include <malloc.h>
+#include <sys/resource.h>
+#include <sys/types.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <iostream>
+#include <map>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <nlohmann/json.hpp>
+
+#include "bench/bench_config.h"
+#include "bench/cgal_arap.h"
+#include "bench/machine_info.h"
+#include "core/arap.h"
+#include "core/deform_types.h"
+#include "core/io/mesh_io.h"
+#include "core/measures.h"
+#include "core/procedural.h"
+#include "core/scale_aware.h"
+#include "core/status.h"
+#include "core/topology.h"
+
+namespace meshdeform::bench {
+namespace {
+
+using nlohmann::json;
+
+// Issue 13's targets: ours per outer iteration, precompute and peak memory against CGAL ARAP.
+constexpr double kPerIterationRatioTarget = 1.5;
+constexpr double kPrecomputeRatioTarget = 2.0;
+constexpr double kMemoryRatioTarget = 2.0;
+
+// ---- options ----------------------------------------------------------------------------------
+
+struct Options {
+  std::vector<std::string> models;  // empty: all
+  long max_vertices = 1'000'000;
+  std::vector<int> spot_levels = {2, 3, 4};
+  std::vector<std::string> spot_edits = {"bend", "stretch", "twist"};  // all at the first level
+  bool include_regular = false;
+  int iterations = 15;
+  int repeat = 3;
+  long repeat_max_vertices = 200'000;  // larger models run one round (the 750k Spot: minutes)
+  int anderson_window = 6;
+  int cgal_max_iterations = 100;
+  int threads = 1;
+  std::uint64_t seed = 1;
+  std::string out_dir = MESHDEFORM_BENCH_RESULTS_DIR;
+  std::string stem = "realistic";
+  std::string spot_path = std::string(MESHDEFORM_BENCH_SOURCE_DIR) + "/tests/data/spot.obj";
+  std::vector<std::string> methods = {"scale_aware", "arap", "arap_anderson", "cgal"};
+};
+
+void print_usage(std::ostream& out) {
+  out << "usage: meshdeform-bench-realistic [options]\n"
+         "  --models a,b          model names (default all; see the list printed on start)\n"
+         "  --max-vertices N      skip models with more vertices (1000000)\n"
+         "  --spot-levels a,b     Loop subdivision levels of Spot (2,3,4: ~47k, 187k, 750k)\n"
+         "  --regular             also run the regular Table 1 models\n"
+         "  --methods a,b         scale_aware, arap, arap_anderson, cgal (default all)\n"
+         "  --iterations N        outer-iteration budget of the timed runs (15)\n"
+         "  --repeat N            rounds; timings are medians (3)\n"
+         "  --repeat-max-vertices N  models above N vertices run one round (200000)\n"
+         "  --anderson-window M   window of the accelerated ARAP (6)\n"
+         "  --cgal-max-iterations N  cap of the convergence runs (100)\n"
+         "  --threads N           our solvers' OpenMP threads (1)\n"
+         "  --seed S              irregular-mesh seed (1)\n"
+         "  --out-dir DIR         (default "
+      << MESHDEFORM_BENCH_RESULTS_DIR
+      << ")\n"
+         "  --stem NAME           output file stem (realistic)\n"
+         "  --spot PATH           spot.obj (default tests/data/spot.obj)\n";
+}
+
+std::vector<std::string> split_commas(const std::string& text) {
+  std::vector<std::string> out;
+  std::stringstream in(text);
+  std::string item;
+  while (std::getline(in, item, ',')) {
+    if (!item.empty()) out.push_back(item);
+  }
+  return out;
+}
+
+Result<long> parse_long(const std::string& flag, const std::string& text, long min_value) {
+  try {
+    std::size_t used = 0;
+    const long value = std::stol(text, &used);
+    if (used == text.size() && value >= min_value) return value;
+  } catch (const std::exception&) {
+  }
+  return Error(ErrorCode::InvalidArgument,
+               flag + " wants an integer >= " + std::to_string(min_value) + ", got '" + text + "'");
+}
+
+Result<Options> parse_options(int argc, char** argv) {
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    auto next = [&]() -> Result<std::string> {
+      if (i + 1 >= argc) return Error(ErrorCode::InvalidArgument, arg + " needs a value");
+      return std::string(argv[++i]);
+    };
+    auto next_int = [&](long min_value) -> Result<long> {
+      MD_ASSIGN_OR_RETURN(const std::string value, next());
+      return parse_long(arg, value, min_value);
+    };
+    if (arg == "--models") {
+      MD_ASSIGN_OR_RETURN(const std::string value, next());
+      o.models = split_commas(value);
+    } else if (arg == "--max-vertices") {
+      MD_ASSIGN_OR_RETURN(o.max_vertices, next_int(1));
+    } else if (arg == "--spot-levels") {
+      MD_ASSIGN_OR_RETURN(const std::string value, next());
+      o.spot_levels.clear();
+      for (const auto& item : split_commas(value)) {
+        MD_ASSIGN_OR_RETURN(const long level, parse_long(arg, item, 0));
+        o.spot_levels.push_back(static_cast<int>(level));
+      }
+    } else if (arg == "--regular") {
+      o.include_regular = true;
+    } else if (arg == "--methods") {
+      MD_ASSIGN_OR_RETURN(const std::string value, next());
+      o.methods = split_commas(value);
+    } else if (arg == "--iterations") {
+      MD_ASSIGN_OR_RETURN(const long v, next_int(1));
+      o.iterations = static_cast<int>(v);
+    } else if (arg == "--repeat") {
+      MD_ASSIGN_OR_RETURN(const long v, next_int(1));
+      o.repeat = static_cast<int>(v);
+    } else if (arg == "--repeat-max-vertices") {
+      MD_ASSIGN_OR_RETURN(o.repeat_max_vertices, next_int(1));
+    } else if (arg == "--anderson-window") {
+      MD_ASSIGN_OR_RETURN(const long v, next_int(1));
+      o.anderson_window = static_cast<int>(v);
+    } else if (arg == "--cgal-max-iterations") {
+      MD_ASSIGN_OR_RETURN(const long v, next_int(1));
+      o.cgal_max_iterations = static_cast<int>(v);
+    } else if (arg == "--threads") {
+      MD_ASSIGN_OR_RETURN(const long v, next_int(0));
+      o.threads = static_cast<int>(v);
+    } else if (arg == "--seed") {
+      MD_ASSIGN_OR_RETURN(const long v, next_int(0));
+      o.seed = static_cast<std::uint64_t>(v);
+    } else if (arg == "--out-dir") {
+      MD_ASSIGN_OR_RETURN(o.out_dir, next());
+    } else if (arg == "--stem") {
+      MD_ASSIGN_OR_RETURN(o.stem, next());
+    } else if (arg == "--spot") {
+      MD_ASSIGN_OR_RETURN(o.spot_path, next());
+    } else {
+      return Error(ErrorCode::InvalidArgument, "unknown option '" + arg + "'");
+    }
+  }
+  for (const auto& m : o.methods) {
+    if (m != "scale_aware" && m != "arap" && m != "arap_anderson" && m != "cgal") {
+      return Error(ErrorCode::InvalidArgument, "unknown method '" + m + "'");
+    }
+  }
+  return o;
+}
+
+// ---- memory -------------------------------------------------------------------------------------
+
+/// A field of /proc/self/status in KiB ("VmHWM", "VmRSS"), or -1.
+long proc_status_kib(const std::string& field) {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind(field + ":", 0) == 0) return std::atol(line.c_str() + field.size() + 1);
+  }
+  return -1;
+}
+
+/// Resets the peak resident set (VmHWM) to the current one (Linux >= 4.0); false if not allowed.
+bool reset_peak_rss() {
+  std::ofstream out("/proc/self/clear_refs");
+  out << "5";
+  out.flush();
+  return static_cast<bool>(out);
+}
+
+double seconds_since(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+json errors_json(const core::AngleErrors& e) {
+  return {{"e_theta", e.e_theta}, {"e_phi", e.e_phi}, {"area", e.area_log_rms}};
+}
+
+// ---- one method in a child process ------------------------------------------------------------
+
+/// Runs `body` in a forked child and returns what it printed (JSON) plus the child's peak RSS.
+/// In the child: give the parent's free heap back (malloc_trim), reset VmHWM, note the baseline,
+/// run, and report VmHWM as the method's peak (its input mesh and the libraries included).
+Result<json> run_in_child(const std::function<json()>& body) {
+  int fds[2];
+  if (pipe(fds) != 0) return Error(ErrorCode::Internal, "pipe failed");
+  std::cout.flush();
+  std::cerr.flush();
+  const pid_t pid = fork();
+  if (pid < 0) return Error(ErrorCode::Internal, "fork failed");
+  if (pid == 0) {
+    close(fds[0]);
+    malloc_trim(0);
+    const bool reset = reset_peak_rss();
+    json out;
+    out["baseline_rss_kib"] = proc_status_kib("VmRSS");
+    try {
+      json result = body();
+      out.update(result);
+      out["hwm_reset"] = reset;
+    } catch (const std::exception& e) {
+      out["error"] = e.what();
+    }
+    const std::string text = out.dump();
+    size_t written = 0;
+    while (written < text.size()) {
+      const ssize_t n = write(fds[1], text.data() + written, text.size() - written);
+      if (n <= 0) break;
+      written += static_cast<size_t>(n);
+    }
+    close(fds[1]);
+    _exit(0);
+  }
+  close(fds[1]);
+  std::string text;
+  char buffer[65536];
+  for (;;) {
+    const ssize_t n = read(fds[0], buffer, sizeof(buffer));
+    if (n <= 0) break;
+    text.append(buffer, static_cast<size_t>(n));
+  }
+  close(fds[0]);
+  int status = 0;
+  struct rusage usage {};
+  wait4(pid, &status, 0, &usage);
+  if (!WIFEXITED(status) || text.empty()) {
+    return Error(ErrorCode::Internal,
+                 "child died (status " + std::to_string(status) + ", e.g. out of memory)");
+  }
+  json out = json::parse(text);
+  out["ru_maxrss_kib"] = usage.ru_maxrss;
+  if (out.contains("error")) return Error(ErrorCode::Internal, out["error"].get<std::string>());
+  return out;
+}
+
+struct Model {
+  core::DeformationBenchmark bench;
+  core::HandleSetup setup;
+};
+
+/// The peak of the timed part, read before the error metrics allocate their own measures.
+long peak_now() { return proc_status_kib("VmHWM"); }
+
+json history_json(const std::vector<core::IterationInfo>& history) {
+  json out = json::array();
+  for (const auto& h : history) {
+    out.push_back({{"energy", h.energy},
+                   {"e_theta", h.e_theta},
+                   {"e_phi", h.e_phi},
+                   {"elapsed", h.elapsed_seconds},
+                   {"pcg", h.pcg_iterations},
+                   {"sweeps", h.normal_sweeps},
+                   {"normals_s", h.normals_seconds},
+                   {"assemble_s", h.assemble_seconds},
+                   {"linear_s", h.linear_seconds}});
+  }
+  return out;
+}
+
+/// Both our solvers: create, a timed run without metrics (the timings), then reset and the same
+/// run with metrics (per-iteration E_theta / E_phi; deterministic, so the same iterates), and for
+/// ARAP a convergence run (tolerance 1e-4, the cap) timed the same way as CGAL's.
+template <typename Solver, typename Settings>
+json run_ours(const Model& model, const Options& options, bool is_arap, int anderson_window) {
+  const Positions& V0 = model.bench.mesh.V;
+  const Triangles& F = model.bench.mesh.F;
+  Settings settings;
+  settings.threads = options.threads;
+  json out;
+  const auto start = std::chrono::steady_clock::now();
+  auto created = Solver::create(V0, F, model.setup.constrained, settings);
+  if (!created.ok()) throw std::runtime_error(created.status().to_string());
+  Solver solver = std::move(created).value();
+  out["precompute_s"] = seconds_since(start);
+
+  core::SolveOptions timed;
+  timed.max_iterations = options.iterations;
+  timed.track_metrics = false;
+  timed.start = core::StartFrom::Laplacian;
+  timed.anderson_window = anderson_window;
+  if (is_arap) timed.tolerance = 0;  // exactly `iterations` iterations, like CGAL's fixed run
+  auto report = solver.solve(model.setup.targets, timed);
+  if (!report.ok()) throw std::runtime_error(report.status().to_string());
+  out["peak_rss_kib"] = peak_now();
+  out["solve_s"] = report->seconds;
+  out["init_s"] = report->history.empty() ? 0.0 : report->history.front().elapsed_seconds;
+  out["iterations"] = report->iterations;
+  out["converged"] = report->converged;
+  out["pcg_iterations"] = report->pcg_iterations;
+  out["factorizations"] = report->factorizations;
+  out["history"] = history_json(report->history);
+  const core::MeshTopology topology = core::build_topology(F, static_cast<int>(V0.rows())).value();
+  const core::Measures rest = core::compute_measures(V0, F, topology);
+  out["errors"] =
+      errors_json(core::angle_errors(rest, core::compute_measures(report->V, F, topology)));
+
+  core::SolveOptions converge = timed;
+  if (is_arap) {
+    converge.tolerance = 1e-4;
+    converge.max_iterations = options.cgal_max_iterations;
+    solver.reset();
+    auto run = solver.solve(model.setup.targets, converge);
+    if (!run.ok()) throw std::runtime_error(run.status().to_string());
+    out["converge_s"] = run->seconds;
+    out["converge_iterations"] = run->iterations;
+    out["converge_history"] = history_json(run->history);
+    out["converged_errors"] =
+        errors_json(core::angle_errors(rest, core::compute_measures(run->V, F, topology)));
+  }
+  core::SolveOptions metrics = is_arap ? converge : timed;
+  metrics.track_metrics = true;
+  solver.reset();
+  auto tracked = solver.solve(model.setup.targets, metrics);
+  if (!tracked.ok()) throw std::runtime_error(tracked.status().to_string());
+  out["metric_history"] = history_json(tracked->history);
+  return out;
+}
+
+json run_cgal(const Model& model, const Options& options) {
+  CgalArapOptions cgal;
+  cgal.fixed_iterations = options.iterations;
+  cgal.max_converge_iterations = options.cgal_max_iterations;
+  cgal.run_convergence = true;
+  auto result = run_cgal_arap(model.bench.mesh.V, model.bench.mesh.F, model.setup.constrained,
+                              model.setup.targets, Positions(), cgal);
+  if (!result.ok()) throw std::runtime_error(result.status().to_string());
+  json out;
+  out["peak_rss_kib"] = peak_now();
+  out["precompute_s"] = result->preprocess_seconds;
+  out["build_s"] = result->build_seconds;
+  out["solve_s"] = result->fixed_seconds;
+  out["iterations"] = result->fixed_iterations;
+  out["converge_s"] = result->converge_seconds;
+  out["converge_iterations"] = result->converge_iterations;
+  const Positions& V0 = model.bench.mesh.V;
+  const Triangles& F = model.bench.mesh.F;
+  const core::MeshTopology topology = core::build_topology(F, static_cast<int>(V0.rows())).value();
+  const core::Measures rest = core::compute_measures(V0, F, topology);
+  out["errors"] =
+      errors_json(core::angle_errors(rest, core::compute_measures(result->V_fixed, F, topology)));
+  out["converged_errors"] = errors_json(
+      core::angle_errors(rest, core::compute_measures(result->V_converged, F, topology)));
+  return out;
+}
+
+// ---- aggregation ------------------------------------------------------------------------------
+
+double median(std::vector<double> values) {
+  if (values.empty()) return std::nan("");
+  std::sort(values.begin(), values.end());
+  const size_t n = values.size();
+  return n % 2 == 1 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+}
+
+/// One method's figures over the rounds: medians of the timings, the first round's results
+/// (identical across rounds: everything but the timings is deterministic).
+struct MethodResult {
+  std::string method;
+  bool ok = false;
+  std::string error;
+  json first;
+  double precompute_s = 0, per_iteration_s = 0, solve_s = 0, converge_s = 0;
+  double peak_rss_mib = 0, baseline_rss_mib = 0;
+  double pcg_per_iteration = 0, normals_ms = 0, assemble_ms = 0, linear_ms = 0;
+  int iterations = 0, converge_iterations = 0;
+  // Time to quality: first iterate with E_theta and E_phi both <= CGAL's converged ones.
+  int quality_iteration = -1;
+  double quality_s = -1;
+  std::vector<double> precompute_all, per_iteration_all;
+};
+
+MethodResult aggregate(const std::string& method, const std::vector<json>& runs) {
+  MethodResult r;
+  r.method = method;
+  if (runs.empty()) return r;
+  r.ok = true;
+  r.first = runs.front();
+  std::vector<double> pre, per_it, solve, conv, rss, base, normals, assemble, linear;
+  for (const json& run : runs) {
+    const int its = run.value("iterations", 0);
+    const double init = run.value("init_s", 0.0);
+    pre.push_back(run.value("precompute_s", 0.0));
+    solve.push_back(run.value("solve_s", 0.0));
+    per_it.push_back(its > 0 ? (run.value("solve_s", 0.0) - init) / its : 0.0);
+    conv.push_back(run.value("converge_s", 0.0));
+    rss.push_back(run.value("peak_rss_kib", 0L) / 1024.0);
+    base.push_back(run.value("baseline_rss_kib", 0L) / 1024.0);
+    if (run.contains("history") && its > 0) {
+      double n = 0, a = 0, l = 0;
+      for (size_t k = 1; k < run["history"].size(); ++k) {
+        n += run["history"][k]["normals_s"].get<double>();
+        a += run["history"][k]["assemble_s"].get<double>();
+        l += run["history"][k]["linear_s"].get<double>();
+      }
+      normals.push_back(1e3 * n / its);
+      assemble.push_back(1e3 * a / its);
+      linear.push_back(1e3 * l / its);
+    }
+  }
+  r.precompute_all = pre;
+  r.per_iteration_all = per_it;
+  r.precompute_s = median(pre);
+  r.per_iteration_s = median(per_it);
+  r.solve_s = median(solve);
+  r.converge_s = median(conv);
+  r.peak_rss_mib = median(rss);
+  r.baseline_rss_mib = median(base);
+  r.normals_ms = normals.empty() ? 0 : median(normals);
+  r.assemble_ms = assemble.empty() ? 0 : median(assemble);
+  r.linear_ms = linear.empty() ? 0 : median(linear);
+  r.iterations = r.first.value("iterations", 0);
+  r.converge_iterations = r.first.value("converge_iterations", 0);
+  if (r.iterations > 0) {
+    r.pcg_per_iteration = static_cast<double>(r.first.value("pcg_iterations", 0)) / r.iterations;
+  }
+  return r;
+}
+
+/// Fills quality_iteration / quality_s of an ours method against the bar: the metric run gives
+/// the iteration, the timed run (same iterates, no metric cost) its median elapsed time.
+void time_to_quality(MethodResult& r, const std::vector<json>& runs, double bar_theta,
+                     double bar_phi) {
+  if (!r.ok || !r.first.contains("metric_history")) return;
+  const json& metric = r.first["metric_history"];
+  int k = -1;
+  for (size_t i = 0; i < metric.size(); ++i) {
+    if (metric[i]["e_theta"].get<double>() <= bar_theta &&
+        metric[i]["e_phi"].get<double>() <= bar_phi) {
+      k = static_cast<int>(i);
+      break;
+    }
+  }
+  r.quality_iteration = k;
+  if (k < 0) return;
+  const char* timeline = r.first.contains("converge_history") ? "converge_history" : "history";
+  std::vector<double> times;
+  for (const json& run : runs) {
+    if (run.contains(timeline) && static_cast<int>(run[timeline].size()) > k) {
+      times.push_back(run[timeline][static_cast<size_t>(k)]["elapsed"].get<double>());
+    }
+  }
+  r.quality_s = times.empty() ? -1 : median(times);
+}
+
+struct Row {
+  std::string name;
+  std::string family;  // "irregular", "spot", "regular"
+  int vertices = 0, faces = 0, constrained = 0;
+  std::map<std::string, MethodResult> methods;
+  double bar_theta = -1, bar_phi = -1;
+  std::string load_before, load_after;
+  int rounds = 0;
+  // Accelerated ARAP: iteration and time (median) at which it first reaches the energy plain ARAP
+  // ended its convergence run with.
+  int aa_equal_energy_iteration = -1;
+  double aa_equal_energy_s = -1;
+};
+
+// ---- models -----------------------------------------------------------------------------------
+
+/// Generates the models lazily (the 750k Spot takes seconds and ~100 MB): name, vertex estimate
+/// and a factory.
+struct ModelSpec {
+  std::string name, family;
+  long vertices_estimate;
+  std::function<Result<core::DeformationBenchmark>()> make;
+};
+
+Result<std::vector<ModelSpec>> model_specs(const Options& options) {
+  std::vector<ModelSpec> specs;
+  const auto regular = core::make_suite(core::SuiteScale::Paper);
+  for (size_t k = 0; k < regular.size(); ++k) {
+    const std::string name = regular[k].name;
+    const long v = regular[k].mesh.V.rows();
+    if (options.include_regular) {
+      specs.push_back({name, "regular", v, [name]() -> Result<core::DeformationBenchmark> {
+                         for (auto& b : core::make_suite(core::SuiteScale::Paper)) {
+                           if (b.name == name) return b;
+                         }
+                         return Error(ErrorCode::NotFound, name);
+                       }});
+    }
+    const std::uint64_t seed = options.seed;
+    specs.push_back(
+        {name + "_irregular", "irregular", v, [name, seed]() -> Result<core::DeformationBenchmark> {
+           for (auto& b : core::make_suite(core::SuiteScale::Paper)) {
+             if (b.name == name) return core::make_irregular(b, seed);
+           }
+           return Error(ErrorCode::NotFound, name);
+         }});
+  }
+  bool first_level = true;
+  for (const int level : options.spot_levels) {
+    const long estimate = static_cast<long>(2930 * std::pow(4.0, level));
+    const std::string tag = "spot" + std::to_string((estimate + 500) / 1000) + "k";
+    std::vector<std::string> edits = {"bend"};
+    if (first_level) edits = options.spot_edits;
+    first_level = false;
+    for (const std::string& edit_name : edits) {
+      const core::SpotEdit edit = edit_name == "stretch" ? core::SpotEdit::Stretch
+                                  : edit_name == "twist" ? core::SpotEdit::Twist
+                                                         : core::SpotEdit::Bend;
+      const std::string path = options.spot_path;
+      specs.push_back({tag + "_" + edit_name, "spot", estimate,
+                       [path, level, edit]() -> Result<core::DeformationBenchmark> {
+                         MD_ASSIGN_OR_RETURN(MeshData spot, io::read_mesh(path));
+                         MD_ASSIGN_OR_RETURN(MeshData fine, core::subdivide_loop(spot, level));
+                         return core::make_spot_edit(fine, edit);
+                       }});
+    }
+  }
+  return specs;
+}
+
+// ---- output -----------------------------------------------------------------------------------
+
+std::string fmt(const char* format, double value) {
+  char buffer[64];
+  std::snprintf(buffer, sizeof(buffer), format, value);
+  return buffer;
+}
+std::string ratio_cell(double ours, double cgal, double target) {
+  if (!(ours > 0) || !(cgal > 0)) return "-";
+  const double r = ours / cgal;
+  return fmt("%.2f", r) + (r <= target ? " (met)" : " (NOT met)");
+}
+
+const MethodResult* find(const Row& row, const std::string& method) {
+  const auto it = row.methods.find(method);
+  return it != row.methods.end() && it->second.ok ? &it->second : nullptr;
+}
+
+std::string quality_cell(const MethodResult* m) {
+  if (m == nullptr) return "-";
+  if (m->quality_iteration < 0) return "not reached";
+  return std::to_string(m->quality_iteration) + " its, " + fmt("%.3f", m->quality_s) + " s";
+}
+
+std::string markdown(const MachineInfo& machine, const std::string& load_end,
+                     const Options& options, const std::vector<Row>& rows) {
+  std::ostringstream out;
+  out << "# Realistic meshes: our solvers vs CGAL ARAP (issue 13)\n\n";
+  out << "- date: " << machine.date_utc << "\n";
+  out << "- machine: nproc " << machine.hardware_threads << ", CPU " << machine.cpu_model
+      << "; load average (1/5/15 min) " << machine.load_average << " at start, " << load_end
+      << " at end (per model below)\n";
+  out << "- BLAS: " << machine.blas << " (" << machine.blas_env << ")\n";
+  out << "- compiler: " << machine.compiler << "; build type: " << machine.build_type << "\n";
+  out << "- source: git " << machine.git_revision << "\n";
+  out << "- runs: " << options.repeat << " rounds (one above " << options.repeat_max_vertices
+      << " vertices), each method in its own forked process, "
+      << "interleaved per round; timings are medians, peak RSS is VmHWM of the method's process "
+         "(reset after fork; includes the input mesh and the libraries, baseline in the JSON)\n";
+  out << "- ours: default settings, threads " << options.threads << ", " << options.iterations
+      << " outer iterations from the Laplacian guess, metrics off in the timed run (E_theta / "
+         "E_phi per iteration come from a second, identical run with metrics on); ARAP timed run "
+         "tolerance 0 (exactly "
+      << options.iterations << " iterations, like CGAL's); arap_anderson: window "
+      << options.anderson_window << "\n";
+  out << "- CGAL: Surface_mesh_deformation, spokes-and-rims ARAP (CGAL default), Eigen SparseLU, "
+         "deform("
+      << options.iterations << ", 0) timed, then reset + deform(" << options.cgal_max_iterations
+      << ", 1e-4) for its time to converge\n";
+  out << "- time to quality: first iteration at which E_theta and E_phi are both <= those of CGAL "
+         "ARAP run to convergence (the bar), and the time of that iteration in the timed run "
+         "(solve only, precompute not included); CGAL's column is its time to converge\n\n";
+
+  out << "## Per outer iteration, precompute and memory (ratios to CGAL; target per-it <= "
+      << kPerIterationRatioTarget << "x, precompute <= " << kPrecomputeRatioTarget
+      << "x, memory <= " << kMemoryRatioTarget << "x)\n\n";
+  out << "| model | #V | load | SA ms/it | ARAP ms/it | CGAL ms/it | SA/CGAL per-it | ARAP/CGAL "
+         "per-it | SA precompute s | ARAP precompute s | CGAL preprocess s | SA/CGAL precompute | "
+         "SA MiB | ARAP MiB | CGAL MiB | SA/CGAL memory |\n";
+  out << "|---|---:|---|---:|---:|---:|---|---|---:|---:|---:|---|---:|---:|---:|---|\n";
+  for (const Row& row : rows) {
+    const MethodResult* sa = find(row, "scale_aware");
+    const MethodResult* arap = find(row, "arap");
+    const MethodResult* cgal = find(row, "cgal");
+    auto ms = [](const MethodResult* m) { return m ? fmt("%.1f", 1e3 * m->per_iteration_s) : "-"; };
+    auto mib = [](const MethodResult* m) { return m ? fmt("%.0f", m->peak_rss_mib) : "-"; };
+    out << "| " << row.name << " | " << row.vertices << " | " << row.load_before << " | " << ms(sa)
+        << " | " << ms(arap) << " | " << ms(cgal) << " | "
+        << (sa && cgal
+                ? ratio_cell(sa->per_iteration_s, cgal->per_iteration_s, kPerIterationRatioTarget)
+                : "-")
+        << " | "
+        << (arap && cgal
+                ? ratio_cell(arap->per_iteration_s, cgal->per_iteration_s, kPerIterationRatioTarget)
+                : "-")
+        << " | " << (sa ? fmt("%.3f", sa->precompute_s) : "-") << " | "
+        << (arap ? fmt("%.3f", arap->precompute_s) : "-") << " | "
+        << (cgal ? fmt("%.3f", cgal->precompute_s) : "-") << " | "
+        << (sa && cgal ? ratio_cell(sa->precompute_s, cgal->precompute_s, kPrecomputeRatioTarget)
+                       : "-")
+        << " | " << mib(sa) << " | " << mib(arap) << " | " << mib(cgal) << " | "
+        << (sa && cgal ? ratio_cell(sa->peak_rss_mib, cgal->peak_rss_mib, kMemoryRatioTarget) : "-")
+        << " |\n";
+  }
+
+  out << "\n## Scale-aware breakdown per outer iteration (timed run)\n\n";
+  out << "| model | #V | ms/it | step one ms | assembly ms | linear (PCG) ms | PCG steps / it | "
+         "ms / PCG step | sweeps / it | factorizations | E_theta | E_phi | area |\n";
+  out << "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+  for (const Row& row : rows) {
+    const MethodResult* sa = find(row, "scale_aware");
+    if (!sa) continue;
+    int sweeps = 0;
+    for (size_t k = 1; k < sa->first["history"].size(); ++k) {
+      sweeps += sa->first["history"][k]["sweeps"].get<int>();
+    }
+    const json& e = sa->first["errors"];
+    out << "| " << row.name << " | " << row.vertices << " | "
+        << fmt("%.1f", 1e3 * sa->per_iteration_s) << " | " << fmt("%.1f", sa->normals_ms) << " | "
+        << fmt("%.1f", sa->assemble_ms) << " | " << fmt("%.1f", sa->linear_ms) << " | "
+        << fmt("%.1f", sa->pcg_per_iteration) << " | "
+        << (sa->pcg_per_iteration > 0 ? fmt("%.2f", sa->linear_ms / sa->pcg_per_iteration) : "-")
+        << " | "
+        << fmt("%.1f", sa->iterations > 0 ? static_cast<double>(sweeps) / sa->iterations : 0)
+        << " | " << sa->first.value("factorizations", 0) << " | "
+        << fmt("%.4f", e["e_theta"].get<double>()) << " | " << fmt("%.4f", e["e_phi"].get<double>())
+        << " | " << fmt("%.4f", e["area"].get<double>()) << " |\n";
+  }
+
+  out << "\n## Iterations and time to quality\n\n";
+  out << "Bar = CGAL ARAP converged (tolerance 1e-4). Scale-aware has no Anderson acceleration "
+         "yet (core/scale_aware.cpp is outside this branch); ARAP with and without it.\n\n";
+  out << "| model | bar E_theta / E_phi | CGAL conv. its, s | SA to quality | ARAP conv. its, s | "
+         "ARAP to quality | ARAP+AA conv. its, s | ARAP+AA to quality | ARAP / ARAP+AA final "
+         "energy | ARAP+AA reaches plain ARAP's final energy |\n";
+  out << "|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const Row& row : rows) {
+    const MethodResult* sa = find(row, "scale_aware");
+    const MethodResult* arap = find(row, "arap");
+    const MethodResult* aa = find(row, "arap_anderson");
+    const MethodResult* cgal = find(row, "cgal");
+    auto conv = [&](const MethodResult* m) {
+      return m ? std::to_string(m->converge_iterations) +
+                     (m->converge_iterations >= options.cgal_max_iterations ? " (cap)" : "") +
+                     ", " + fmt("%.3f", m->converge_s)
+               : std::string("-");
+    };
+    auto final_energy = [](const MethodResult* m) {
+      if (!m || !m->first.contains("converge_history")) return std::string("-");
+      return fmt("%.4g", m->first["converge_history"].back()["energy"].get<double>());
+    };
+    out << "| " << row.name << " | "
+        << (row.bar_theta >= 0 ? fmt("%.4f", row.bar_theta) + " / " + fmt("%.4f", row.bar_phi)
+                               : "-")
+        << " | " << conv(cgal) << " | " << quality_cell(sa) << " | " << conv(arap) << " | "
+        << quality_cell(arap) << " | " << conv(aa) << " | " << quality_cell(aa) << " | "
+        << final_energy(arap) << " / " << final_energy(aa) << " | "
+        << (row.aa_equal_energy_iteration >= 0
+                ? std::to_string(row.aa_equal_energy_iteration) + " its, " +
+                      fmt("%.3f", row.aa_equal_energy_s) + " s"
+                : std::string("-"))
+        << " |\n";
+  }
+
+  out << "\n## Errors of the timed runs (" << options.iterations << " iterations)\n\n";
+  out << "| model | SA E_theta / E_phi / area | ARAP | ARAP+AA | CGAL |\n|---|---|---|---|---|\n";
+  for (const Row& row : rows) {
+    out << "| " << row.name;
+    for (const char* method : {"scale_aware", "arap", "arap_anderson", "cgal"}) {
+      const MethodResult* m = find(row, method);
+      if (!m) {
+        out << " | -";
+        continue;
+      }
+      const json& e = m->first["errors"];
+      out << " | " << fmt("%.4f", e["e_theta"].get<double>()) << " / "
+          << fmt("%.4f", e["e_phi"].get<double>()) << " / " << fmt("%.4f", e["area"].get<double>());
+    }
+    out << " |\n";
+  }
+  bool any_error = false;
+  for (const Row& row : rows) {
+    for (const auto& [name, m] : row.methods) {
+      if (!m.ok) {
+        if (!any_error) out << "\n## Failures\n\n";
+        any_error = true;
+        out << "- " << row.name << " / " << name << ": " << m.error << "\n";
+      }
+    }
+  }
+  return out.str();
+}
+
+/// Log-log plot, written directly as SVG (no plotting dependency): ms per iteration and peak RSS
+/// against vertex count, one series per method.
+std::string scaling_svg(const std::vector<Row>& rows) {
+  struct Series {
+    const char* method;
+    const char* label;
+    const char* color;
+  };
+  const Series series[] = {{"scale_aware", "ours scale-aware", "#d62728"},
+                           {"arap", "ours ARAP", "#1f77b4"},
+                           {"arap_anderson", "ours ARAP + Anderson", "#17becf"},
+                           {"cgal", "CGAL ARAP", "#2ca02c"}};
+  const int panel_w = 420, panel_h = 320, margin = 60;
+  std::ostringstream svg;
+  svg << "<svg xmlns='http://www.w3.org/2000/svg' width='" << 2 * panel_w + 3 * margin
+      << "' height='" << panel_h + 2 * margin + 40
+      << "' font-family='sans-serif' font-size='11'>\n";
+  svg << "<rect width='100%' height='100%' fill='white'/>\n";
+  for (int panel = 0; panel < 2; ++panel) {
+    auto value = [panel](const MethodResult& m) {
+      return panel == 0 ? 1e3 * m.per_iteration_s : m.peak_rss_mib;
+    };
+    double xmin = 1e300, xmax = 0, ymin = 1e300, ymax = 0;
+    for (const Row& row : rows) {
+      for (const auto& [name, m] : row.methods) {
+        if (!m.ok || !(value(m) > 0)) continue;
+        xmin = std::min(xmin, static_cast<double>(row.vertices));
+        xmax = std::max(xmax, static_cast<double>(row.vertices));
+        ymin = std::min(ymin, value(m));
+        ymax = std::max(ymax, value(m));
+      }
+    }
+    if (xmax <= 0) continue;
+    const double lx0 = std::floor(std::log10(xmin)), lx1 = std::ceil(std::log10(xmax * 1.01));
+    const double ly0 = std::floor(std::log10(ymin)), ly1 = std::ceil(std::log10(ymax * 1.01));
+    const int ox = margin + panel * (panel_w + margin), oy = margin;
+    auto px = [&](double x) {
+      return ox + (std::log10(x) - lx0) / std::max(lx1 - lx0, 1.0) * panel_w;
+    };
+    auto py = [&](double y) {
+      return oy + panel_h - (std::log10(y) - ly0) / std::max(ly1 - ly0, 1.0) * panel_h;
+    };
+    svg << "<rect x='" << ox << "' y='" << oy << "' width='" << panel_w << "' height='" << panel_h
+        << "' fill='none' stroke='black'/>\n";
+    for (double d = lx0; d <= lx1; ++d) {
+      const double x = px(std::pow(10.0, d));
+      svg << "<line x1='" << x << "' y1='" << oy << "' x2='" << x << "' y2='" << oy + panel_h
+          << "' stroke='#ddd'/><text x='" << x << "' y='" << oy + panel_h + 15
+          << "' text-anchor='middle'>1e" << d << "</text>\n";
+    }
+    for (double d = ly0; d <= ly1; ++d) {
+      const double y = py(std::pow(10.0, d));
+      svg << "<line x1='" << ox << "' y1='" << y << "' x2='" << ox + panel_w << "' y2='" << y
+          << "' stroke='#ddd'/><text x='" << ox - 5 << "' y='" << y + 4 << "' text-anchor='end'>1e"
+          << d << "</text>\n";
+    }
+    svg << "<text x='" << ox + panel_w / 2 << "' y='" << oy - 10 << "' text-anchor='middle' "
+        << "font-size='13'>"
+        << (panel == 0 ? "ms per (outer) iteration" : "peak RSS (MiB) of the method's process")
+        << " vs vertices</text>\n";
+    for (size_t s = 0; s < std::size(series); ++s) {
+      std::vector<std::pair<double, double>> points;
+      for (const Row& row : rows) {
+        const MethodResult* m = find(row, series[s].method);
+        if (m && value(*m) > 0) points.emplace_back(row.vertices, value(*m));
+      }
+      std::sort(points.begin(), points.end());
+      for (const auto& [x, y] : points) {
+        svg << "<circle cx='" << px(x) << "' cy='" << py(y) << "' r='3' fill='" << series[s].color
+            << "'/>\n";
+      }
+      if (panel == 0) {
+        const int lx = margin + static_cast<int>(s) * 200, ly = oy + panel_h + 45;
+        svg << "<circle cx='" << lx << "' cy='" << ly - 4 << "' r='4' fill='" << series[s].color
+            << "'/><text x='" << lx + 8 << "' y='" << ly << "'>" << series[s].label << "</text>\n";
+      }
+    }
+  }
+  svg << "</svg>\n";
+  return svg.str();
+}
+
+json to_json(const MachineInfo& machine, const std::string& load_end, const Options& options,
+             const std::vector<Row>& rows) {
+  json out;
+  out["machine"] = {{"date_utc", machine.date_utc},
+                    {"nproc", machine.hardware_threads},
+                    {"cpu_model", machine.cpu_model},
+                    {"blas", machine.blas},
+                    {"blas_env", machine.blas_env},
+                    {"compiler", machine.compiler},
+                    {"build_type", machine.build_type},
+                    {"git_revision", machine.git_revision},
+                    {"load_average_start", machine.load_average},
+                    {"load_average_end", load_end}};
+  out["options"] = {{"iterations", options.iterations},
+                    {"repeat", options.repeat},
+                    {"threads", options.threads},
+                    {"anderson_window", options.anderson_window},
+                    {"cgal_max_iterations", options.cgal_max_iterations},
+                    {"seed", options.seed}};
+  out["targets"] = {{"per_iteration_ratio", kPerIterationRatioTarget},
+                    {"precompute_ratio", kPrecomputeRatioTarget},
+                    {"memory_ratio", kMemoryRatioTarget}};
+  out["models"] = json::array();
+  for (const Row& row : rows) {
+    json model = {{"name", row.name},
+                  {"family", row.family},
+                  {"vertices", row.vertices},
+                  {"faces", row.faces},
+                  {"constrained", row.constrained},
+                  {"load_before", row.load_before},
+                  {"load_after", row.load_after},
+                  {"rounds", row.rounds},
+                  {"anderson_reaches_plain_arap_energy",
+                   {{"iteration", row.aa_equal_energy_iteration},
+                    {"seconds", row.aa_equal_energy_s}}},
+                  {"bar", {{"e_theta", row.bar_theta}, {"e_phi", row.bar_phi}}}};
+    for (const auto& [name, m] : row.methods) {
+      json entry = {{"ok", m.ok}};
+      if (!m.ok) {
+        entry["error"] = m.error;
+      } else {
+        entry["median"] = {
+            {"precompute_s", m.precompute_s}, {"per_iteration_s", m.per_iteration_s},
+            {"solve_s", m.solve_s},           {"converge_s", m.converge_s},
+            {"peak_rss_mib", m.peak_rss_mib}, {"baseline_rss_mib", m.baseline_rss_mib},
+            {"step_one_ms", m.normals_ms},    {"assemble_ms", m.assemble_ms},
+            {"linear_ms", m.linear_ms}};
+        entry["all_rounds"] = {{"precompute_s", m.precompute_all},
+                               {"per_iteration_s", m.per_iteration_all}};
+        entry["iterations"] = m.iterations;
+        entry["converge_iterations"] = m.converge_iterations;
+        entry["pcg_per_iteration"] = m.pcg_per_iteration;
+        entry["time_to_quality"] = {{"iteration", m.quality_iteration}, {"seconds", m.quality_s}};
+        entry["errors"] = m.first["errors"];
+        if (m.first.contains("converged_errors")) {
+          entry["converged_errors"] = m.first["converged_errors"];
+        }
+        for (const char* key : {"history", "converge_history", "metric_history"}) {
+          if (m.first.contains(key)) entry[key] = m.first[key];
+        }
+      }
+      model["methods"][name] = entry;
+    }
+    const MethodResult* sa = find(row, "scale_aware");
+    const MethodResult* cgal = find(row, "cgal");
+    if (sa && cgal) {
+      model["ratios"] = {{"per_iteration", sa->per_iteration_s / cgal->per_iteration_s},
+                         {"precompute", sa->precompute_s / cgal->precompute_s},
+                         {"memory", sa->peak_rss_mib / cgal->peak_rss_mib}};
+    }
+    out["models"].push_back(model);
+  }
+  return out;
+}
+
+Status write_file(const std::filesystem::path& path, const std::string& text) {
+  std::ofstream out(path);
+  out << text;
+  if (!out) return Error(ErrorCode::Internal, "cannot write " + path.string());
+  return Status::success();
+}
+
+Status run(int argc, char** argv) {
+  MD_ASSIGN_OR_RETURN(const Options options, parse_options(argc, argv));
+  MD_ASSIGN_OR_RETURN(const std::vector<ModelSpec> specs, model_specs(options));
+  std::cerr << "models:";
+  for (const auto& spec : specs) std::cerr << " " << spec.name;
+  std::cerr << "\n";
+  for (const std::string& name : options.models) {
+    if (std::none_of(specs.begin(), specs.end(), [&](const auto& s) { return s.name == name; })) {
+      return Error(ErrorCode::InvalidArgument, "unknown model '" + name + "'");
+    }
+  }
+  const MachineInfo machine = collect_machine_info();
+  std::vector<Row> rows;
+  for (const ModelSpec& spec : specs) {
+    if (!options.models.empty() && std::find(options.models.begin(), options.models.end(),
+                                             spec.name) == options.models.end()) {
+      continue;
+    }
+    if (spec.vertices_estimate > options.max_vertices) continue;
+    Row row;
+    row.name = spec.name;
+    row.family = spec.family;
+    std::cerr << "[" << spec.name << "] generating\n";
+    MD_ASSIGN_OR_RETURN(core::DeformationBenchmark bench, spec.make());
+    if (bench.mesh.V.rows() > options.max_vertices) continue;
+    Model model;
+    MD_ASSIGN_OR_RETURN(model.setup, core::constraints_from_selection(bench.mesh.V, bench.selection,
+                                                                      bench.transform));
+    model.bench = std::move(bench);
+    row.vertices = static_cast<int>(model.bench.mesh.V.rows());
+    row.faces = static_cast<int>(model.bench.mesh.F.rows());
+    row.constrained = static_cast<int>(model.setup.constrained.size());
+    row.load_before = read_load_average();
+    std::map<std::string, std::vector<json>> runs;
+    std::map<std::string, std::string> failures;
+    const int rounds = row.vertices > options.repeat_max_vertices ? 1 : options.repeat;
+    row.rounds = rounds;
+    for (int round = 0; round < rounds; ++round) {
+      for (const std::string& method : options.methods) {
+        if (failures.count(method)) continue;
+        std::cerr << "[" << spec.name << "] " << row.vertices << " vertices, round " << round + 1
+                  << "/" << rounds << ": " << method << "\n";
+        Result<json> result = run_in_child([&]() -> json {
+          if (method == "scale_aware") {
+            return run_ours<core::ScaleAwareSolver, core::ScaleAwareSettings>(model, options, false,
+                                                                              0);
+          }
+          if (method == "arap") {
+            return run_ours<core::ArapSolver, core::ArapSettings>(model, options, true, 0);
+          }
+          if (method == "arap_anderson") {
+            return run_ours<core::ArapSolver, core::ArapSettings>(model, options, true,
+                                                                  options.anderson_window);
+          }
+          return run_cgal(model, options);
+        });
+        if (!result.ok()) {
+          failures[method] = result.status().to_string();
+          std::cerr << "[" << spec.name << "] " << method << " failed: " << failures[method]
+                    << "\n";
+          continue;
+        }
+        runs[method].push_back(std::move(result).value());
+      }
+    }
+    row.load_after = read_load_average();
+    for (const std::string& method : options.methods) {
+      MethodResult r = aggregate(method, runs[method]);
+      if (failures.count(method)) {
+        r.ok = false;
+        r.error = failures[method];
+      }
+      row.methods[method] = r;
+    }
+    const MethodResult* plain_arap = find(row, "arap");
+    const MethodResult* fast_arap = find(row, "arap_anderson");
+    if (plain_arap && fast_arap && plain_arap->first.contains("converge_history")) {
+      const double target = plain_arap->first["converge_history"].back()["energy"].get<double>();
+      const json& history = fast_arap->first["converge_history"];
+      for (size_t k = 0; k < history.size(); ++k) {
+        if (history[k]["energy"].get<double>() <= target) {
+          row.aa_equal_energy_iteration = static_cast<int>(k);
+          std::vector<double> times;
+          for (const json& run : runs["arap_anderson"]) {
+            times.push_back(run["converge_history"][k]["elapsed"].get<double>());
+          }
+          row.aa_equal_energy_s = median(times);
+          break;
+        }
+      }
+    }
+    if (const MethodResult* cgal = find(row, "cgal")) {
+      row.bar_theta = cgal->first["converged_errors"]["e_theta"].get<double>();
+      row.bar_phi = cgal->first["converged_errors"]["e_phi"].get<double>();
+      for (auto& [name, m] : row.methods) {
+        if (name != "cgal") time_to_quality(m, runs[name], row.bar_theta, row.bar_phi);
+      }
+    }
+    rows.push_back(std::move(row));
+  }
+
+  const std::string load_end = read_load_average();
+  const std::string md = markdown(machine, load_end, options, rows);
+  std::cout << md << std::flush;
+  std::error_code error;
+  std::filesystem::create_directories(options.out_dir, error);
+  if (error) return Error(ErrorCode::Internal, "cannot create " + options.out_dir);
+  const std::filesystem::path dir(options.out_dir);
+  MD_RETURN_IF_ERROR(write_file(dir / (options.stem + ".md"), md));
+  MD_RETURN_IF_ERROR(write_file(dir / (options.stem + ".json"),
+                                to_json(machine, load_end, options, rows).dump(1) + "\n"));
+  MD_RETURN_IF_ERROR(write_file(dir / (options.stem + "_scaling.svg"), scaling_svg(rows)));
+  std::cerr << "wrote " << (dir / options.stem).string() << ".{md,json} and _scaling.svg\n";
+  return Status::success();
+}
+
+}  // namespace
+}  // namespace meshdeform::bench
+
+int main(int argc, char** argv) {
+  for (int i = 1; i < argc; ++i) {
+    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
+      meshdeform::bench::print_usage(std::cout);
+      return 0;
+    }
+  }
+  try {
+    const meshdeform::Status status = meshdeform::bench::run(argc, argv);
+    if (!status.ok()) {
+      std::cerr << "meshdeform-bench-realistic: " << status.to_string() << "\n";
+      return 1;
+    }
+  } catch (const std::exception& e) {
+    std::cerr << "meshdeform-bench-realistic: " << e.what() << "\n";
+    return 1;
+  }
+  return 0;
+}
