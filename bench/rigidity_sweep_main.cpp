@@ -1,9 +1,9 @@
 // meshdeform-bench-rigidity: issue 12's sweep of SolveOptions::rigidity (the in-loop scale term)
 // per edit, against ARAP run to convergence and against the paper's ORA, on the Table 1
-// look-alikes, irregular variants of them, a strip stretched between two handle patches and
-// three edits of tests/data/spot.obj. Writes <out-dir>/rigidity_sweep.{md,json} and a Pareto
-// plot <out-dir>/rigidity_pareto.svg (E_theta and E_phi against area distortion, each divided
-// by converged ARAP's). Everything but the timings is deterministic.
+// look-alikes, their irregular variants (core::make_irregular_suite), a strip stretched between two
+// handle patches and three edits of tests/data/spot.obj. Writes <out-dir>/rigidity_sweep.{md,json}
+// and a Pareto plot <out-dir>/rigidity_pareto.svg (E_theta and E_phi against area distortion, each
+// divided by converged ARAP's). Everything but the timings is deterministic.
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -16,7 +16,6 @@
 #include <iostream>
 #include <map>
 #include <nlohmann/json.hpp>
-#include <random>
 #include <set>
 #include <sstream>
 #include <string>
@@ -52,95 +51,6 @@ Result<Edit> edit_from_benchmark(const core::DeformationBenchmark& b, const std:
   MD_ASSIGN_OR_RETURN(const core::HandleSetup setup,
                       core::constraints_from_selection(b.mesh.V, b.selection, b.transform));
   return Edit{name, family, b.mesh.V, b.mesh.F, setup.constrained, setup.targets};
-}
-
-// A quick irregular variant for this sweep only (the project's generator lives on the bench
-// branch): every vertex jittered in its tangent plane by up to `jitter` of its shortest edge, then
-// a random fifth of the interior edges flipped where both new triangles stay well shaped.
-core::DeformationBenchmark make_irregular_variant(const core::DeformationBenchmark& regular,
-                                                  unsigned seed) {
-  core::DeformationBenchmark out = regular;
-  Positions& V = out.mesh.V;
-  Triangles& F = out.mesh.F;
-  const int nv = static_cast<int>(V.rows()), nf = static_cast<int>(F.rows());
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> unit(-1.0, 1.0);
-
-  std::vector<Eigen::Vector3d> normal(nv, Eigen::Vector3d::Zero());
-  std::vector<double> shortest(nv, 1e300);
-  for (int f = 0; f < nf; ++f) {
-    const Eigen::Vector3d a = V.row(F(f, 0)), b = V.row(F(f, 1)), c = V.row(F(f, 2));
-    const Eigen::Vector3d n = (b - a).cross(c - a);
-    for (int k = 0; k < 3; ++k) {
-      normal[F(f, k)] += n;
-      const double len = (V.row(F(f, (k + 1) % 3)) - V.row(F(f, k))).norm();
-      shortest[F(f, k)] = std::min(shortest[F(f, k)], len);
-      shortest[F(f, (k + 1) % 3)] = std::min(shortest[F(f, (k + 1) % 3)], len);
-    }
-  }
-  for (int v = 0; v < nv; ++v) {
-    Eigen::Vector3d n = normal[v].normalized();
-    Eigen::Vector3d d(unit(rng), unit(rng), unit(rng));
-    d -= d.dot(n) * n;
-    if (d.norm() > 1.0) d.normalize();
-    V.row(v) += (0.3 * shortest[v] * d).transpose();
-  }
-
-  // Edge flips: a -> b in f = (a, b, c), b -> a in g = (b, a, d) become (a, d, c) and (d, b, c).
-  std::map<std::pair<int, int>, int> half;  // directed edge -> face
-  std::set<std::pair<int, int>> edges;
-  for (int f = 0; f < nf; ++f) {
-    for (int k = 0; k < 3; ++k) {
-      const int a = F(f, k), b = F(f, (k + 1) % 3);
-      half[{a, b}] = f;
-      edges.insert({std::min(a, b), std::max(a, b)});
-    }
-  }
-  std::vector<char> touched(nf, 0);
-  std::vector<std::pair<int, int>> candidates(edges.begin(), edges.end());
-  std::shuffle(candidates.begin(), candidates.end(), rng);
-  auto min_angle_cos = [&](int a, int b, int c) {
-    const Eigen::Vector3d p[3] = {V.row(a), V.row(b), V.row(c)};
-    double worst = -1;
-    for (int k = 0; k < 3; ++k) {
-      const Eigen::Vector3d u = (p[(k + 1) % 3] - p[k]).normalized(),
-                            w = (p[(k + 2) % 3] - p[k]).normalized();
-      worst = std::max(worst, u.dot(w));
-    }
-    return worst;  // cos of the smallest angle
-  };
-  auto face_normal = [&](int a, int b, int c) {
-    return Eigen::Vector3d((V.row(b) - V.row(a)).cross(V.row(c) - V.row(a)));
-  };
-  const size_t wanted = candidates.size() / 5;
-  size_t flipped = 0;
-  for (const auto& [u, w] : candidates) {
-    if (flipped >= wanted) break;
-    const auto fa = half.find({u, w}), fb = half.find({w, u});
-    if (fa == half.end() || fb == half.end()) continue;
-    const int f = fa->second, g = fb->second;
-    if (touched[f] || touched[g]) continue;
-    auto third = [&](int face, int x, int y) {
-      for (int k = 0; k < 3; ++k) {
-        if (F(face, k) != x && F(face, k) != y) return F(face, k);
-      }
-      return -1;
-    };
-    const int a = u, b = w, c = third(f, a, b), d = third(g, a, b);
-    if (c == d || edges.count({std::min(c, d), std::max(c, d)})) continue;
-    const Eigen::Vector3d n_old =
-        face_normal(a, b, c).normalized() + face_normal(b, a, d).normalized();
-    const Eigen::Vector3d n1 = face_normal(a, d, c), n2 = face_normal(d, b, c);
-    if (n1.dot(n_old) <= 0.5 * n1.norm() || n2.dot(n_old) <= 0.5 * n2.norm()) continue;
-    if (min_angle_cos(a, d, c) > std::cos(0.2) || min_angle_cos(d, b, c) > std::cos(0.2)) continue;
-    F.row(f) << a, d, c;
-    F.row(g) << d, b, c;
-    touched[f] = touched[g] = 1;
-    edges.erase({std::min(a, b), std::max(a, b)});
-    edges.insert({std::min(c, d), std::max(c, d)});
-    ++flipped;
-  }
-  return out;
 }
 
 // A strip (length 4, width 1, 40 x 10 quads) with handle patches at both ends pulled apart by
@@ -257,6 +167,7 @@ struct Run {
   bool converged = false;
   double seconds = 0;
   double handle_error = 0;  // max |v - target| over constrained vertices / bbox diagonal
+  int pcg_iterations = 0;   // step two's PCG iterations, all outer iterations together
   int folds = 0;            // interior edges whose dihedral angle changed by more than 90 degrees
   Positions V;              // the result (kept for the figure)
 };
@@ -347,6 +258,7 @@ Result<Row> run_edit(const Edit& edit, const Options& options) {
     run.method = ora ? "scale_aware+ora" : "scale_aware";
     run.rigidity = rigidity;
     run.errors = errors_of(r.V);
+    run.pcg_iterations = r.pcg_iterations;
     run.iterations = r.iterations;
     run.converged = r.converged;
     run.seconds = seconds_since(start);
@@ -468,8 +380,8 @@ std::string markdown(const MachineInfo& machine, const Options& options,
 
   out << "\n## Every run\n\n";
   out << "| edit | method | rigidity | its | conv. | E_theta | E_phi | area | E_theta/ARAP | "
-         "E_phi/ARAP | area/ARAP | targets | handles | folds | s |\n";
-  out << "|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|\n";
+         "E_phi/ARAP | area/ARAP | targets | handles | folds | s | PCG / it |\n";
+  out << "|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|\n";
   for (const Row& row : rows) {
     const Run* arap = row.arap();
     for (const Run& r : row.runs) {
@@ -486,11 +398,17 @@ std::string markdown(const MachineInfo& machine, const Options& options,
                   ? std::string("-")
                   : std::string(v.theta ? "T" : "-") + (v.phi ? "P" : "-") + (v.area ? "A" : "-"))
           << " | " << fmt("%.1e", r.handle_error) << " | " << r.folds << " | "
-          << fmt("%.2f", r.seconds) << " |\n";
+          << fmt("%.2f", r.seconds) << " | "
+          << (r.method == "arap_converged" || r.iterations == 0
+                  ? std::string("-")
+                  : fmt("%.1f", static_cast<double>(r.pcg_iterations) / r.iterations))
+          << " |\n";
     }
   }
   out << "\nTargets column: T = E_theta below ARAP's, P = E_phi below ARAP's, A = area <= 1.5x "
-         "ARAP's.\n";
+         "ARAP's. s: create + solve seconds (shared, noisy machine). PCG / it: step two's "
+         "conjugate-gradient iterations per outer iteration (with rigidity > 0 over the joint "
+         "(x, s) system).\n";
   return out.str();
 }
 
@@ -520,7 +438,8 @@ nlohmann::json to_json(const MachineInfo& machine, const Options& options,
                       {"e_phi", r.errors.e_phi},
                       {"area_log_rms", r.errors.area_log_rms},
                       {"handle_error", r.handle_error},
-                      {"folds", r.folds}});
+                      {"folds", r.folds},
+                      {"pcg_iterations", r.pcg_iterations}});
     }
     out["edits"].push_back({{"name", row.edit.name},
                             {"family", row.edit.family},
@@ -822,10 +741,13 @@ Status run(int argc, char** argv) {
     MD_ASSIGN_OR_RETURN(Edit e, edit_from_benchmark(b, b.name, "table1"));
     edits.push_back(std::move(e));
   }
-  unsigned seed = 12;
-  for (const auto& b : suite) {
-    MD_ASSIGN_OR_RETURN(Edit e, edit_from_benchmark(make_irregular_variant(b, seed++),
-                                                    b.name + "_irregular", "irregular"));
+  // The project's irregular variants (core/procedural: non-uniform density, flips, jitter,
+  // slivers), as the speed issue's realistic benchmark uses them.
+  MD_ASSIGN_OR_RETURN(const std::vector<core::DeformationBenchmark> irregular,
+                      core::make_irregular_suite(options.small ? core::SuiteScale::Small
+                                                               : core::SuiteScale::Paper));
+  for (const auto& b : irregular) {
+    MD_ASSIGN_OR_RETURN(Edit e, edit_from_benchmark(b, b.name, "irregular"));
     edits.push_back(std::move(e));
   }
   edits.push_back(make_strip_stretch());
