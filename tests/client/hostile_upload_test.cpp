@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "meshdeform/v1/deformation.grpc.pb.h"
+#include "tests/support/mesh_factories.h"
 #include "tests/support/server_process.h"
 
 namespace meshdeform {
@@ -35,25 +36,6 @@ std::string ply_ascii_junk_element() {
 std::string ply_binary_zero_width_rows() {
   return "ply\nformat binary_little_endian 1.0\nelement vertex 0\nproperty float x\n"
          "property float y\nproperty float z\nelement padding 2000000000\nend_header\n";
-}
-
-std::string big_obj(int rows) {
-  std::string out;
-  out.reserve(static_cast<std::size_t>(rows) * rows * 40);
-  for (int i = 0; i < rows; ++i) {
-    for (int j = 0; j < rows; ++j) {
-      out += "v " + std::to_string(i) + " " + std::to_string(j) + " " +
-             std::to_string((i * 7 + j * 3) % 5) + "\n";
-    }
-  }
-  for (int i = 0; i + 1 < rows; ++i) {
-    for (int j = 0; j + 1 < rows; ++j) {
-      const int a = i * rows + j + 1, b = a + 1, c = a + rows, d = c + 1;
-      out += "f " + std::to_string(a) + " " + std::to_string(b) + " " + std::to_string(d) + "\n";
-      out += "f " + std::to_string(a) + " " + std::to_string(d) + " " + std::to_string(c) + "\n";
-    }
-  }
-  return out;
 }
 
 class HostileUploadTest : public ::testing::Test {
@@ -96,7 +78,7 @@ class HostileUploadTest : public ::testing::Test {
 };
 
 TEST_F(HostileUploadTest, HostileUploadsStopAndANormalClientIsServed) {
-  const std::string slow_upload = big_obj(480);  // 230k vertices, ~9 MB of OBJ
+  const std::string slow_upload = test::make_grid_obj_text(480);  // 230k vertices, ~9 MB of OBJ
   std::atomic<int> unexpected{0};
   std::set<int> seen_codes;
   std::mutex seen_mutex;
@@ -173,7 +155,7 @@ TEST_F(HostileUploadTest, HostileUploadsStopAndANormalClientIsServed) {
   // A caller that abandons a large upload while the server parses it: once the server reports
   // it running, the client cancels; the parse must stop (a 1M-vertex OBJ takes seconds to read).
   {
-    const std::string huge = big_obj(1000);  // ~1M vertices, ~55 MB
+    const std::string huge = test::make_grid_obj_text(1000);  // ~1M vertices, ~55 MB
     grpc::ClientContext context;
     prepare(context, "abandoning-client", seconds(600));
     v1::CreateSessionRequest request;

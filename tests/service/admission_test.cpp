@@ -19,6 +19,7 @@
 #include "server/service/admission.h"
 #include "server/service/deformation_service.h"
 #include "server/service/worker_pool.h"
+#include "tests/support/mesh_factories.h"
 
 namespace meshdeform::service {
 namespace {
@@ -116,24 +117,6 @@ TEST(WorkerPoolTest, ASingleWorkerRunsHeavyTasksToo) {
   EXPECT_EQ(ran.load(), 2);
 }
 
-std::string big_obj_bytes(int rows) {
-  // A (rows x rows) grid as OBJ: large enough that parsing takes many poll intervals.
-  std::string out;
-  for (int i = 0; i < rows; ++i) {
-    for (int j = 0; j < rows; ++j) {
-      out += "v " + std::to_string(i) + " " + std::to_string(j) + " 0\n";
-    }
-  }
-  for (int i = 0; i + 1 < rows; ++i) {
-    for (int j = 0; j + 1 < rows; ++j) {
-      const int a = i * rows + j + 1, b = a + 1, c = a + rows, d = c + 1;
-      out += "f " + std::to_string(a) + " " + std::to_string(b) + " " + std::to_string(d) + "\n";
-      out += "f " + std::to_string(a) + " " + std::to_string(d) + " " + std::to_string(c) + "\n";
-    }
-  }
-  return out;
-}
-
 ServiceOptions two_workers() {
   ServiceOptions options;
   options.workers = 2;
@@ -194,7 +177,7 @@ TEST(HeavyWorkServiceTest, AClientOverItsHeavyLimitIsRefusedAndOthersAreServed) 
 TEST(HeavyWorkServiceTest, AStoppedUploadEndsCancelledAndIsCounted) {
   DeformationService service(two_workers());
   CreateSessionRequest upload;
-  upload.mesh_bytes = big_obj_bytes(400);  // 160k vertices: many poll intervals of parsing
+  upload.mesh_bytes = test::make_grid_obj_text(400);  // 160k vertices: many poll intervals of parsing
   upload.format = io::MeshFormat::Obj;
   upload.client = "c";
   std::stop_source stop;

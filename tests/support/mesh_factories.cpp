@@ -141,4 +141,23 @@ BendEdit make_bend(int n) {
   return b;
 }
 
+std::string make_grid_obj_text(int rows) {
+  std::string out;
+  out.reserve(static_cast<std::size_t>(rows) * static_cast<std::size_t>(rows) * 40);
+  for (int i = 0; i < rows; ++i) {
+    for (int j = 0; j < rows; ++j) {
+      out += "v " + std::to_string(i) + " " + std::to_string(j) + " " +
+             std::to_string((i * 7 + j * 3) % 5) + "\n";
+    }
+  }
+  for (int i = 0; i + 1 < rows; ++i) {
+    for (int j = 0; j + 1 < rows; ++j) {
+      const int a = i * rows + j + 1, b = a + 1, c = a + rows, d = c + 1;
+      out += "f " + std::to_string(a) + " " + std::to_string(b) + " " + std::to_string(d) + "\n";
+      out += "f " + std::to_string(a) + " " + std::to_string(d) + " " + std::to_string(c) + "\n";
+    }
+  }
+  return out;
+}
+
 }  // namespace meshdeform::test

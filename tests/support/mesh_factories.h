@@ -2,6 +2,7 @@
 /// @file mesh_factories.h
 /// Small procedural meshes and named tolerances for tests.
 
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
@@ -20,6 +21,9 @@ MeshData make_grid(int n, double bump = 0.0);
 MeshData make_open_cone(int segments);
 /// Closed icosphere after `subdivisions` 1:4 subdivisions (12, 42, 162, 642 ... vertices).
 MeshData make_icosphere(int subdivisions);
+/// OBJ text of a rows x rows vertex grid (unit spacing, small integer heights), built as text
+/// directly: big uploads for tests of parsing limits and cancellation (rows 700: ~12 MB).
+std::string make_grid_obj_text(int rows);
 /// One triangle (0,0,0), (1,0,0), (0,1,0).
 MeshData make_triangle();
 /// Axis-aligned bounding-box diagonal length.

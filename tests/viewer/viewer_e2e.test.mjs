@@ -205,8 +205,48 @@ test("viewer end to end", { timeout: 120_000 }, async (t) => {
     await shot(editor, "d-bad-upload.png");
   });
 
-  await t.test("(e) switching to ARAP still drags", async () => {
+  await t.test("(d2) the scale-control slider re-solves live; the area heat map shows scale", async () => {
     await editor.locator("#error-close").click();
+    assert.equal(await editor.locator('[data-testid="rigidity"]').isDisabled(), false);
+    // Settles: waits (bounded) until no new revision arrived for a while, then reads the area.
+    const settledArea = async () => {
+      await withTimeout((async () => {
+        let last = -1, same = 0;
+        while (same < 6) {
+          const r = await hook(editor, () => window.__meshdeform.revision);
+          same = r === last ? same + 1 : 0;
+          last = r;
+          await editor.waitForTimeout(250);
+        }
+      })(), STEP_MS, "revisions settle");
+      return Number(await editor.locator("#metric-area").textContent());
+    };
+    const setStep = async (step) => {
+      const rev = await hook(editor, () => window.__meshdeform.revision);
+      await editor.locator('[data-testid="rigidity"]').evaluate((el, v) => {
+        el.value = String(v);
+        el.dispatchEvent(new Event("input", { bubbles: true }));
+        el.dispatchEvent(new Event("change", { bubbles: true }));
+      }, step);
+      await poll(editor, (r) => window.__meshdeform.revision > r, rev, `re-solve at slider step ${step}`);
+    };
+    await setStep(0);
+    assert.match(await editor.locator('[data-testid="rigidity-val"]').textContent(), /^0/);
+    const pure = await settledArea();
+    await setStep(8);
+    assert.equal(await editor.locator('[data-testid="rigidity-val"]').textContent(), "1000");
+    const rigid = await settledArea();
+    assert.ok(Number.isFinite(pure) && Number.isFinite(rigid), `areas ${pure} ${rigid}`);
+    assert.ok(rigid < pure, `area log RMS with scale control ${rigid} < without ${pure}`);
+    await editor.locator('[data-testid="heatmap"]').check();
+    await editor.locator('[data-testid="heatmap-mode"]').selectOption("area");
+    assert.match(await editor.locator("#legend-what").textContent(), /area/);
+    await shot(editor, "d2-area-heatmap.png");
+    await editor.locator('[data-testid="heatmap"]').uncheck();
+    assert.equal(await hook(editor, () => window.__meshdeform.lastError), "");
+  });
+
+  await t.test("(e) switching to ARAP still drags", async () => {
     assert.equal(await hook(editor, () => window.__meshdeform.lastError), "");
     await editor.locator('[data-testid="method"]').selectOption("2");
     await editor.waitForTimeout(300);

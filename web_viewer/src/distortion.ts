@@ -21,6 +21,22 @@ export function cornerAngles(p: ArrayLike<number>, indices: ArrayLike<number>): 
   return out;
 }
 
+/** Per vertex, the mean of a per-face value over the faces around it (0 for a lone vertex). */
+export function perVertexMean(faceValues: ArrayLike<number>, indices: ArrayLike<number>, vertexCount: number): Float32Array {
+  const sum = new Float64Array(vertexCount);
+  const cnt = new Uint32Array(vertexCount);
+  for (let f = 0; f < faceValues.length; f++) {
+    for (let c = 0; c < 3; c++) {
+      const v = indices[f * 3 + c];
+      sum[v] += faceValues[f];
+      cnt[v]++;
+    }
+  }
+  const out = new Float32Array(vertexCount);
+  for (let v = 0; v < vertexCount; v++) out[v] = cnt[v] ? sum[v] / cnt[v] : 0;
+  return out;
+}
+
 /** Per-vertex mean |angle - rest angle| over the corners of the incident faces. */
 export function vertexDistortion(
   restAngles: Float32Array,
@@ -29,21 +45,12 @@ export function vertexDistortion(
   vertexCount: number,
 ): Float32Array {
   const cur = cornerAngles(p, indices);
-  const sum = new Float64Array(vertexCount);
-  const cnt = new Uint32Array(vertexCount);
-  const m = indices.length / 3;
-  for (let f = 0; f < m; f++) {
-    const d = (Math.abs(cur[f * 3] - restAngles[f * 3]) + Math.abs(cur[f * 3 + 1] - restAngles[f * 3 + 1]) +
+  const perFace = new Float64Array(indices.length / 3);
+  for (let f = 0; f < perFace.length; f++) {
+    perFace[f] = (Math.abs(cur[f * 3] - restAngles[f * 3]) + Math.abs(cur[f * 3 + 1] - restAngles[f * 3 + 1]) +
       Math.abs(cur[f * 3 + 2] - restAngles[f * 3 + 2])) / 3;
-    for (let c = 0; c < 3; c++) {
-      const v = indices[f * 3 + c];
-      sum[v] += d;
-      cnt[v]++;
-    }
   }
-  const out = new Float32Array(vertexCount);
-  for (let v = 0; v < vertexCount; v++) out[v] = cnt[v] ? sum[v] / cnt[v] : 0;
-  return out;
+  return perVertexMean(perFace, indices, vertexCount);
 }
 
 /** Twice the area of every face (|cross|), flat [f0, f1, ...]. */
@@ -71,20 +78,12 @@ export function vertexAreaLog(
   vertexCount: number,
 ): Float32Array {
   const cur = faceAreas2(p, indices);
-  const sum = new Float64Array(vertexCount);
-  const cnt = new Uint32Array(vertexCount);
+  const perFace = new Float64Array(cur.length);
   for (let f = 0; f < cur.length; f++) {
     const rest = restAreas2[f];
-    const d = rest > 0 && cur[f] > 0 ? Math.log(cur[f] / rest) : 0;
-    for (let c = 0; c < 3; c++) {
-      const v = indices[f * 3 + c];
-      sum[v] += d;
-      cnt[v]++;
-    }
+    perFace[f] = rest > 0 && cur[f] > 0 ? Math.log(cur[f] / rest) : 0;
   }
-  const out = new Float32Array(vertexCount);
-  for (let v = 0; v < vertexCount; v++) out[v] = cnt[v] ? sum[v] / cnt[v] : 0;
-  return out;
+  return perVertexMean(perFace, indices, vertexCount);
 }
 
 // Viridis control points (perceptually uniform, colour-blind friendly).
