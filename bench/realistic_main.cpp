@@ -33,6 +33,7 @@
 
 #include "bench/bench_config.h"
 #include "bench/cgal_arap.h"
+#include "bench/bench_args.h"
 #include "bench/machine_info.h"
 #include "core/arap.h"
 #include "core/deform_types.h"
@@ -95,27 +96,6 @@ void print_usage(std::ostream& out) {
          "  --spot PATH           spot.obj (default tests/data/spot.obj)\n";
 }
 
-std::vector<std::string> split_commas(const std::string& text) {
-  std::vector<std::string> out;
-  std::stringstream in(text);
-  std::string item;
-  while (std::getline(in, item, ',')) {
-    if (!item.empty()) out.push_back(item);
-  }
-  return out;
-}
-
-Result<long> parse_long(const std::string& flag, const std::string& text, long min_value) {
-  try {
-    std::size_t used = 0;
-    const long value = std::stol(text, &used);
-    if (used == text.size() && value >= min_value) return value;
-  } catch (const std::exception&) {
-  }
-  return Error(ErrorCode::InvalidArgument,
-               flag + " wants an integer >= " + std::to_string(min_value) + ", got '" + text + "'");
-}
-
 Result<Options> parse_options(int argc, char** argv) {
   Options o;
   for (int i = 1; i < argc; ++i) {
@@ -126,7 +106,7 @@ Result<Options> parse_options(int argc, char** argv) {
     };
     auto next_int = [&](long min_value) -> Result<long> {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
-      return parse_long(arg, value, min_value);
+      return parse_integer<long>(arg, value, min_value);
     };
     if (arg == "--models") {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
@@ -137,7 +117,7 @@ Result<Options> parse_options(int argc, char** argv) {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
       o.spot_levels.clear();
       for (const auto& item : split_commas(value)) {
-        MD_ASSIGN_OR_RETURN(const long level, parse_long(arg, item, 0));
+        MD_ASSIGN_OR_RETURN(const long level, parse_integer<long>(arg, item, 0));
         o.spot_levels.push_back(static_cast<int>(level));
       }
     } else if (arg == "--regular") {
@@ -1004,21 +984,6 @@ Status run(int argc, char** argv) {
 }  // namespace meshdeform::bench
 
 int main(int argc, char** argv) {
-  for (int i = 1; i < argc; ++i) {
-    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
-      meshdeform::bench::print_usage(std::cout);
-      return 0;
-    }
-  }
-  try {
-    const meshdeform::Status status = meshdeform::bench::run(argc, argv);
-    if (!status.ok()) {
-      std::cerr << "meshdeform-bench-realistic: " << status.to_string() << "\n";
-      return 1;
-    }
-  } catch (const std::exception& e) {
-    std::cerr << "meshdeform-bench-realistic: " << e.what() << "\n";
-    return 1;
-  }
-  return 0;
+  return meshdeform::bench::bench_main(argc, argv, "meshdeform-bench-realistic", meshdeform::bench::print_usage,
+                                        meshdeform::bench::run);
 }

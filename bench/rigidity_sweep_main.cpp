@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "bench/bench_config.h"
+#include "bench/bench_args.h"
 #include "bench/machine_info.h"
 #include "core/deform_types.h"
 #include "core/deformer.h"
@@ -785,21 +786,6 @@ Status run(int argc, char** argv) {
 }  // namespace meshdeform::bench
 
 int main(int argc, char** argv) {
-  for (int i = 1; i < argc; ++i) {
-    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
-      meshdeform::bench::print_usage(std::cout);
-      return 0;
-    }
-  }
-  try {
-    const meshdeform::Status status = meshdeform::bench::run(argc, argv);
-    if (!status.ok()) {
-      std::cerr << "meshdeform-bench-rigidity: " << status.to_string() << "\n";
-      return 1;
-    }
-  } catch (const std::exception& e) {
-    std::cerr << "meshdeform-bench-rigidity: " << e.what() << "\n";
-    return 1;
-  }
-  return 0;
+  return meshdeform::bench::bench_main(argc, argv, "meshdeform-bench-rigidity", meshdeform::bench::print_usage,
+                                        meshdeform::bench::run);
 }

@@ -23,6 +23,7 @@
 
 #include "bench/bench_config.h"
 #include "bench/cgal_arap.h"
+#include "bench/bench_args.h"
 #include "bench/machine_info.h"
 #include "core/deform_types.h"
 #include "core/deformer.h"
@@ -98,27 +99,6 @@ void print_usage(std::ostream& out) {
          "  --no-cgal             skip CGAL\n";
 }
 
-std::vector<std::string> split_commas(const std::string& text) {
-  std::vector<std::string> out;
-  std::stringstream in(text);
-  std::string item;
-  while (std::getline(in, item, ',')) {
-    if (!item.empty()) out.push_back(item);
-  }
-  return out;
-}
-
-Result<int> parse_int(const std::string& flag, const std::string& text, int min_value) {
-  try {
-    std::size_t used = 0;
-    const int value = std::stoi(text, &used);
-    if (used == text.size() && value >= min_value) return value;
-  } catch (const std::exception&) {
-  }
-  return Error(ErrorCode::InvalidArgument,
-               flag + " wants an integer >= " + std::to_string(min_value) + ", got '" + text + "'");
-}
-
 Result<Options> parse_options(int argc, char** argv) {
   Options options;
   for (int i = 1; i < argc; ++i) {
@@ -136,10 +116,10 @@ Result<Options> parse_options(int argc, char** argv) {
       MD_ASSIGN_OR_RETURN(options.out_dir, next());
     } else if (arg == "--iterations") {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.iterations, parse_int(arg, value, 1));
+      MD_ASSIGN_OR_RETURN(options.iterations, parse_integer<int>(arg, value, 1));
     } else if (arg == "--threads") {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.threads, parse_int(arg, value, 0));
+      MD_ASSIGN_OR_RETURN(options.threads, parse_integer<int>(arg, value, 0));
     } else if (arg == "--move-fraction") {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
       char* end = nullptr;
@@ -149,7 +129,7 @@ Result<Options> parse_options(int argc, char** argv) {
       }
     } else if (arg == "--move-iterations") {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.move_iterations, parse_int(arg, value, 1));
+      MD_ASSIGN_OR_RETURN(options.move_iterations, parse_integer<int>(arg, value, 1));
     } else if (arg == "--no-track-metrics") {
       options.track_metrics = false;
     } else if (arg == "--cgal-arap") {
@@ -157,7 +137,7 @@ Result<Options> parse_options(int argc, char** argv) {
       MD_ASSIGN_OR_RETURN(options.cgal_variant, parse_cgal_arap_variant(value));
     } else if (arg == "--cgal-max-iterations") {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.cgal_max_converge_iterations, parse_int(arg, value, 1));
+      MD_ASSIGN_OR_RETURN(options.cgal_max_converge_iterations, parse_integer<int>(arg, value, 1));
     } else if (arg == "--no-cgal") {
       options.run_cgal = false;
     } else {
@@ -682,24 +662,6 @@ Status run(int argc, char** argv) {
 }  // namespace meshdeform::bench
 
 int main(int argc, char** argv) {
-  for (int i = 1; i < argc; ++i) {
-    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
-      meshdeform::bench::print_usage(std::cout);
-      return 0;
-    }
-  }
-  try {
-    const meshdeform::Status status = meshdeform::bench::run(argc, argv);
-    if (!status.ok()) {
-      std::cerr << "meshdeform-bench-table1: " << status.to_string() << "\n";
-      if (status.code() == meshdeform::ErrorCode::InvalidArgument) {
-        meshdeform::bench::print_usage(std::cerr);
-      }
-      return 1;
-    }
-  } catch (const std::exception& e) {
-    std::cerr << "meshdeform-bench-table1: " << e.what() << "\n";
-    return 1;
-  }
-  return 0;
+  return meshdeform::bench::bench_main(argc, argv, "meshdeform-bench-table1", meshdeform::bench::print_usage,
+                                        meshdeform::bench::run);
 }
