@@ -1,8 +1,10 @@
 #pragma once
-// What every benchmark executable's command line shares: comma lists, bounded integers, and a
-// main() that prints usage for --help (and after a bad flag) and turns errors into exit code 1.
+// What every benchmark executable shares: comma lists, bounded integers, writing a results
+// file, and a main() that prints usage for --help (and after a bad flag) and turns errors into exit code 1.
 
 #include <exception>
+#include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <sstream>
 #include <string>
@@ -36,6 +38,14 @@ Result<Integer> parse_integer(const std::string& flag, const std::string& text, 
   }
   return Error(ErrorCode::InvalidArgument,
                flag + " wants an integer >= " + std::to_string(min_value) + ", got '" + text + "'");
+}
+
+/// Writes a results file. @return Internal naming the path if it cannot be written.
+inline Status write_file(const std::filesystem::path& path, const std::string& text) {
+  std::ofstream out(path);
+  out << text;
+  if (!out) return Error(ErrorCode::Internal, "cannot write " + path.string());
+  return Status::success();
 }
 
 /// main() of a benchmark: --help/-h prints `usage` and exits 0; `run` returning an error prints

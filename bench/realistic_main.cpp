@@ -857,13 +857,6 @@ json to_json(const MachineInfo& machine, const std::string& load_end, const Opti
   return out;
 }
 
-Status write_file(const std::filesystem::path& path, const std::string& text) {
-  std::ofstream out(path);
-  out << text;
-  if (!out) return Error(ErrorCode::Internal, "cannot write " + path.string());
-  return Status::success();
-}
-
 Status run(int argc, char** argv) {
   MD_ASSIGN_OR_RETURN(const Options options, parse_options(argc, argv));
   MD_ASSIGN_OR_RETURN(const std::vector<ModelSpec> specs, model_specs(options));

@@ -651,18 +651,9 @@ Result<Options> parse_options(int argc, char** argv) {
       if (i + 1 >= argc) return Error(ErrorCode::InvalidArgument, arg + " needs a value");
       return std::string(argv[++i]);
     };
-    auto list = [](const std::string& text) {
-      std::vector<std::string> out;
-      std::stringstream in(text);
-      std::string item;
-      while (std::getline(in, item, ',')) {
-        if (!item.empty()) out.push_back(item);
-      }
-      return out;
-    };
     if (arg == "--models") {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
-      options.models = list(value);
+      options.models = split_commas(value);
     } else if (arg == "--small") {
       options.small = true;
     } else if (arg == "--out-dir") {
@@ -670,7 +661,7 @@ Result<Options> parse_options(int argc, char** argv) {
     } else if (arg == "--rigidities") {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
       options.rigidities.clear();
-      for (const std::string& item : list(value)) {
+      for (const std::string& item : split_commas(value)) {
         MD_ASSIGN_OR_RETURN(const double rho, parse_number(arg, item));
         options.rigidities.push_back(rho);
       }

@@ -605,13 +605,6 @@ nlohmann::json to_json(const MachineInfo& machine, const std::string& load_at_en
   return out;
 }
 
-Status write_file(const std::filesystem::path& path, const std::string& text) {
-  std::ofstream out(path);
-  out << text;
-  if (!out) return Error(ErrorCode::Internal, "cannot write " + path.string());
-  return Status::success();
-}
-
 Status run(int argc, char** argv) {
   MD_ASSIGN_OR_RETURN(const Options options, parse_options(argc, argv));
 
