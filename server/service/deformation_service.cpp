@@ -172,11 +172,7 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
                    "give exactly one of mesh bytes and a sample name (got " +
                        std::string(has_bytes ? "both" : "neither") + ")");
     }
-    if (request.rigidity && !is_valid_rigidity(*request.rigidity)) {
-      return Error(ErrorCode::InvalidArgument,
-                   "rigidity " + std::to_string(*request.rigidity) + " is outside [0, " +
-                       std::to_string(kMaxRigidity) + "]");
-    }
+    MD_RETURN_IF_ERROR(check_rigidity(request.rigidity));
     const double lambda = request.settings.lambda;
     if (!std::isfinite(lambda) || lambda <= 0) {
       return Error(ErrorCode::InvalidArgument,

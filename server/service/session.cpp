@@ -352,11 +352,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     return Error(ErrorCode::InvalidArgument,
                  "tolerance " + std::to_string(request.tolerance) + " is not finite and >= 0");
   }
-  if (request.rigidity && !is_valid_rigidity(*request.rigidity)) {
-    return Error(ErrorCode::InvalidArgument,
-                 "rigidity " + std::to_string(*request.rigidity) + " is outside [0, " +
-                     std::to_string(kMaxRigidity) + "]");
-  }
+  MD_RETURN_IF_ERROR(check_rigidity(request.rigidity));
   const double rigidity = request.rigidity.value_or(default_rigidity_);
   // Row of each constrained vertex in anchors/targets.
   auto row_of = [&constrained](int v) {

@@ -191,6 +191,15 @@ inline bool is_valid_rigidity(double rigidity) {
   return rigidity >= 0.0 && rigidity <= kMaxRigidity;  // false for NaN
 }
 
+/// The one range check of a requested scale control (CreateSession and MoveHandles).
+/// @return success when unset or valid; InvalidArgument naming the value and the range.
+inline Status check_rigidity(const std::optional<double>& rigidity) {
+  if (!rigidity || is_valid_rigidity(*rigidity)) return Status::success();
+  return Error(ErrorCode::InvalidArgument, "rigidity " + std::to_string(*rigidity) +
+                                               " is outside [0, " + std::to_string(kMaxRigidity) +
+                                               "]");
+}
+
 /// The calls limited per client (DeformationService::admit).
 enum class RateLimitedCall { CreateSession, MoveHandles };
 

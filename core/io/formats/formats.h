@@ -53,6 +53,8 @@ void append_f32_le(std::string& out, float v);
 /// Shortest decimal text that reads back to exactly the same double.
 void append_double(std::string& out, double v);
 void append_xyz(std::string& out, const MeshData& mesh, Eigen::Index i);
+/// The body shared by ASCII OFF and PLY: one " x y z" line per vertex, then "3 a b c" per face.
+void append_vertex_and_face_lines(std::string& out, const MeshData& mesh);
 /// InvalidArgument for a non-finite coordinate, one outside float32 (needs_float32) or an index
 /// out of range.
 Status check_writable(const MeshData& mesh, bool needs_float32);

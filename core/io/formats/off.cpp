@@ -130,14 +130,7 @@ Result<MeshData> read_off(std::string_view bytes, WorkMeter& work) {
 std::string write_off(const MeshData& mesh) {
   std::string out =
       "OFF\n" + std::to_string(mesh.V.rows()) + ' ' + std::to_string(mesh.F.rows()) + " 0\n";
-  for (Eigen::Index i = 0; i < mesh.V.rows(); ++i) {
-    append_xyz(out, mesh, i);
-    out += '\n';
-  }
-  for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
-    out += "3 " + std::to_string(mesh.F(f, 0)) + ' ' + std::to_string(mesh.F(f, 1)) + ' ' +
-           std::to_string(mesh.F(f, 2)) + '\n';
-  }
+  append_vertex_and_face_lines(out, mesh);
   return out;
 }
 

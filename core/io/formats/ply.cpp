@@ -342,14 +342,7 @@ std::string write_ply(const MeshData& mesh) {
       "ply\nformat ascii 1.0\ncomment meshdeform\nelement vertex " + std::to_string(mesh.V.rows()) +
       "\nproperty double x\nproperty double y\nproperty double z\nelement face " +
       std::to_string(mesh.F.rows()) + "\nproperty list uchar int vertex_indices\nend_header\n";
-  for (Eigen::Index i = 0; i < mesh.V.rows(); ++i) {
-    append_xyz(out, mesh, i);
-    out += '\n';
-  }
-  for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
-    out += "3 " + std::to_string(mesh.F(f, 0)) + ' ' + std::to_string(mesh.F(f, 1)) + ' ' +
-           std::to_string(mesh.F(f, 2)) + '\n';
-  }
+  append_vertex_and_face_lines(out, mesh);
   return out;
 }
 

@@ -137,4 +137,15 @@ void append_f32_le(std::string& out, float v) {
   append_u32_le(out, std::bit_cast<std::uint32_t>(v));
 }
 
+void append_vertex_and_face_lines(std::string& out, const MeshData& mesh) {
+  for (Eigen::Index i = 0; i < mesh.V.rows(); ++i) {
+    append_xyz(out, mesh, i);
+    out += '\n';
+  }
+  for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
+    out += "3 " + std::to_string(mesh.F(f, 0)) + ' ' + std::to_string(mesh.F(f, 1)) + ' ' +
+           std::to_string(mesh.F(f, 2)) + '\n';
+  }
+}
+
 }  // namespace meshdeform::io::detail
