@@ -13,6 +13,7 @@ packages=(
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libboost-dev libmeshoptimizer-dev libssl-dev openssl
   nginx  # tests/scaleout: nginx in front of replicas (no daemon is started without systemd)
+  procps  # scripts/kill-check.sh: pgrep finds the test's server child
   "$@"
 )
 
