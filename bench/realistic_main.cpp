@@ -72,7 +72,8 @@ struct Options {
   std::string out_dir = MESHDEFORM_BENCH_RESULTS_DIR;
   std::string stem = "realistic";
   std::string spot_path = std::string(MESHDEFORM_BENCH_SOURCE_DIR) + "/tests/data/spot.obj";
-  std::vector<std::string> methods = {"scale_aware", "arap", "arap_anderson", "cgal"};
+  std::vector<std::string> methods = {"scale_aware", "scale_aware_anderson", "arap",
+                                      "arap_anderson", "cgal"};
 };
 
 void print_usage(std::ostream& out) {
@@ -81,11 +82,12 @@ void print_usage(std::ostream& out) {
          "  --max-vertices N      skip models with more vertices (1000000)\n"
          "  --spot-levels a,b     Loop subdivision levels of Spot (2,3,4: ~47k, 187k, 750k)\n"
          "  --regular             also run the regular Table 1 models\n"
-         "  --methods a,b         scale_aware, arap, arap_anderson, cgal (default all)\n"
+         "  --methods a,b         scale_aware, scale_aware_anderson, arap, arap_anderson, cgal\n"
+         "                        (default all)\n"
          "  --iterations N        outer-iteration budget of the timed runs (15)\n"
          "  --repeat N            rounds; timings are medians (3)\n"
          "  --repeat-max-vertices N  models above N vertices run one round (200000)\n"
-         "  --anderson-window M   window of the accelerated ARAP (6)\n"
+         "  --anderson-window M   window of the accelerated runs, ARAP and scale-aware (6)\n"
          "  --cgal-max-iterations N  cap of the convergence runs (100)\n"
          "  --threads N           our solvers' OpenMP threads (1)\n"
          "  --seed S              irregular-mesh seed (1)\n"
@@ -156,7 +158,8 @@ Result<Options> parse_options(int argc, char** argv) {
     }
   }
   for (const auto& m : o.methods) {
-    if (m != "scale_aware" && m != "arap" && m != "arap_anderson" && m != "cgal") {
+    if (m != "scale_aware" && m != "scale_aware_anderson" && m != "arap" &&
+        m != "arap_anderson" && m != "cgal") {
       return Error(ErrorCode::InvalidArgument, "unknown method '" + m + "'");
     }
   }
@@ -469,6 +472,10 @@ struct Row {
   // ended its convergence run with.
   int aa_equal_energy_iteration = -1;
   double aa_equal_energy_s = -1;
+  // Accelerated scale-aware: iteration and time (median) at which it first reaches the energy of
+  // the plain scale-aware timed run (the iteration budget).
+  int sa_aa_equal_energy_iteration = -1;
+  double sa_aa_equal_energy_s = -1;
 };
 
 // ---- models -----------------------------------------------------------------------------------
@@ -570,7 +577,8 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
       << " outer iterations from the Laplacian guess, metrics off in the timed run (E_theta / "
          "E_phi per iteration come from a second, identical run with metrics on); ARAP timed run "
          "tolerance 0 (exactly "
-      << options.iterations << " iterations, like CGAL's); arap_anderson: window "
+      << options.iterations << " iterations, like CGAL's); scale_aware and arap: the plain "
+         "iteration (Anderson window 0); scale_aware_anderson and arap_anderson: window "
       << options.anderson_window << "\n";
   out << "- CGAL: Surface_mesh_deformation, spokes-and-rims ARAP (CGAL default), Eigen SparseLU, "
          "deform("
@@ -637,17 +645,25 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
   }
 
   out << "\n## Iterations and time to quality\n\n";
-  out << "Bar = CGAL ARAP converged (tolerance 1e-4). Scale-aware has no Anderson acceleration "
-         "yet (core/scale_aware.cpp is outside this branch); ARAP with and without it.\n\n";
-  out << "| model | bar E_theta / E_phi | CGAL conv. its, s | SA to quality | ARAP conv. its, s | "
+  out << "Bar = CGAL ARAP converged (tolerance 1e-4). Scale-aware and ARAP each with and without "
+         "Anderson acceleration (SA+AA, ARAP+AA).\n\n";
+  out << "| model | bar E_theta / E_phi | CGAL conv. its, s | SA to quality | SA+AA to quality | "
+         "SA / SA+AA energy at "
+      << options.iterations
+      << " its | SA+AA reaches plain SA's final energy | ARAP conv. its, s | "
          "ARAP to quality | ARAP+AA conv. its, s | ARAP+AA to quality | ARAP / ARAP+AA final "
          "energy | ARAP+AA reaches plain ARAP's final energy |\n";
-  out << "|---|---|---|---|---|---|---|---|---|---|\n";
+  out << "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const Row& row : rows) {
     const MethodResult* sa = find(row, "scale_aware");
     const MethodResult* arap = find(row, "arap");
     const MethodResult* aa = find(row, "arap_anderson");
+    const MethodResult* sa_aa = find(row, "scale_aware_anderson");
     const MethodResult* cgal = find(row, "cgal");
+    auto timed_energy = [](const MethodResult* m) {
+      if (!m || m->first["history"].empty()) return std::string("-");
+      return fmt("%.4g", m->first["history"].back()["energy"].get<double>());
+    };
     auto conv = [&](const MethodResult* m) {
       return m ? std::to_string(m->converge_iterations) +
                      (m->converge_iterations >= options.cgal_max_iterations ? " (cap)" : "") +
@@ -661,7 +677,14 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
     out << "| " << row.name << " | "
         << (row.bar_theta >= 0 ? fmt("%.4f", row.bar_theta) + " / " + fmt("%.4f", row.bar_phi)
                                : "-")
-        << " | " << conv(cgal) << " | " << quality_cell(sa) << " | " << conv(arap) << " | "
+        << " | " << conv(cgal) << " | " << quality_cell(sa) << " | " << quality_cell(sa_aa)
+        << " | " << timed_energy(sa) << " / " << timed_energy(sa_aa) << " | "
+        << (row.sa_aa_equal_energy_iteration >= 0
+                ? std::to_string(row.sa_aa_equal_energy_iteration) + " its, " +
+                      fmt("%.3f", row.sa_aa_equal_energy_s) + " s (plain: " +
+                      fmt("%.3f", sa ? sa->solve_s : 0.0) + " s)"
+                : std::string("-"))
+        << " | " << conv(arap) << " | "
         << quality_cell(arap) << " | " << conv(aa) << " | " << quality_cell(aa) << " | "
         << final_energy(arap) << " / " << final_energy(aa) << " | "
         << (row.aa_equal_energy_iteration >= 0
@@ -672,10 +695,12 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
   }
 
   out << "\n## Errors of the timed runs (" << options.iterations << " iterations)\n\n";
-  out << "| model | SA E_theta / E_phi / area | ARAP | ARAP+AA | CGAL |\n|---|---|---|---|---|\n";
+  out << "| model | SA E_theta / E_phi / area | SA+AA | ARAP | ARAP+AA | CGAL |\n"
+         "|---|---|---|---|---|---|\n";
   for (const Row& row : rows) {
     out << "| " << row.name;
-    for (const char* method : {"scale_aware", "arap", "arap_anderson", "cgal"}) {
+    for (const char* method :
+         {"scale_aware", "scale_aware_anderson", "arap", "arap_anderson", "cgal"}) {
       const MethodResult* m = find(row, method);
       if (!m) {
         out << " | -";
@@ -904,6 +929,10 @@ Status run(int argc, char** argv) {
             return run_ours<core::ScaleAwareSolver, core::ScaleAwareSettings>(model, options, false,
                                                                               0);
           }
+          if (method == "scale_aware_anderson") {
+            return run_ours<core::ScaleAwareSolver, core::ScaleAwareSettings>(
+                model, options, false, options.anderson_window);
+          }
           if (method == "arap") {
             return run_ours<core::ArapSolver, core::ArapSettings>(model, options, true, 0);
           }
@@ -944,6 +973,24 @@ Status run(int argc, char** argv) {
             times.push_back(run["converge_history"][k]["elapsed"].get<double>());
           }
           row.aa_equal_energy_s = median(times);
+          break;
+        }
+      }
+    }
+    // Accelerated scale-aware against the plain one's energy after the timed budget.
+    const MethodResult* plain_sa = find(row, "scale_aware");
+    const MethodResult* fast_sa = find(row, "scale_aware_anderson");
+    if (plain_sa && fast_sa && !plain_sa->first["history"].empty()) {
+      const double target = plain_sa->first["history"].back()["energy"].get<double>();
+      const json& history = fast_sa->first["history"];
+      for (size_t k = 0; k < history.size(); ++k) {
+        if (history[k]["energy"].get<double>() <= target) {
+          row.sa_aa_equal_energy_iteration = static_cast<int>(k);
+          std::vector<double> times;
+          for (const json& run : runs["scale_aware_anderson"]) {
+            times.push_back(run["history"][k]["elapsed"].get<double>());
+          }
+          row.sa_aa_equal_energy_s = median(times);
           break;
         }
       }

@@ -67,6 +67,8 @@ Solver:
   --iterations N            outer iterations, the budget (default 15; an edit spec may set it)
   --tolerance T             stop when the relative energy change is below T (default 1e-4)
   --inner-iterations K      step-one sweeps per outer iteration (default 5)
+  --anderson M              Anderson acceleration of the outer iteration: mix the last M
+                            updates (default 6; 0 = the plain iteration)
   --start laplacian|previous|rigid  starting guess (default: laplacian, the paper's
                             initialisation; rigid: a few ARAP iterations first)
   --lambda L                handle weight (default 100)
@@ -146,6 +148,13 @@ std::optional<std::string> apply_solver_flags(const ParsedArgs& parsed, RunSetti
     }
     run.options.inner_iterations = static_cast<int>(*value);
   }
+  if (auto text = parsed.get("anderson")) {
+    const auto value = parse_integer(*text);
+    if (!value || *value < 0 || *value > 64) {
+      return "--anderson must be an integer in [0, 64], got '" + *text + "'";
+    }
+    run.options.anderson_window = static_cast<int>(*value);
+  }
   if (auto text = parsed.get("start")) {
     if (*text == "laplacian") {
       run.options.start = core::StartFrom::Laplacian;
@@ -212,7 +221,7 @@ int run_deform(const std::vector<std::string>& args) {
                                          {"iterations"},     {"tolerance"},  {"inner-iterations"},
                                          {"start"},          {"lambda"},     {"threads"},
                                          {"method"},         {"ora", false}, {"verbose", false},
-                                         {"rigidity"},       {"help", false}};
+                                         {"rigidity"},       {"anderson"},   {"help", false}};
   if (auto error = parse_args(args, specs, parsed)) return usage_error(command, error->message);
   if (parsed.has("help")) {
     std::fputs(kDeformHelp, stdout);

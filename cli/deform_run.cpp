@@ -252,7 +252,8 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
                   {"ora", run.options.ora},
                   {"threads", run.settings.threads},
                   {"rigidity", run.options.rigidity},
-                  {"rigid_start_iterations", run.options.rigid_start_iterations}};
+                  {"rigid_start_iterations", run.options.rigid_start_iterations},
+                  {"anderson_window", run.options.anderson_window}};
   if (!input.magnify.empty()) {
     json regions = json::array();
     for (const core::MagnifyRegion& region : input.magnify) {
@@ -274,6 +275,7 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
   j["converged"] = report.converged;
   j["factorizations"] = report.factorizations;
   j["pcg_iterations"] = report.pcg_iterations;
+  j["anderson_rejections"] = report.anderson_rejections;
   j["precompute_seconds"] = outcome.precompute_seconds;
   j["solve_seconds"] = report.seconds;
   if (!report.history.empty()) {

@@ -6,12 +6,14 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include <Eigen/Geometry>
 
+#include "core/anderson.h"
 #include "core/arap.h"
 #include "core/constraints.h"
 #include "core/laplacian.h"
@@ -761,39 +763,71 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
 
   double previous_energy = report.history.back().energy;
   double previous_change = 1.0;
+  // Anderson acceleration of the outer iteration over the positions (core/anderson.h; Peng et
+  // al. 2018): x -> G(x) is step one at x (normals, face frames, exact scale step) and step two.
+  // Every G(x) has the same handle rows up to the soft constraint, and a mix of iterates is a
+  // valid iterate. Merit, for the safeguard: the joint energy at x after its own step one and
+  // scale step, a function of x alone (up to step one's warm start). An accelerated iterate whose
+  // merit is not below the last accepted one is replaced by the plain update it was mixed from,
+  // and the window restarts there (Peng et al., Algorithm 1). The first iteration is always the
+  // plain one (a one-iteration interactive move is unchanged), and so is the returned iterate:
+  // no mix is formed after the last iteration or once the tolerance is met.
+  const bool accelerate = options.anderson_window > 0;
+  AndersonAccelerator accelerator(std::max(options.anderson_window, 1));
+  if (accelerate) accelerator.reset(x);
+  Eigen::VectorXd plain;          // G of the previous iterate, while x is an unchecked mix of it
+  bool unchecked = false;         // x is an accelerated iterate whose merit is not yet known
+  double accepted_merit = std::numeric_limits<double>::infinity();
   for (int it = 1; it <= options.max_iterations; ++it) {
     if (stop.stop_requested()) return Error(ErrorCode::Cancelled, "solve cancelled");
     IterationInfo info;
     info.iteration = it;
 
-    // Step one: normals from the current vertices, then local/global sweeps on the Gauss map.
-    auto phase = Clock::now();
-    N = s.normals_of(x, N);
-    info.normal_sweeps = update_normals(s.N0, s.F, s.topology, N, rotations, rotations_warm,
-                                        options.inner_iterations, 1e-9, s.threads);
-    rotations_warm = true;
-    info.normals_seconds = seconds_since(phase);
+    // Step one: normals from the current vertices, then local/global sweeps on the Gauss map;
+    // then step two's matrix and, with scale control, the face frames that follow the normals
+    // (R_f N0_f = N_f). Returns the iterate's energy with them: the block steps below (scales,
+    // then PCG from x) can only lower it. Step one itself is not a minimiser of this energy (it
+    // fits normals on the Gauss map), so energies of consecutive iterations are compared through
+    // this value, not directly.
+    auto step_one = [&]() {
+      auto phase = Clock::now();
+      N = s.normals_of(x, N);
+      info.normal_sweeps += update_normals(s.N0, s.F, s.topology, N, rotations, rotations_warm,
+                                           options.inner_iterations, 1e-9, s.threads);
+      rotations_warm = true;
+      info.normals_seconds += seconds_since(phase);
+      phase = Clock::now();
+      s.assemble(N, rho);
+      if (rho > 0) s.scale_control->update_rotations(x, N);
+      const double energy_before = s.joint_energy(x, target_vec, rho);
+      // An exact scale step (a good warm start for the joint solve, never an increase).
+      if (rho > 0) s.scale_control->update_scales(x);
+      info.assemble_seconds += seconds_since(phase);
+      return energy_before;
+    };
+    info.energy_before = step_one();
+    if (accelerate) {
+      const double merit = rho > 0 ? s.joint_energy(x, target_vec, rho) : info.energy_before;
+      if (unchecked && !(merit < accepted_merit)) {  // also rejects a non-finite mix
+        x = plain;
+        info.energy_before = step_one();
+        accepted_merit = rho > 0 ? s.joint_energy(x, target_vec, rho) : info.energy_before;
+        accelerator.reset(x);
+        ++report.anderson_rejections;
+      } else {
+        accepted_merit = merit;
+      }
+      unchecked = false;
+    }
 
     // Step two: A(N) x = b by PCG with the cached factor, refactoring when that is cheaper.
-    phase = Clock::now();
-    s.assemble(N, rho);
-    // The iterate entering this iteration, with this iteration's normals and face frames: the
-    // block steps below (scales, then PCG from x) can only lower it. Step one itself is not a
-    // minimiser of this energy (it fits normals on the Gauss map), so energies of consecutive
-    // iterations are compared through this value, not directly.
+    auto phase = Clock::now();
     Eigen::VectorXd b_joint;
     if (rho > 0) {
-      // The face frames follow the new normals (R_f N0_f = N_f): part of step one.
-      s.scale_control->update_rotations(x, N);
-    }
-    info.energy_before = s.joint_energy(x, target_vec, rho);
-    if (rho > 0) {
-      // An exact scale step first (a good warm start for the joint solve, never an increase).
-      s.scale_control->update_scales(x);
       b_joint.resize(b.size() + s.scale_control->scale_unknowns());
       b_joint << b, rho * s.scale_control->scale_rhs();
     }
-    info.assemble_seconds = seconds_since(phase);
+    info.assemble_seconds += seconds_since(phase);
     phase = Clock::now();
     const bool lagged = s.settings.preconditioner == StepTwoPreconditioner::LaggedCholesky;
     if (lagged && s.refactor_pending) {
@@ -871,6 +905,11 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     if (info.energy <= energy_floor || change < options.tolerance) {
       report.converged = true;
       break;
+    }
+    if (accelerate && it < options.max_iterations) {
+      plain = x;
+      x = accelerator.compute(plain);
+      unchecked = true;
     }
   }
 
