@@ -196,8 +196,11 @@ test("viewer end to end", { timeout: 120_000 }, async (t) => {
     const before = await hook(editor, () => ({ sid: window.__meshdeform.sessionId, rev: window.__meshdeform.revision }));
     await editor.locator('[data-testid="upload-input"]').setInputFiles(bad);
     await poll(editor, () => window.__meshdeform.lastError !== "", null, "upload error");
-    const text = await editor.locator('[data-testid="error"]').textContent();
-    assert.match(text, /Upload failed: INVALID_ARGUMENT/);
+    // Plain words first, the gRPC code and the server's message in small print.
+    assert.match(await editor.locator("#error-text").textContent(), /^Upload failed: The file could not be read as a mesh\.$/);
+    assert.match(await editor.locator('[data-testid="error-detail"]').textContent(), /^INVALID_ARGUMENT: ./);
+    // The status line no longer says "Uploading …".
+    assert.doesNotMatch(await editor.locator('[data-testid="status"]').textContent(), /Uploading/);
     const now = await hook(editor, () => ({ sid: window.__meshdeform.sessionId, rev: window.__meshdeform.revision, ready: window.__meshdeform.ready }));
     assert.equal(now.sid, before.sid);
     assert.ok(now.rev >= before.rev);

@@ -104,3 +104,18 @@ export function statesKey(s: GroupStates): string {
 export function isIdentity(s: MoveState): boolean {
   return moveKey(s) === moveKey(IDENTITY);
 }
+
+/**
+ * How "Reset to rest" gets the mesh back to its rest pose:
+ * - "identity": the groups' anchors are the rest positions (handles were set on the rest mesh), so
+ *   identity moves target the rest pose exactly;
+ * - "rest-targets": the anchors are a deformed shape, so the constrained vertices are sent to their
+ *   rest positions explicitly and the groups are set again there;
+ * - "unavailable": the rest mesh is not known (the server no longer kept revision 0).
+ * Either way the solve uses the Laplacian method: one direct solve with no warm start, whose
+ * solution for rest targets is the rest mesh itself.
+ */
+export function planReset(restKnown: boolean, anchorsAtRest: boolean): "identity" | "rest-targets" | "unavailable" {
+  if (anchorsAtRest) return "identity";
+  return restKnown ? "rest-targets" : "unavailable";
+}

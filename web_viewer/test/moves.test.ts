@@ -44,3 +44,13 @@ describe("moves", () => {
     expect(statesKey(a)).not.toBe(statesKey(b));
   });
 });
+
+import { planReset } from "../src/moves";
+describe("reset plan", () => {
+  it("uses identity moves when the anchors are the rest pose", () => {
+    expect(planReset(true, true)).toBe("identity");
+    expect(planReset(false, true)).toBe("identity");
+    expect(planReset(true, false)).toBe("rest-targets");
+    expect(planReset(false, false)).toBe("unavailable");
+  });
+});
