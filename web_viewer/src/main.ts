@@ -49,6 +49,7 @@ interface Hooks {
   /** Screen point of group i's centre as rendered, or of vertex v. */
   groupScreenPoint(i: number): { x: number; y: number } | null;
   vertexScreenPoint(v: number): { x: number; y: number } | null;
+  worldScreenPoint(x: number, y: number, z: number): { x: number; y: number } | null;
   positions(): number[];
   /** The rest mesh (revision 0) as loaded. */
   restPositions(): number[];
@@ -83,7 +84,7 @@ const FORMATS: Record<string, MeshFormat> = {
 };
 const COLORS = { base: [0.78, 0.8, 0.84], magnify: [0.25, 0.68, 0.42] };
 /** Controls that edit the session (disabled for watchers and once the session is gone). */
-const EDIT_CONTROLS = ["tool-move", "tool-brush", "tool-lasso", "apply-handles", "clear-selection", "extend-group", "paint-mode",
+const EDIT_CONTROLS = ["tool-move", "tool-brush", "tool-lasso", "gizmo-translate", "gizmo-rotate", "gizmo-scale", "apply-handles", "clear-selection", "extend-group", "paint-mode",
   "undo", "redo", "method", "ora", "rigidity", "iterations", "magnify", "delete-group", "reset-rest"];
 const GONE_TEXT = "The session this link points to no longer exists: it was closed, it expired, or the server restarted. Its edits cannot be recovered from here.";
 
@@ -213,6 +214,8 @@ class App {
     hooks.gone = true;
     hooks.ready = false;
     this.setEditEnabled(false);
+    $("role").textContent = this.session ? "Session gone" : "No session";
+    this.renderGroups();
     this.banner.status("No session open");
     showLinkProblem(detail, () => {
       // Same page without the fragment: a fresh demo session (the query, e.g. ?sample=, is kept).
@@ -221,14 +224,14 @@ class App {
   }
 
   /** The open session answered NOT_FOUND: it is gone. Stop editing and say so. */
-  private markGone(s: Session): void {
+  private markGone(s: Session, detail = GONE_TEXT): void {
     if (s.gone) return;
     s.gone = true;
     s.watchGen = -1;
     s.watchAbort?.abort();
     this.coalescer.reset();
     this.cancelKeyCommand();
-    this.linkProblem(GONE_TEXT);
+    this.linkProblem(detail);
     this.placeGizmo();
   }
 
@@ -485,7 +488,8 @@ class App {
 
   private renderGroups(): void {
     const s = this.session;
-    renderGroupList(s?.draft ?? null, this.dirty, { select: (i) => this.selectGroup(i), remove: (i) => void this.deleteGroup(i) });
+    const editable = !!s && s.role === "edit" && !s.gone;
+    renderGroupList(s?.draft ?? null, this.dirty, editable, { select: (i) => this.selectGroup(i), remove: (i) => void this.deleteGroup(i) });
     hooks.selectedGroup = s?.draft.selected ?? -1;
     this.updateGroupButtons();
   }
@@ -853,10 +857,9 @@ class App {
           this.onUpdate(s, upd);
         }
         if (s.watchGen === gen) {
-          // Ends OK only when the session is closed: nothing to reconnect to.
-          this.banner.message("The session was closed.");
-          this.setStatus("Session closed");
-          hooks.ready = false;
+          // Ends OK only when the session is closed: nothing to reconnect to, nothing to edit.
+          s.resolveSnapshot();
+          this.markGone(s, "The session was closed by its owner (or an operator). Its link no longer opens it.");
         }
         return;
       } catch (e) {
@@ -1245,6 +1248,7 @@ const hooks: Hooks = {
   handleScreenPoint: () => app.hookHandlePoint(),
   groupScreenPoint: (i) => app.hookGroupPoint(i),
   vertexScreenPoint: (v) => app.hookVertexPoint(v),
+  worldScreenPoint: (x, y, z) => app.screenPoint(new THREE.Vector3(x, y, z)),
   positions() {
     return Array.from(app.session?.state.positions ?? []);
   },

@@ -108,7 +108,7 @@ export class Viewer3D {
       const g = new THREE.BufferGeometry();
       g.setAttribute("position", new THREE.BufferAttribute(Float32Array.from(rest), 3));
       g.setIndex(this.geometry.getIndex());
-      const m = new THREE.MeshBasicMaterial({ color: 0x4a6fb5, transparent: true, opacity: 0.16, depthWrite: false, side: THREE.DoubleSide });
+      const m = new THREE.MeshBasicMaterial({ color: 0x4a6fb5, transparent: true, opacity: 0.22, depthWrite: false, side: THREE.DoubleSide });
       this.ghost = new THREE.Mesh(g, m);
       this.ghost.renderOrder = 2;
       this.scene.add(this.ghost);

@@ -2,7 +2,7 @@
 import { cssColor, groupColor, type GroupSet } from "../groups";
 import { $ } from "./dom";
 
-export function renderGroupList(groups: GroupSet | null, dirty: boolean, on: { select(i: number): void; remove(i: number): void }): void {
+export function renderGroupList(groups: GroupSet | null, dirty: boolean, editable: boolean, on: { select(i: number): void; remove(i: number): void }): void {
   const ul = $("group-list");
   ul.replaceChildren();
   if (!groups || groups.size === 0) {
@@ -29,6 +29,7 @@ export function renderGroupList(groups: GroupSet | null, dirty: boolean, on: { s
     del.title = "Delete this group";
     del.setAttribute("aria-label", `Delete ${label.textContent}`);
     del.dataset.testid = `group-delete-${i}`;
+    del.disabled = !editable;
     del.addEventListener("click", (e) => {
       e.stopPropagation();
       on.remove(i);
