@@ -234,6 +234,30 @@ test("editing tools", { timeout: 240_000 }, async (t) => {
     assert.ok(plain.equals(await frame()), "both off: the same picture as before");
   });
 
+  await t.test("(f3) ARAP is off while a magnify region exists", async () => {
+    const arap = page.locator('[data-testid="method"] option[value="2"]');
+    assert.equal(await arap.isDisabled(), false);
+    await page.locator('[data-testid="tool-brush"]').click();
+    const radius = (v) => page.locator('[data-testid="brush-radius"]').evaluate((el, x) => { el.value = String(x); el.dispatchEvent(new Event("input")); }, v);
+    await page.locator('[data-testid="paint-mode"]').selectOption("magnify");
+    await radius(0.02);
+    const g = await groups();
+    const mid = centroid(await positions(), [...g[0].vertices, ...g[1].vertices]);
+    const p = await hook(page, (q) => window.__meshdeform.worldScreenPoint(q[0], q[1], q[2]), mid);
+    await page.mouse.click(p.x, p.y);
+    assert.equal(await arap.isDisabled(), true, "ARAP disabled");
+    assert.match(await arap.getAttribute("title"), /Only the scale-aware method can magnify/);
+    assert.equal(await page.locator('[data-testid="method-note"]').isVisible(), true);
+    await page.locator('[data-testid="paint-mode"]').selectOption("erase");
+    await radius(0.06); // a little wider: the re-solve after painting may have nudged the surface
+    await page.mouse.click(p.x, p.y);
+    assert.equal(await arap.isDisabled(), false, "ARAP back once the region is erased");
+    assert.equal(await page.locator('[data-testid="method-note"]').isVisible(), false);
+    assert.deepEqual(await groups(), g, "the groups are untouched");
+    await page.locator('[data-testid="tool-move"]').click();
+    await poll(page, () => window.__meshdeform.ready, null, "ready after the magnify round trip");
+  });
+
   await t.test("(g) a closed session disables editing and says so", async () => {
     const hash = await page.evaluate(() => location.hash);
     const q = new URLSearchParams(hash.slice(1));
