@@ -137,6 +137,22 @@ test("editing tools", { timeout: 240_000 }, async (t) => {
     await shot(page, "edit-c-two-moved.png");
   });
 
+  await t.test("(b2) clicking a group on the mesh selects it", async () => {
+    const fixed = (await groups())[0];
+    assert.equal(fixed.role, "fixed");
+    // Some of the group's vertices are hidden behind the mesh: try a bounded number of them.
+    let selected = -1;
+    for (let k = 0; k < 24 && selected !== 0; k++) {
+      const v = fixed.vertices[(k * 47) % fixed.vertices.length];
+      const p = await hook(page, (i) => window.__meshdeform.vertexScreenPoint(i), v);
+      if (!p) continue;
+      await page.mouse.click(p.x, p.y);
+      selected = await hook(page, () => window.__meshdeform.selectedGroup);
+    }
+    assert.equal(selected, 0, "a click on the fixed region selected it");
+    assert.match(await page.locator('[data-testid="group-item-0"]').getAttribute("class"), /\bsel\b/);
+  });
+
   await t.test("(c) numeric entry: G X <number> Enter moves the selected group along X", async () => {
     const [, a, b] = await handleIdx();
     const g = await groups();
