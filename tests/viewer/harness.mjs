@@ -78,7 +78,7 @@ export async function newPage(browser, url) {
   const page = await ctx.newPage();
   page.setDefaultTimeout(STEP_MS);
   page.on("pageerror", (e) => console.log("[pageerror]", e.message));
-  page.on("console", (m) => { if (m.type() === "error") console.log(`[console.${m.type()}]`, m.text()); });
+  page.on("console", (m) => { if (m.type() === "error" || m.type() === "warning") console.log(`[console.${m.type()}]`, m.text()); });
   await page.goto(url, { timeout: STEP_MS });
   return page;
 }
