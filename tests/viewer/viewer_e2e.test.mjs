@@ -1,79 +1,20 @@
 // End-to-end test of the browser viewer in real headless Chromium against a real server.
 // Env: MESHDEFORM_SERVER_PATH (server binary), MESHDEFORM_VIEWER_DIST (built viewer, default
 // web_viewer/dist), MESHDEFORM_ARTIFACTS_DIR (screenshots), CHROMIUM_PATH (default
-// /usr/bin/chromium). Run: node --test tests/viewer/
+// /usr/bin/chromium); the server and browser start in harness.mjs. Run: node --test tests/viewer/
 import { test, before, after } from "node:test";
 import assert from "node:assert/strict";
-import { spawn } from "node:child_process";
-import { createRequire } from "node:module";
-import { existsSync, mkdirSync, mkdtempSync, writeFileSync } from "node:fs";
+import { mkdtempSync, writeFileSync } from "node:fs";
 import { tmpdir } from "node:os";
 import path from "node:path";
-import { fileURLToPath } from "node:url";
+import { artifacts, bboxDiag, hook, newPage as openPage, poll, startAll, STEP_MS, withTimeout } from "./harness.mjs";
 
-const require = createRequire(new URL("../../web_viewer/package.json", import.meta.url));
-const { chromium } = require("playwright-core");
+let env;
+const newPage = (url) => openPage(env.browser, url);
+let baseUrl;
 
-const repo = path.resolve(path.dirname(fileURLToPath(import.meta.url)), "../..");
-const serverPath = process.env.MESHDEFORM_SERVER_PATH || path.join(repo, "build/server/transport/meshdeform-server");
-const dist = path.resolve(process.env.MESHDEFORM_VIEWER_DIST || path.join(repo, "web_viewer/dist"));
-const artifacts = process.env.MESHDEFORM_ARTIFACTS_DIR || mkdtempSync(path.join(tmpdir(), "meshdeform-viewer-e2e-"));
-mkdirSync(artifacts, { recursive: true });
-
-const STEP_MS = 30_000;
-let server, serverLog = "", baseUrl, browser;
-
-function withTimeout(p, ms, what) {
-  let t;
-  return Promise.race([p, new Promise((_, rej) => (t = setTimeout(() => rej(new Error(`timeout: ${what}`)), ms)))]).finally(() => clearTimeout(t));
-}
-
-function startServer() {
-  return new Promise((resolve, reject) => {
-    const args = ["--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0", "--web-root", dist, "--log-level", "info"];
-    // The server dies with this test process however it ends (util-linux setpriv sets
-    // PR_SET_PDEATHSIG before exec), and never holds the test's stdout.
-    server = existsSync("/usr/bin/setpriv")
-      ? spawn("/usr/bin/setpriv", ["--pdeathsig", "KILL", serverPath, ...args], { stdio: ["ignore", "ignore", "pipe"] })
-      : spawn(serverPath, args, { stdio: ["ignore", "ignore", "pipe"] });
-    const timer = setTimeout(() => reject(new Error("server did not report http_listening\n" + serverLog)), 20_000);
-    server.on("error", (e) => { clearTimeout(timer); reject(e); });
-    server.on("exit", (code) => { clearTimeout(timer); reject(new Error(`server exited (${code})\n${serverLog}`)); });
-    let buf = "";
-    server.stderr.on("data", (d) => {
-      serverLog += d;
-      buf += d;
-      let i;
-      while ((i = buf.indexOf("\n")) >= 0) {
-        const line = buf.slice(0, i);
-        buf = buf.slice(i + 1);
-        try {
-          const j = JSON.parse(line);
-          if (j.event === "http_listening") { clearTimeout(timer); resolve(`http://127.0.0.1:${j.port}`); }
-        } catch { /* not JSON */ }
-      }
-    });
-  });
-}
-
-const hook = (page, expr) => page.evaluate(expr);
-async function poll(page, fn, arg, what, ms = STEP_MS) {
-  await withTimeout(page.waitForFunction(fn, arg, { timeout: ms, polling: 100 }), ms + 1000, what);
-}
 async function shot(page, name) {
-  const file = path.join(artifacts, name);
-  const buf = await page.locator('[data-testid="canvas"]').screenshot({ path: file, timeout: STEP_MS });
-  return buf;
-}
-
-async function newPage(url) {
-  const ctx = await browser.newContext({ viewport: { width: 1200, height: 800 } });
-  const page = await ctx.newPage();
-  page.setDefaultTimeout(STEP_MS);
-  page.on("pageerror", (e) => console.log("[pageerror]", e.message));
-  page.on("console", (m) => { if (m.type() === "error" || m.type() === "warning") console.log(`[console.${m.type()}]`, m.text()); });
-  await page.goto(url, { timeout: STEP_MS });
-  return page;
+  return page.locator('[data-testid="canvas"]').screenshot({ path: path.join(artifacts, name), timeout: STEP_MS });
 }
 
 /** Drags the real mouse from the handle centroid by (dx, dy) pixels; returns the start point. */
@@ -88,24 +29,12 @@ async function dragHandle(page, dx, dy) {
 }
 
 before(async () => {
-  assert.ok(existsSync(serverPath), `server binary not found: ${serverPath}`);
-  assert.ok(existsSync(path.join(dist, "index.html")), `viewer not built: ${dist}/index.html (run npm run build in web_viewer)`);
-  baseUrl = await startServer();
-  browser = await withTimeout(chromium.launch({
-    executablePath: process.env.CHROMIUM_PATH || "/usr/bin/chromium",
-    args: ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
-      "--disable-component-update", "--disable-sync", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"],
-    timeout: STEP_MS,
-  }), STEP_MS + 5000, "chromium launch");
+  env = await startAll();
+  baseUrl = env.baseUrl;
 });
 
 after(async () => {
-  try { await browser?.close(); } catch { /* already gone */ }
-  if (server && server.exitCode === null) {
-    server.removeAllListeners("exit");
-    server.kill("SIGTERM");
-    await new Promise((r) => { const t = setTimeout(() => { server.kill("SIGKILL"); r(); }, 5000); server.once("exit", () => { clearTimeout(t); r(); }); });
-  }
+  await env?.stop();
   console.log(`screenshots in ${artifacts}`);
 });
 
@@ -196,8 +125,11 @@ test("viewer end to end", { timeout: 120_000 }, async (t) => {
     const before = await hook(editor, () => ({ sid: window.__meshdeform.sessionId, rev: window.__meshdeform.revision }));
     await editor.locator('[data-testid="upload-input"]').setInputFiles(bad);
     await poll(editor, () => window.__meshdeform.lastError !== "", null, "upload error");
-    const text = await editor.locator('[data-testid="error"]').textContent();
-    assert.match(text, /Upload failed: INVALID_ARGUMENT/);
+    // Plain words first, the gRPC code and the server's message in small print.
+    assert.match(await editor.locator("#error-text").textContent(), /^Upload failed: The file could not be read as a mesh\.$/);
+    assert.match(await editor.locator('[data-testid="error-detail"]').textContent(), /^INVALID_ARGUMENT: ./);
+    // The status line no longer says "Uploading …".
+    assert.doesNotMatch(await editor.locator('[data-testid="status"]').textContent(), /Uploading/);
     const now = await hook(editor, () => ({ sid: window.__meshdeform.sessionId, rev: window.__meshdeform.revision, ready: window.__meshdeform.ready }));
     assert.equal(now.sid, before.sid);
     assert.ok(now.rev >= before.rev);
@@ -258,11 +190,6 @@ test("viewer end to end", { timeout: 120_000 }, async (t) => {
   });
 });
 
-function bboxDiag(p) {
-  const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
-  for (let i = 0; i < p.length; i++) { lo[i % 3] = Math.min(lo[i % 3], p[i]); hi[i % 3] = Math.max(hi[i % 3], p[i]); }
-  return Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
-}
 function median(a) {
   const s = [...a].sort((x, y) => x - y);
   return s.length ? s[Math.floor(s.length / 2)] : NaN;

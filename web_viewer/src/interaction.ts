@@ -1,22 +1,38 @@
-// Pointer tools on the canvas: Move (drag the handle in the view plane), Brush and Lasso.
+// Pointer tools on the canvas: Move (drag any handle group in the view plane; a click selects the
+// group under the pointer), Brush and Lasso (each stroke is one paint stroke; Shift extends).
 import * as THREE from "three";
 import type { Viewer3D } from "./scene";
 import { brushSelect, lassoSelect } from "./selection";
 
 export type Tool = "move" | "brush" | "lasso";
 
+export interface HandleGroupView {
+  /** Index into the applied groups. */
+  index: number;
+  vertices: number[];
+  /** World centroid as rendered. */
+  centroid: THREE.Vector3 | null;
+}
+
 export interface InteractionHost {
   tool(): Tool;
   canEdit(): boolean;
+  /** Handles can be dragged (the painted groups are applied). */
+  canMove(): boolean;
   positions(): Float32Array | null;
-  handleVertices(): number[];
-  /** World centroid of the handle as rendered. */
-  handleCentroid(): THREE.Vector3 | null;
+  /** The applied handle groups; the selected one first, so it wins ties. */
+  handleGroups(): HandleGroupView[];
+  /** The group (any role) of a vertex, -1 for none. */
+  groupOf(vertex: number): number;
+  select(group: number): void;
   /** Drag in the view plane: `delta` from the drag start, `t0` the pointer event time. */
-  dragStart(): void;
+  dragStart(group: number): void;
   dragMove(delta: THREE.Vector3, t0: number): void;
   dragEnd(): void;
+  /** A stroke: paintStart, paint (once per brush dab or once per lasso), paintEnd. */
+  paintStart(extend: boolean): void;
   paint(indices: number[]): void;
+  paintEnd(): void;
   brushRadius(): number;
 }
 
@@ -26,6 +42,14 @@ export class Interaction {
   private drag: { plane: THREE.Plane; start: THREE.Vector3; id: number } | null = null;
   private painting = false;
   private lasso: number[] | null = null;
+  private lassoExtend = false;
+  /** A press in Move mode that did not grab a handle: a click (no travel) selects. */
+  private press: { x: number; y: number; id: number } | null = null;
+
+  /** A handle drag is under way. */
+  get dragging(): boolean {
+    return this.drag !== null;
+  }
 
   constructor(private readonly viewer: () => Viewer3D | null, private readonly canvas: HTMLCanvasElement, private readonly host: InteractionHost, private readonly lassoLine: SVGPolylineElement) {}
 
@@ -53,18 +77,24 @@ export class Interaction {
     const tool = this.host.tool();
     if (tool === "move") {
       if (v.gizmo.axis !== null && v.gizmo.enabled) return; // the gizmo takes it
-      const start = this.handleGrab(v, e.clientX, e.clientY);
-      if (!start) return;
+      const grab = this.host.canMove() ? this.handleGrab(v, e.clientX, e.clientY) : null;
+      if (!grab) {
+        this.press = { x: e.clientX, y: e.clientY, id: e.pointerId }; // orbit goes on; maybe a click
+        return;
+      }
       this.claim(e);
-      this.drag = { plane: new THREE.Plane().setFromNormalAndCoplanarPoint(v.viewDirection(), start), start, id: e.pointerId };
-      this.host.dragStart();
+      this.host.select(grab.group);
+      this.drag = { plane: new THREE.Plane().setFromNormalAndCoplanarPoint(v.viewDirection(), grab.start), start: grab.start, id: e.pointerId };
+      this.host.dragStart(grab.group);
     } else if (tool === "brush") {
       this.claim(e);
       this.painting = true;
+      this.host.paintStart(e.shiftKey);
       this.brushAt(v, e.clientX, e.clientY);
     } else if (tool === "lasso") {
       this.claim(e);
       this.lasso = [e.clientX, e.clientY];
+      this.lassoExtend = e.shiftKey;
       this.drawLasso();
     }
   }
@@ -96,12 +126,22 @@ export class Interaction {
       this.drag = null;
       this.host.dragEnd();
     }
-    this.painting = false;
+    if (this.painting) {
+      this.painting = false;
+      this.host.paintEnd();
+    }
     if (this.lasso && v) {
       const poly = this.lasso;
       this.lasso = null;
       this.drawLasso();
+      this.host.paintStart(this.lassoExtend);
       this.host.paint(this.lassoPick(v, poly));
+      this.host.paintEnd();
+    }
+    const press = this.press;
+    this.press = null;
+    if (press && v && press.id === e.pointerId && Math.hypot(e.clientX - press.x, e.clientY - press.y) <= 4) {
+      this.host.select(this.groupAt(v, e.clientX, e.clientY));
     }
     try {
       this.canvas.releasePointerCapture(e.pointerId);
@@ -110,31 +150,52 @@ export class Interaction {
     }
   }
 
-  /** The world point to drag from if (x, y) is on or within a few pixels of the handle. */
-  private handleGrab(v: Viewer3D, x: number, y: number): THREE.Vector3 | null {
+  /** The handle group and world point to drag from if (x, y) is on or within a few pixels of a
+   * handle group: its centre marker first, then its nearest vertex, then a face it touches. */
+  private handleGrab(v: Viewer3D, x: number, y: number): { group: number; start: THREE.Vector3 } | null {
     const p = this.host.positions();
-    const hv = this.host.handleVertices();
-    if (!p || hv.length === 0) return null;
-    const c = this.host.handleCentroid();
-    if (c) {
-      const s = v.toScreen(c.x, c.y, c.z);
-      if (s && Math.hypot(s[0] - x, s[1] - y) <= PICK_PX * 1.5) return c;
+    const groups = this.host.handleGroups();
+    if (!p || groups.length === 0) return null;
+    let best: { group: number; start: THREE.Vector3; d: number } | null = null;
+    for (const g of groups) {
+      const c = g.centroid;
+      const s = c && v.toScreen(c.x, c.y, c.z);
+      const d = s ? Math.hypot(s[0] - x, s[1] - y) : Infinity;
+      if (c && d <= PICK_PX * 1.5 && (!best || d < best.d)) best = { group: g.index, start: c.clone(), d };
     }
-    let best = -1, bestD = PICK_PX;
+    if (best) return best;
+    let bestV = -1, bestG = -1, bestD = PICK_PX;
     const tmp = new THREE.Vector3();
-    for (const i of hv) {
-      const s = v.toScreen(p[i * 3], p[i * 3 + 1], p[i * 3 + 2], tmp);
-      if (!s) continue;
-      const d = Math.hypot(s[0] - x, s[1] - y);
-      if (d < bestD) { bestD = d; best = i; }
+    for (const g of groups) {
+      for (const i of g.vertices) {
+        const s = v.toScreen(p[i * 3], p[i * 3 + 1], p[i * 3 + 2], tmp);
+        if (!s) continue;
+        const d = Math.hypot(s[0] - x, s[1] - y);
+        if (d < bestD) { bestD = d; bestV = i; bestG = g.index; }
+      }
     }
-    if (best >= 0) return new THREE.Vector3(p[best * 3], p[best * 3 + 1], p[best * 3 + 2]);
+    if (bestV >= 0) return { group: bestG, start: new THREE.Vector3(p[bestV * 3], p[bestV * 3 + 1], p[bestV * 3 + 2]) };
     const hit = v.pick(x, y);
     if (hit?.face) {
-      const set = new Set(hv);
-      if (set.has(hit.face.a) || set.has(hit.face.b) || set.has(hit.face.c)) return hit.point.clone();
+      for (const g of groups) {
+        const set = new Set(g.vertices);
+        if (set.has(hit.face.a) || set.has(hit.face.b) || set.has(hit.face.c)) return { group: g.index, start: hit.point.clone() };
+      }
     }
     return null;
+  }
+
+  /** The group (any role) of the vertex nearest to the surface point under (x, y), -1 if none. */
+  private groupAt(v: Viewer3D, x: number, y: number): number {
+    const hit = v.pick(x, y);
+    const p = this.host.positions();
+    if (!hit?.face || !p) return -1;
+    let best = -1, bestD = Infinity;
+    for (const i of [hit.face.a, hit.face.b, hit.face.c]) {
+      const d = hit.point.distanceToSquared(new THREE.Vector3(p[i * 3], p[i * 3 + 1], p[i * 3 + 2]));
+      if (d < bestD) { bestD = d; best = i; }
+    }
+    return best >= 0 ? this.host.groupOf(best) : -1;
   }
 
   private brushAt(v: Viewer3D, x: number, y: number): void {

@@ -14,6 +14,16 @@ export class Viewer3D {
   readonly pivotObject = new THREE.Object3D();
   geometry: THREE.BufferGeometry | null = null;
   mesh: THREE.Mesh | null = null;
+  /** Edges drawn over the surface (shares the geometry, so it follows every update). */
+  private wire: THREE.Mesh | null = null;
+  private wireOn = false;
+  /** The rest pose, translucent. */
+  private ghost: THREE.Mesh | null = null;
+  private ghostOn = false;
+  /** One sphere per handle group at its centre (the selected one carries the gizmo). */
+  private readonly markers = new THREE.Group();
+  /** Where the pending move puts the handle vertices, while a slow solve runs. */
+  private targets: THREE.Points | null = null;
   private frameQueued = false;
   private afterFrame: (() => void)[] = [];
   /** Milliseconds each frame spent on normals + drawing (bench: is the browser the bottleneck?). */
@@ -42,6 +52,7 @@ export class Viewer3D {
     this.gizmo.addEventListener("change", () => this.requestRender());
     this.gizmo.addEventListener("dragging-changed", (e: any) => (this.orbit.enabled = !e.value));
     this.scene.add(this.pivotObject);
+    this.scene.add(this.markers);
     this.scene.add(this.gizmo.getHelper());
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
@@ -60,6 +71,8 @@ export class Viewer3D {
       this.scene.remove(this.mesh);
       this.geometry?.dispose();
     }
+    for (const o of [this.wire, this.ghost, this.targets]) if (o) { this.scene.remove(o); if (o !== this.wire) o.geometry.dispose(); }
+    this.wire = this.ghost = this.targets = null;
     const g = new THREE.BufferGeometry();
     const pos = new THREE.BufferAttribute(Float32Array.from(positions), 3);
     pos.setUsage(THREE.DynamicDrawUsage);
@@ -71,11 +84,83 @@ export class Viewer3D {
     g.computeVertexNormals();
     g.computeBoundingSphere();
     g.computeBoundingBox();
-    const mat = new THREE.MeshStandardMaterial({ vertexColors: true, roughness: 0.65, metalness: 0.0, side: THREE.DoubleSide });
+    // Pushed back a little so that the wireframe overlay draws on top without z-fighting.
+    const mat = new THREE.MeshStandardMaterial({ vertexColors: true, roughness: 0.65, metalness: 0.0, side: THREE.DoubleSide, polygonOffset: true, polygonOffsetFactor: 1, polygonOffsetUnits: 1 });
     this.geometry = g;
     this.mesh = new THREE.Mesh(g, mat);
     this.scene.add(this.mesh);
+    this.wire = new THREE.Mesh(g, new THREE.MeshBasicMaterial({ color: 0x1d2430, wireframe: true, transparent: true, opacity: 0.35 }));
+    this.wire.visible = this.wireOn;
+    this.scene.add(this.wire);
     this.frame();
+  }
+
+  setWireframe(on: boolean): void {
+    this.wireOn = on;
+    if (this.wire) this.wire.visible = on;
+    this.requestRender();
+  }
+
+  /** The rest pose as a translucent ghost (`rest` is copied once per mesh). */
+  setGhost(on: boolean, rest: Float32Array | null): void {
+    this.ghostOn = on;
+    if (on && !this.ghost && rest && this.geometry) {
+      const g = new THREE.BufferGeometry();
+      g.setAttribute("position", new THREE.BufferAttribute(Float32Array.from(rest), 3));
+      g.setIndex(this.geometry.getIndex());
+      const m = new THREE.MeshBasicMaterial({ color: 0x4a6fb5, transparent: true, opacity: 0.22, depthWrite: false, side: THREE.DoubleSide });
+      this.ghost = new THREE.Mesh(g, m);
+      this.ghost.renderOrder = 2;
+      this.scene.add(this.ghost);
+    }
+    if (this.ghost) this.ghost.visible = this.ghostOn;
+    this.requestRender();
+  }
+
+  /** Sphere markers at the handle groups' centres. */
+  setMarkers(items: { at: [number, number, number]; color: [number, number, number]; selected: boolean }[]): void {
+    const bb = this.geometry?.boundingBox;
+    const r = (bb ? bb.getSize(new THREE.Vector3()).length() : 1) * 0.012;
+    while (this.markers.children.length > items.length) {
+      const m = this.markers.children.pop() as THREE.Mesh;
+      m.geometry.dispose();
+      (m.material as THREE.Material).dispose();
+    }
+    while (this.markers.children.length < items.length) {
+      const m = new THREE.Mesh(new THREE.SphereGeometry(1, 16, 12), new THREE.MeshBasicMaterial({ depthTest: false, transparent: true, opacity: 0.9 }));
+      m.renderOrder = 5;
+      this.markers.add(m);
+    }
+    items.forEach((it, i) => {
+      const m = this.markers.children[i] as THREE.Mesh;
+      m.position.set(...it.at);
+      m.scale.setScalar(it.selected ? r * 0.6 : r);
+      (m.material as THREE.MeshBasicMaterial).color.setRGB(...it.color, THREE.SRGBColorSpace);
+    });
+    this.requestRender();
+  }
+
+  /** Points at the pending targets; null hides them. */
+  setTargets(points: Float32Array | null): void {
+    if (!points || points.length === 0) {
+      if (this.targets) this.targets.visible = false;
+      this.requestRender();
+      return;
+    }
+    if (!this.targets || (this.targets.geometry.getAttribute("position") as THREE.BufferAttribute).array.length !== points.length) {
+      if (this.targets) { this.scene.remove(this.targets); this.targets.geometry.dispose(); }
+      const g = new THREE.BufferGeometry();
+      g.setAttribute("position", new THREE.BufferAttribute(new Float32Array(points.length), 3));
+      this.targets = new THREE.Points(g, new THREE.PointsMaterial({ color: 0xb34700, size: 3, sizeAttenuation: false, depthTest: false, transparent: true, opacity: 0.7 }));
+      this.targets.renderOrder = 4;
+      this.scene.add(this.targets);
+    }
+    const attr = this.targets.geometry.getAttribute("position") as THREE.BufferAttribute;
+    (attr.array as Float32Array).set(points);
+    attr.needsUpdate = true;
+    this.targets.geometry.computeBoundingSphere();
+    this.targets.visible = true;
+    this.requestRender();
   }
 
   /** Frames the camera on the mesh bounding box. */

@@ -56,34 +56,22 @@ export function lassoSelect(
 
 export type PaintMode = "fixed" | "handle" | "magnify" | "erase";
 
-/** Per-vertex selection: role 0 none, 1 fixed, 2 handle; magnify is an independent flag. */
+/** The magnify region: a per-vertex flag, independent of the handle groups (src/groups.ts). */
 export class SelectionState {
-  role: Uint8Array;
   magnify: Uint8Array;
 
   constructor(readonly vertexCount: number) {
-    this.role = new Uint8Array(vertexCount);
     this.magnify = new Uint8Array(vertexCount);
   }
 
+  /** Mode "magnify" adds to the region, "erase" removes from it; other modes do not touch it. */
   paint(indices: Iterable<number>, mode: PaintMode): void {
-    for (const i of indices) {
-      if (mode === "fixed") this.role[i] = 1;
-      else if (mode === "handle") this.role[i] = 2;
-      else if (mode === "magnify") this.magnify[i] = 1;
-      else { this.role[i] = 0; this.magnify[i] = 0; }
-    }
+    if (mode !== "magnify" && mode !== "erase") return;
+    for (const i of indices) this.magnify[i] = mode === "magnify" ? 1 : 0;
   }
 
   clear(): void {
-    this.role.fill(0);
     this.magnify.fill(0);
-  }
-
-  indicesWithRole(role: number): number[] {
-    const out: number[] = [];
-    for (let i = 0; i < this.vertexCount; i++) if (this.role[i] === role) out.push(i);
-    return out;
   }
 
   magnifyIndices(): number[] {
@@ -92,13 +80,7 @@ export class SelectionState {
     return out;
   }
 
-  /** null when the selection can become handles, else a message for the user. */
-  validate(): string | null {
-    const f = this.indicesWithRole(1).length;
-    const h = this.indicesWithRole(2).length;
-    if (f === 0 && h === 0) return "Selection is empty: paint a fixed region and a handle, then Apply.";
-    if (f === 0) return "No fixed region: paint one in mode \u201cfixed\u201d.";
-    if (h === 0) return "No handle: paint one in mode \u201chandle\u201d.";
-    return null;
+  get hasMagnify(): boolean {
+    return this.magnify.includes(1);
   }
 }

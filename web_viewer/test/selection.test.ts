@@ -31,21 +31,17 @@ describe("brush", () => {
 });
 
 describe("SelectionState", () => {
-  it("paints roles, magnify and erase; validates", () => {
+  it("paints and erases the magnify region only", () => {
     const s = new SelectionState(6);
-    expect(s.validate()).toMatch(/empty/);
-    s.paint([0, 1], "fixed");
-    expect(s.validate()).toMatch(/handle/);
-    s.paint([4, 5], "handle");
+    expect(s.hasMagnify).toBe(false);
+    s.paint([0, 1], "fixed"); // roles live in GroupSet
+    expect(s.magnifyIndices()).toEqual([]);
     s.paint([2, 3, 4], "magnify");
-    expect(s.validate()).toBeNull();
-    expect(s.indicesWithRole(1)).toEqual([0, 1]);
-    expect(s.indicesWithRole(2)).toEqual([4, 5]);
     expect(s.magnifyIndices()).toEqual([2, 3, 4]);
-    s.paint([1, 4], "erase");
-    expect(s.indicesWithRole(1)).toEqual([0]);
-    expect(s.magnifyIndices()).toEqual([2, 3]);
-    s.paint([5], "fixed"); // repainting moves a vertex between groups: no vertex in two groups
-    expect(s.indicesWithRole(2)).toEqual([]);
+    expect(s.hasMagnify).toBe(true);
+    s.paint([3, 5], "erase");
+    expect(s.magnifyIndices()).toEqual([2, 4]);
+    s.clear();
+    expect(s.hasMagnify).toBe(false);
   });
 });

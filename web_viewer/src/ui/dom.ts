@@ -1,5 +1,5 @@
 // Element lookup and the status / error / progress banner.
-import { Code, ConnectError } from "@connectrpc/connect";
+import { describeError, type Action } from "../errors";
 
 export function $(id: string): HTMLElement {
   const el = document.getElementById(id);
@@ -10,22 +10,6 @@ export const $in = (id: string) => $(id) as HTMLInputElement;
 export const $sel = (id: string) => $(id) as HTMLSelectElement;
 export const $btn = (id: string) => $(id) as HTMLButtonElement;
 
-/** "INVALID_ARGUMENT: message" from any error (gRPC code names as in the proto docs). */
-export function describeError(e: unknown): { code: string; text: string } {
-  if (e instanceof ConnectError || (e && typeof e === "object" && "code" in e && "rawMessage" in e)) {
-    const ce = ConnectError.from(e);
-    const code = grpcCodeName(ce.code);
-    return { code, text: `${code}: ${ce.rawMessage}` };
-  }
-  const msg = e instanceof Error ? e.message : String(e);
-  return { code: "", text: msg };
-}
-
-export function grpcCodeName(c: Code): string {
-  // Code.InvalidArgument -> "INVALID_ARGUMENT"
-  return (Code[c] ?? "UNKNOWN").replace(/([a-z])([A-Z])/g, "$1_$2").toUpperCase();
-}
-
 export class Banner {
   private progressDepth = 0;
   constructor(private onError: (text: string) => void) {
@@ -34,22 +18,27 @@ export class Banner {
   status(text: string): void {
     $("status").textContent = text;
   }
-  error(prefix: string, e: unknown): string {
-    const text = prefix ? `${prefix}: ${describeError(e).text}` : describeError(e).text;
+  /** "<prefix>: <plain sentence>", with the gRPC code and server message in small print. */
+  error(prefix: string, e: unknown, action: Action = "other"): string {
+    const d = describeError(e, action);
+    const text = prefix ? `${prefix}: ${d.sentence}` : d.sentence;
     $("error-text").textContent = text;
+    $("error-detail").textContent = d.detail;
     $("error").hidden = false;
-    this.onError(text);
-    console.warn(text, e);
+    this.onError(`${text} [${d.detail}]`);
+    console.warn(text, d.detail);
     return text;
   }
   message(text: string): void {
     $("error-text").textContent = text;
+    $("error-detail").textContent = "";
     $("error").hidden = false;
     this.onError(text);
   }
   clearError(): void {
     $("error").hidden = true;
     $("error-text").textContent = "";
+    $("error-detail").textContent = "";
     this.onError("");
   }
   /** Shows the spinner with `text` while `work` runs (nested calls keep it up). */

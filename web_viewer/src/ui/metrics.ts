@@ -4,7 +4,8 @@ import { $ } from "./dom";
 
 const fmt = (x: number, d = 4) => (Number.isFinite(x) ? x.toFixed(d) : "–");
 
-export function showResult(r: DeformResult, shownRevision: number): void {
+/** `dragging`: a drag is under way, so "refining…" (the server resting between drags) is not shown. */
+export function showResult(r: DeformResult, shownRevision: number, dragging = false): void {
   $("metric-etheta").textContent = fmt(r.eTheta, 5);
   $("metric-ephi").textContent = fmt(r.ePhi, 5);
   $("metric-area").textContent = fmt(r.areaLogRms, 5);
@@ -16,7 +17,7 @@ export function showResult(r: DeformResult, shownRevision: number): void {
   // for a while its refinement budget ran out.
   const el = $("refine-hint");
   clearTimeout(idleTimer);
-  if (Number(r.revision) === 0) el.textContent = "";
+  if (Number(r.revision) === 0 || dragging) el.textContent = "";
   else if (r.converged) el.textContent = "converged";
   else {
     el.textContent = "refining…";
