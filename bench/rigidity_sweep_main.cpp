@@ -154,6 +154,7 @@ struct Options {
   double arap_tolerance = 1e-8;
   double pull = core::ScaleAwareSettings{}.scale_pull;
   double smooth_length = core::ScaleAwareSettings{}.scale_smooth_length;
+  double normal_tie = core::ScaleAwareSettings{}.scale_normal_tie;
   int rigid_start_iterations = core::SolveOptions{}.rigid_start_iterations;
   int iterations = core::SolveOptions{}.max_iterations;
   core::StartFrom start = core::StartFrom::Auto;
@@ -244,6 +245,7 @@ Result<Row> run_edit(const Edit& edit, const Options& options) {
     core::ScaleAwareSettings sa;
     sa.scale_pull = options.pull;
     sa.scale_smooth_length = options.smooth_length;
+    sa.scale_normal_tie = options.normal_tie;
     MD_ASSIGN_OR_RETURN(core::ScaleAwareSolver solver,
                         core::ScaleAwareSolver::create(edit.V, edit.F, edit.constrained, sa));
     core::SolveOptions o;  // the defaults a user gets, except the swept value
@@ -424,6 +426,7 @@ nlohmann::json to_json(const MachineInfo& machine, const Options& options,
                     {"default_rigidity", core::kDefaultRigidity},
                     {"scale_pull", options.pull},
                     {"scale_smooth_length", options.smooth_length},
+                    {"scale_normal_tie", std::isfinite(options.normal_tie) ? nlohmann::json(options.normal_tie) : nlohmann::json("inf")},
                     {"arap_max_iterations", options.arap_max_iterations},
                     {"arap_tolerance", options.arap_tolerance}};
   out["edits"] = nlohmann::json::array();
@@ -541,7 +544,7 @@ std::string pareto_svg(const std::vector<Row>& rows) {
 // clamped at +-1) and shaded by its normal. Orthographic, painter's algorithm, one shared scale
 // per row.
 std::string figure_svg(const std::vector<Row>& rows, const std::vector<std::string>& names) {
-  const double panel_w = 300, title_h = 34;
+  const double panel_w = 300, title_h = 48;
   std::ostringstream body;
   double y0 = 10;
   const double total_w = 3 * panel_w + 20;
@@ -589,7 +592,9 @@ std::string figure_svg(const std::vector<Row>& rows, const std::vector<std::stri
     for (int k = 0; k < 3; ++k) {
       const Run& r = *panels[k];
       const double ox = k * panel_w + 10, oy = y0 + title_h;
-      body << "<text x='" << ox + 10 << "' y='" << oy - 4 << "'>" << titles[k] << ": E_theta "
+      // Two lines per panel title: the method, then its errors (one line overran the panel).
+      body << "<text x='" << ox + 10 << "' y='" << oy - 18 << "'>" << titles[k]
+           << "</text>\n<text x='" << ox + 10 << "' y='" << oy - 4 << "'>E_theta "
            << fmt("%.3f", r.errors.e_theta) << ", E_phi " << fmt("%.3f", r.errors.e_phi)
            << ", area " << fmt("%.3f", r.errors.area_log_rms) << "</text>\n";
       const Eigen::MatrixXd P = r.V * view.transpose();
@@ -693,6 +698,9 @@ Result<Options> parse_options(int argc, char** argv) {
     } else if (arg == "--smooth-length") {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
       MD_ASSIGN_OR_RETURN(options.smooth_length, parse_number(arg, value));
+    } else if (arg == "--normal-tie") {
+      MD_ASSIGN_OR_RETURN(const std::string value, next());
+      MD_ASSIGN_OR_RETURN(options.normal_tie, parse_number(arg, value));
     } else {
       return Error(ErrorCode::InvalidArgument, "unknown option '" + arg + "'");
     }
@@ -718,6 +726,7 @@ void print_usage(std::ostream& out) {
          "  --rigidities a,b    values swept (0 and the default are always included)\n"
          "  --pull X            ScaleAwareSettings::scale_pull (study only)\n"
          "  --smooth-length X   ScaleAwareSettings::scale_smooth_length (study only)\n"
+         "  --normal-tie X      ScaleAwareSettings::scale_normal_tie (study only; default inf)\n"
          "  --rigid-start-iterations K  SolveOptions::rigid_start_iterations\n"
          "  --iterations N      SolveOptions::max_iterations of the scale-aware runs (default 15)\n"
          "  --tolerance T       SolveOptions::tolerance of the scale-aware runs (default 1e-4)\n"

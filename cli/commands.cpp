@@ -61,7 +61,7 @@ Method:
   --method NAME             scale_aware (default), arap or laplacian (an edit spec may set it)
   --ora                     optimal rigidity approximation after the solve (scale-aware only)
   --rigidity X              scale control, X >= 0 (scale-aware only): 0 is the paper's method,
-                            larger keeps local scale closer to the handles' (default 3;
+                            larger keeps local scale closer to the handles' (default 100;
                             an edit spec may set it)
 Solver:
   --iterations N            outer iterations, the budget (default 15; an edit spec may set it)

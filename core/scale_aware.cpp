@@ -136,6 +136,13 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   if (!(settings_in.refactor_cost_ratio > 0)) {
     return Error(ErrorCode::InvalidArgument, "refactor_cost_ratio must be positive");
   }
+  if (!(settings_in.scale_pull >= 0) || !std::isfinite(settings_in.scale_pull) ||
+      !(settings_in.scale_smooth_length >= 0) || !std::isfinite(settings_in.scale_smooth_length) ||
+      !(settings_in.scale_normal_tie >= 0)) {
+    return Error(ErrorCode::InvalidArgument,
+                 "scale_pull and scale_smooth_length must be finite and >= 0, scale_normal_tie "
+                 ">= 0 (infinity allowed)");
+  }
   MD_RETURN_IF_ERROR(validate_triangle_mesh(V0_in, F_in));
   MD_ASSIGN_OR_RETURN(topology, build_topology(F_in, static_cast<int>(V0_in.rows())));
   MD_RETURN_IF_ERROR(check_constrained(constrained_in, topology, 2));
@@ -390,6 +397,7 @@ Status ScaleAwareSolver::Impl::prepare_rigidity(double rigidity) {
     ScaleControl control;
     MD_RETURN_IF_ERROR(control.build(V0, F, topology, N0, constrained, settings.scale_pull,
                                      settings.scale_smooth_length));
+    control.set_normal_tie(settings.scale_normal_tie);
     scale_control.emplace(std::move(control));
   }
   if (settings.preconditioner == StepTwoPreconditioner::BlockTrace && trace_rigid_rho != rigidity) {
@@ -742,7 +750,9 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
   const double scale2 = s.bbox_diagonal * s.bbox_diagonal;
   // The floor: an RMS corner residual of 1e-8 of the bounding box, where the solve's own
   // round-off (pcg_tolerance) leaves the energy fluctuating.
-  const double energy_floor = 1e-16 * scale2 * 3.0 * s.nf;
+  // With scale control the term and the handle weight carry a factor (1 + rho), and so does the
+  // round-off they leave.
+  const double energy_floor = 1e-16 * scale2 * 3.0 * s.nf * (1.0 + rho);
   {
     IterationInfo info;
     N = s.normals_of(x, N);

@@ -10,6 +10,7 @@
 /// measures, the fixed sparsity pattern, symbolic analysis, Laplacian factor); `solve` is per
 /// target set and warm-starts from the previous result with the cached (lagged) factorization.
 
+#include <limits>
 #include <memory>
 #include <stop_token>
 
@@ -49,6 +50,13 @@ struct ScaleAwareSettings {
   double scale_pull = 4.0;
   /// xi / sqrt(total rest area): the length over which face scales are smoothed.
   double scale_smooth_length = 0.05;
+  /// beta: how firmly each face frame R_f follows the step-one normal, as a penalty
+  /// beta A_f ||R_f N0_f - N_f||^2 beside the fit (relative to the fit's 2 A_f s_f^2 per face).
+  /// Infinity ties it exactly (R_f N0_f = N_f, only the in-plane angle free: the first design,
+  /// which keeps E_phi low but leaves area at 1.5-5x ARAP's at every rigidity); 0 frees it
+  /// (ARAP's rotation: area and E_theta fall, E_phi rises above ARAP's). 0.3 by measurement
+  /// (bench/results/rigidity_sweep.md, README "Scale control").
+  double scale_normal_tie = 0.3;
 };
 
 /// The scale-aware deformation solver for one mesh and one handle set.

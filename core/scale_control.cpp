@@ -5,8 +5,12 @@
 #include <cmath>
 #include <string>
 
+#include "core/rotation_fit.h"
+
 namespace meshdeform::core {
 namespace {
+
+constexpr double kExactTieAbove = 1e6;
 
 // An orthonormal frame [t b] of the plane with unit normal n, t along `along` when it is usable.
 Eigen::Matrix<double, 3, 2> plane_frame(const Eigen::Vector3d& n, const Eigen::Vector3d& along) {
@@ -135,6 +139,29 @@ void ScaleControl::reset() {
 }
 
 void ScaleControl::update_rotations(const Eigen::VectorXd& x, const RowPositions& N) {
+  tie_energy_ = 0;
+  // Past ~1e6 the tie term swamps the fit in M and the in-plane angle is lost to round-off
+  // (Horn's top eigenvalue becomes nearly double): such values are the exact tie in all but name.
+  if (normal_tie_ < kExactTieAbove) {
+    // A soft tie: R_f = argmax tr(R^T (s_f M3 + beta A_f N_f N0_f^T)) over SO(3), M3 = sum_k w_k
+    // e_k e0_k^T (the fit is -2 s_f tr(R^T M3) + const, the tie -2 beta A_f tr(R^T N N0^T) +
+    // const): the rotation of the polar decomposition.
+    for (int f = 0; f < nf_; ++f) {
+      Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
+      for (int k = 0; k < 3; ++k) {
+        const size_t c = 3 * static_cast<size_t>(f) + k;
+        const Eigen::Vector3d e =
+            x.segment<3>(3 * F_(f, (k + 2) % 3)) - x.segment<3>(3 * F_(f, (k + 1) % 3));
+        M.noalias() += weight_[c] * e * rest_edge_[c].transpose();
+      }
+      const Eigen::Vector3d n = N.row(f).transpose();
+      const Eigen::Vector3d n0 = N0_.row(f).transpose();
+      M = s_(f) * M + (normal_tie_ * area_(f)) * n * n0.transpose();
+      rotation_[f] = closest_rotation(M);
+      tie_energy_ += normal_tie_ * area_(f) * (rotation_[f] * n0 - n).squaredNorm();
+    }
+    return;
+  }
   for (int f = 0; f < nf_; ++f) {
     Eigen::Vector3d p[3];
     for (int k = 0; k < 3; ++k) p[k] = x.segment<3>(3 * F_(f, k));
@@ -265,7 +292,7 @@ double ScaleControl::energy(const Eigen::VectorXd& x) const {
   }
   double pull = 0;
   for (int f = 0; f < nf_; ++f) pull += area_(f) * (s_(f) - s_bar_) * (s_(f) - s_bar_);
-  return fit + smooth + pull_ * pull;
+  return fit + smooth + pull_ * pull + tie_energy_;
 }
 
 }  // namespace meshdeform::core

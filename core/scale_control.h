@@ -24,6 +24,7 @@
 ///   vertices:  adds rho (L_cot (x) I3) to step two's matrix and rho * fit targets to its rhs.
 
 #include <Eigen/Core>
+#include <limits>
 #include <utility>
 #include <vector>
 
@@ -66,6 +67,9 @@ class ScaleControl {
   void update_rotations(const Eigen::VectorXd& x, const RowPositions& N);
   /// Scale step: the exact minimiser over (s, s_bar) given x and the rotations.
   void update_scales(const Eigen::VectorXd& x);
+  /// beta >= 0 (or infinity, the default: R_f N0_f = N_f exactly): the frames' pull toward the
+  /// step-one normals, beta A_f ||R_f N0_f - N_f||^2, added to the energy.
+  void set_normal_tie(double beta) { normal_tie_ = beta; }
   /// Resets s = s_bar = 1, R = identity.
   void reset();
 
@@ -120,6 +124,8 @@ class ScaleControl {
   std::vector<Eigen::Matrix3d> rotation_;
   Eigen::VectorXd s_;
   double s_bar_ = 1;
+  double normal_tie_ = std::numeric_limits<double>::infinity();
+  double tie_energy_ = 0;  // beta sum_f A_f ||R_f N0_f - N_f||^2 at the last R-step
   Eigen::VectorXd fit_b_;  // #F: tr(R_f^T sum_k w_k e_k e0_k^T) at the last R-step
 };
 

@@ -74,7 +74,7 @@ it out of the process list):
       spec (see core/io/deform_spec.h) sets its own groups (fixed first, then one per handle
       entry) when they differ from the session's. METHOD: scale_aware, arap, laplacian.
       --rigidity X: scale control of the scale-aware method, 0..10000 (0 = the paper's pure
-      method; default: the session's, set by create --rigidity, else 3).
+      method; default: the session's, set by create --rigidity, else 100).
   watch --session ID --token T [--max-updates N] [--seconds S]
       Prints one JSON line per committed revision (the first is a snapshot) until the session
       closes, N updates were printed or S seconds passed.
