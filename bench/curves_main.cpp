@@ -18,6 +18,8 @@
 
 #include "bench/bench_config.h"
 #include "core/curve2d.h"
+#include "core/curve2d_svg.h"
+#include "core/koch.h"
 #include "core/status.h"
 
 namespace meshdeform::bench {

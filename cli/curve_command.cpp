@@ -13,6 +13,8 @@
 #include "cli/commands.h"
 #include "cli/paths.h"
 #include "core/curve2d.h"
+#include "core/curve2d_svg.h"
+#include "core/koch.h"
 #include "core/status.h"
 
 namespace meshdeform::cli {

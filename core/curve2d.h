@@ -2,8 +2,9 @@
 /// @file curve2d.h
 /// 2D curve editing (paper Section 6.1, Fig. 9; docs/algorithm.md section 7): polylines, their
 /// scale-invariant measures (turning angles and length ratios), the scale-aware curve solver and
-/// two baselines (Laplacian editing and ARAP) behind one interface, the Koch-curve example and an
-/// SVG figure of the comparison.
+/// two baselines (Laplacian editing and ARAP) behind one interface, and the edit they share.
+/// The Koch-curve example is in core/koch.h, the SVG figure of the comparison in
+/// core/curve2d_svg.h.
 ///
 /// In 2D the scale-aware equations e_i = l_i R(theta_i) e_{i-1} (paper Eq. 1) need no normals, so
 /// the method is ONE constant linear least-squares problem: factor once per handle set, solve once
@@ -153,12 +154,6 @@ class ScaleAwareCurveSolver {
                                                const Points2& targets,
                                                const CurveOptions& options = {});
 
-/// The Koch curve of a level: an open polyline from (0,0) to (1,0) with 4^level + 1 points
-/// (level 0: the segment; level 4: 257 points), bumps pointing up (+y).
-/// @param[in] level  0 .. 10.
-/// @return the curve; InvalidArgument for a level outside [0, 10] (4^10 segments is the cap).
-[[nodiscard]] Result<Polyline> make_koch_curve(int level);
-
 /// An edit: a rest curve, the constrained points and their targets.
 struct CurveEdit {
   Polyline rest;
@@ -166,32 +161,5 @@ struct CurveEdit {
   Points2 targets;              ///< #C x 2, row j for constrained(j)
   int handle = -1;              ///< the moved point (drawn red); the others are fixed (green)
 };
-
-/// The paper's Fig. 9 edit: the Koch curve of `level` with both end points fixed and the middle
-/// point pulled up by `pull` (in curve units; the curve spans x in [0, 1], so 0.3 is 0.3 of its
-/// width). The middle point is index n/2 = 2 * 4^(level-1), the middle by index and by arc length
-/// (all segments have the same length); by symmetry it is the apex (1/2, sqrt(3)/6) of the
-/// central (largest) bump at every level >= 1. Constrained = {0, n/2, n}, in that order.
-/// @param[in] level  1 .. 10.
-/// @param[in] pull   finite upward displacement of the middle point.
-/// @return the edit; InvalidArgument for a level outside [1, 10] (level 0 has no middle point) or
-///         a non-finite pull.
-[[nodiscard]] Result<CurveEdit> make_koch_edit(int level, double pull = 0.3);
-
-/// One panel of the comparison figure.
-struct CurvePanel {
-  std::string title;   ///< e.g. "ARAP"
-  Points2 P;           ///< #P x 2 positions (same connectivity as the edit's rest curve)
-  double e_theta = 0;  ///< printed in the caption
-};
-
-/// A self-contained SVG (Fig. 9-like): the rest curve with its fixed points in green and the
-/// handle in red (at rest, with an arrow to its target), then one panel per result side by side
-/// with the constrained targets marked and "E_theta = ... rad" in the caption. All panels share
-/// one scale. Every curve is one <polyline> element: 1 + panels.size() in all.
-/// @param[in] edit    the edit (rest curve, constrained points, targets).
-/// @param[in] panels  the results to draw.
-/// @return the SVG document text.
-std::string curve_comparison_svg(const CurveEdit& edit, const std::vector<CurvePanel>& panels);
 
 }  // namespace meshdeform::core

@@ -11,11 +11,8 @@
 
 namespace meshdeform::core {
 
-namespace {
-
-// Symmetric #V x #V Laplacian with positive diagonal (L V = sum_j w_ij (v_i - v_j)).
-SparseMatrix build_laplacian(const Positions& V, const Triangles& F, const MeshTopology& topology,
-                             LaplacianWeights weights) {
+SparseMatrix laplacian_matrix(const Positions& V, const Triangles& F, const MeshTopology& topology,
+                              LaplacianWeights weights) {
   const int n = topology.vertex_count;
   std::vector<Eigen::Triplet<double>> entries;
   if (weights == LaplacianWeights::Uniform) {
@@ -60,8 +57,6 @@ SparseMatrix build_laplacian(const Positions& V, const Triangles& F, const MeshT
   return L;
 }
 
-}  // namespace
-
 struct LaplacianEditor::Impl {
   SparseCholesky cholesky;
   Eigen::MatrixXd rhs_rest;  // L^T L V0: the detail term of the right-hand side
@@ -84,7 +79,7 @@ Result<LaplacianEditor> LaplacianEditor::create(const Positions& V0, const Trian
   }
   MD_RETURN_IF_ERROR(check_constrained(constrained, topology, 1));
   auto impl = std::make_unique<Impl>();
-  const SparseMatrix L = build_laplacian(V0, F, topology, weights);
+  const SparseMatrix L = laplacian_matrix(V0, F, topology, weights);
   SparseMatrix A = SparseMatrix(L.transpose()) * L;
   for (Eigen::Index j = 0; j < constrained.size(); ++j) {
     A.coeffRef(constrained(j), constrained(j)) += lambda;

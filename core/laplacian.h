@@ -7,6 +7,7 @@
 #include <memory>
 
 #include <Eigen/Core>
+#include <Eigen/SparseCore>
 
 #include "core/mesh_data.h"
 #include "core/status.h"
@@ -18,6 +19,17 @@ enum class LaplacianWeights {
   Uniform,    ///< graph Laplacian
   Cotangent,  ///< cotangent weights (clamped non-negative per edge for a positive definite system)
 };
+
+/// The #V x #V Laplacian that LaplacianEditor uses: symmetric, positive diagonal, rows summing to
+/// zero, (L V)_i = sum_j w_ij (v_i - v_j). Uniform: w_ij = 1 per neighbour. Cotangent:
+/// w_ij = (cot alpha_ij + cot beta_ij) / 2 (one cotangent on a boundary edge), each raised to at
+/// least 1e-3 times the mean |w| over the edges so that no weight is negative.
+/// @param[in] V         #V x 3 positions the weights are measured on.
+/// @param[in] F         #F x 3 triangles.
+/// @param[in] topology  build_topology(F, #V).
+Eigen::SparseMatrix<double> laplacian_matrix(const Positions& V, const Triangles& F,
+                                             const MeshTopology& topology,
+                                             LaplacianWeights weights);
 
 /// Prefactored Laplacian editing for one handle set.
 class LaplacianEditor {

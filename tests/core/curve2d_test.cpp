@@ -9,6 +9,9 @@
 #include <string>
 #include <vector>
 
+#include "core/curve2d_svg.h"
+#include "core/koch.h"
+
 namespace meshdeform::core {
 namespace {
 

@@ -1,0 +1,211 @@
+// Tests of the CHOLMOD wrapper (core/sparse_cholesky.h): solves of random sparse SPD systems
+// against Eigen's SimplicialLDLT, several right-hand sides at once, numeric refactorization on the
+// same pattern (supernodal and with simplicial solves), a NumericalFailure status (not a crash)
+// for indefinite and singular matrices with recovery afterwards, and moves.
+#include "core/sparse_cholesky.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/SparseCholesky>
+#include <random>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace meshdeform::core {
+namespace {
+
+/// A random sparse SPD matrix: M^T M + shift I with M sparse (about `per_row` entries a row)
+/// plus a band so that the factor has fill. Same seed and per_row: same pattern; `shift` and
+/// `value_seed` change only the values.
+SparseMatrix random_spd(int n, int per_row, double shift, unsigned pattern_seed,
+                        unsigned value_seed) {
+  std::mt19937 pattern_rng(pattern_seed);
+  std::mt19937 value_rng(value_seed);
+  std::uniform_int_distribution<int> column(0, n - 1);
+  std::uniform_real_distribution<double> value(-1.0, 1.0);
+  std::vector<Eigen::Triplet<double>> entries;
+  for (int i = 0; i < n; ++i) {
+    entries.emplace_back(i, i, 1.0 + value(value_rng));
+    if (i + 1 < n) entries.emplace_back(i, i + 1, value(value_rng));
+    for (int k = 0; k < per_row; ++k)
+      entries.emplace_back(i, column(pattern_rng), value(value_rng));
+  }
+  SparseMatrix M(n, n);
+  M.setFromTriplets(entries.begin(), entries.end());
+  SparseMatrix I(n, n);
+  I.setIdentity();
+  SparseMatrix A = SparseMatrix(M.transpose()) * M + shift * I;
+  A.makeCompressed();
+  return A;
+}
+
+Eigen::MatrixXd random_rhs(int n, int columns, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> value(-1.0, 1.0);
+  Eigen::MatrixXd b(n, columns);
+  for (Eigen::Index i = 0; i < b.size(); ++i) b.data()[i] = value(rng);
+  return b;
+}
+
+double relative_residual(const SparseMatrix& A, const Eigen::MatrixXd& x,
+                         const Eigen::MatrixXd& b) {
+  return (A * x - b).norm() / b.norm();
+}
+
+Eigen::MatrixXd ldlt_solve(const SparseMatrix& A, const Eigen::MatrixXd& b) {
+  Eigen::SimplicialLDLT<SparseMatrix> ldlt(A);
+  EXPECT_EQ(ldlt.info(), Eigen::Success);
+  return ldlt.solve(b);
+}
+
+SparseMatrix diagonal(const std::vector<double>& d) {
+  SparseMatrix A(static_cast<int>(d.size()), static_cast<int>(d.size()));
+  for (size_t i = 0; i < d.size(); ++i) A.insert(int(i), int(i)) = d[i];
+  A.makeCompressed();
+  return A;
+}
+
+TEST(SparseCholesky, SolvesARandomSpdSystemLikeSimplicialLdlt) {
+  for (const int n : {50, 400}) {
+    SCOPED_TRACE(n);
+    const SparseMatrix A = random_spd(n, 3, 0.1, 1, 2);
+    const Eigen::MatrixXd b = random_rhs(n, 1, 3);
+    SparseCholesky cholesky;
+    EXPECT_FALSE(cholesky.is_factorized());
+    ASSERT_TRUE(cholesky.analyze(A).ok());
+    EXPECT_FALSE(cholesky.is_factorized());
+    EXPECT_GT(cholesky.factor_flops(), 0.0);
+    // Forward and back substitution touch every entry of L, which holds A's lower triangle.
+    const SparseMatrix lower = A.triangularView<Eigen::Lower>();
+    EXPECT_GE(cholesky.solve_flops(), 4.0 * static_cast<double>(lower.nonZeros()));
+    ASSERT_TRUE(cholesky.factorize(A).ok());
+    EXPECT_TRUE(cholesky.is_factorized());
+    const Eigen::MatrixXd x = cholesky.solve(b);
+    EXPECT_LT(relative_residual(A, x, b), 1e-12);
+    const Eigen::MatrixXd reference = ldlt_solve(A, b);
+    EXPECT_LT((x - reference).norm(), 1e-9 * reference.norm());
+  }
+}
+
+TEST(SparseCholesky, SolvesSeveralRightHandSidesAtOnce) {
+  const int n = 300;
+  const SparseMatrix A = random_spd(n, 4, 0.05, 5, 6);
+  const Eigen::MatrixXd B = random_rhs(n, 4, 7);
+  SparseCholesky cholesky;
+  ASSERT_TRUE(cholesky.factorize(A).ok());  // analyses on its own when analyze() was not called
+  const Eigen::MatrixXd X = cholesky.solve(B);
+  ASSERT_EQ(X.rows(), n);
+  ASSERT_EQ(X.cols(), 4);
+  EXPECT_LT(relative_residual(A, X, B), 1e-12);
+  for (int c = 0; c < 4; ++c) {
+    SCOPED_TRACE(c);
+    const Eigen::MatrixXd single = cholesky.solve(B.col(c));
+    EXPECT_LT((X.col(c) - single).norm(), 1e-12 * single.norm());
+  }
+}
+
+class SparseCholeskyRefactor : public ::testing::TestWithParam<bool> {};
+
+TEST_P(SparseCholeskyRefactor, RefactorsNewValuesOnTheSamePattern) {
+  const bool simplicial_solves = GetParam();
+  const int n = 250;
+  const SparseMatrix A1 = random_spd(n, 3, 0.1, 11, 12);
+  const SparseMatrix A2 = random_spd(n, 3, 2.0, 11, 13);  // same pattern, other values
+  ASSERT_EQ(A1.nonZeros(), A2.nonZeros());
+  ASSERT_GT((Eigen::MatrixXd(A1) - Eigen::MatrixXd(A2)).norm(), 1.0);
+  const Eigen::MatrixXd b = random_rhs(n, 3, 14);
+
+  SparseCholesky cholesky;
+  cholesky.set_simplicial_solves(simplicial_solves);
+  ASSERT_TRUE(cholesky.analyze(A1).ok());
+  for (int round = 0; round < 2; ++round) {
+    SCOPED_TRACE(round);
+    ASSERT_TRUE(cholesky.factorize(A1).ok());
+    const Eigen::MatrixXd x1 = cholesky.solve(b);
+    EXPECT_LT(relative_residual(A1, x1, b), 1e-12);
+    ASSERT_TRUE(cholesky.factorize(A2).ok());
+    const Eigen::MatrixXd x2 = cholesky.solve(b);
+    EXPECT_LT(relative_residual(A2, x2, b), 1e-12);
+    EXPECT_LT((x2 - ldlt_solve(A2, b)).norm(), 1e-9 * x2.norm());
+    EXPECT_GT((x1 - x2).norm(), 0.1 * x2.norm());  // the new values were used
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(SupernodalAndSimplicialSolves, SparseCholeskyRefactor, ::testing::Bool(),
+                         [](const auto& info) {
+                           return info.param ? "SimplicialSolves" : "Supernodal";
+                         });
+
+TEST(SparseCholesky, IndefiniteOrSingularMatrixIsANumericalFailure) {
+  const int n = 120;
+  const SparseMatrix spd = random_spd(n, 3, 0.1, 21, 22);
+  SparseMatrix shift(n, n);
+  shift.setIdentity();
+  // Shifted by its median eigenvalue: half the spectrum negative, same pattern as spd.
+  const Eigen::VectorXd eigenvalues =
+      Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(Eigen::MatrixXd(spd)).eigenvalues();
+  const double median = eigenvalues(n / 2);
+  ASSERT_GT(eigenvalues(n / 2 + 1), median);
+  const SparseMatrix indefinite = spd - median * shift;
+  const std::vector<std::pair<const char*, SparseMatrix>> bad = {
+      {"negative_definite", SparseMatrix(-1.0 * spd)},
+      {"indefinite", indefinite},
+      {"singular_diagonal", diagonal({2.0, 1.0, 0.0, 3.0})},
+      {"one_negative_pivot", diagonal({2.0, 1.0, -1e-3, 3.0})},
+  };
+  for (const auto& [name, A] : bad) {
+    SCOPED_TRACE(name);
+    for (const bool simplicial_solves : {false, true}) {
+      SparseCholesky cholesky;
+      cholesky.set_simplicial_solves(simplicial_solves);
+      const Status s = cholesky.factorize(A);
+      ASSERT_FALSE(s.ok());
+      EXPECT_EQ(s.code(), ErrorCode::NumericalFailure);
+      EXPECT_NE(s.message().find("not positive definite"), std::string::npos) << s.message();
+      EXPECT_FALSE(cholesky.is_factorized());
+    }
+  }
+  // The same object recovers on an SPD matrix of the same pattern.
+  SparseCholesky cholesky;
+  ASSERT_TRUE(cholesky.analyze(spd).ok());
+  ASSERT_FALSE(cholesky.factorize(indefinite).ok());
+  ASSERT_TRUE(cholesky.factorize(spd).ok());
+  EXPECT_TRUE(cholesky.is_factorized());
+  const Eigen::MatrixXd b = random_rhs(n, 1, 23);
+  EXPECT_LT(relative_residual(spd, cholesky.solve(b), b), 1e-12);
+}
+
+TEST(SparseCholesky, MovesKeepTheFactor) {
+  const int n = 150;
+  const SparseMatrix A = random_spd(n, 3, 0.1, 31, 32);
+  const SparseMatrix A_other = random_spd(n, 3, 1.0, 31, 34);  // same pattern, other values
+  const Eigen::MatrixXd b = random_rhs(n, 2, 35);
+  SparseCholesky original;
+  ASSERT_TRUE(original.factorize(A).ok());
+  const Eigen::MatrixXd expected = original.solve(b);
+
+  SparseCholesky constructed(std::move(original));
+  EXPECT_TRUE(constructed.is_factorized());
+  EXPECT_EQ(constructed.solve(b), expected);
+
+  SparseCholesky assigned;
+  ASSERT_TRUE(assigned.factorize(A_other).ok());
+  assigned = std::move(constructed);
+  EXPECT_TRUE(assigned.is_factorized());
+  EXPECT_EQ(assigned.solve(b), expected);
+
+  // A moved-to object refactors as usual.
+  ASSERT_TRUE(assigned.factorize(A_other).ok());
+  EXPECT_LT(relative_residual(A_other, assigned.solve(b), b), 1e-12);
+
+  // Objects in a vector survive reallocation (moves) with their factors.
+  std::vector<SparseCholesky> many(1);
+  ASSERT_TRUE(many[0].factorize(A).ok());
+  for (int k = 0; k < 8; ++k) many.emplace_back();
+  EXPECT_EQ(many[0].solve(b), expected);
+}
+
+}  // namespace
+}  // namespace meshdeform::core
