@@ -14,6 +14,8 @@
 #include <utility>
 #include <vector>
 
+#include "core/format_number.h"
+
 namespace meshdeform::core {
 namespace {
 
@@ -31,12 +33,6 @@ constexpr double kZeroLengthRelative = 1e-12;
 std::string fmt_point(double x, double y) {
   char buffer[96];
   std::snprintf(buffer, sizeof(buffer), "(%.17g, %.17g)", x, y);
-  return buffer;
-}
-
-std::string fmt_num(double value, const char* format) {
-  char buffer[64];
-  std::snprintf(buffer, sizeof(buffer), format, value);
   return buffer;
 }
 
@@ -80,7 +76,7 @@ double wrap_angle(double angle) {
 Status validate_options(const CurveOptions& options) {
   if (!std::isfinite(options.lambda) || options.lambda <= 0) {
     return Error(ErrorCode::InvalidArgument,
-                 "lambda must be positive and finite, got " + fmt_num(options.lambda, "%g"));
+                 "lambda must be positive and finite, got " + format_number(options.lambda, "%g"));
   }
   if (options.max_iterations < 0) {
     return Error(ErrorCode::InvalidArgument,
@@ -88,7 +84,7 @@ Status validate_options(const CurveOptions& options) {
   }
   if (!(options.tolerance >= 0)) {
     return Error(ErrorCode::InvalidArgument,
-                 "tolerance must be >= 0, got " + fmt_num(options.tolerance, "%g"));
+                 "tolerance must be >= 0, got " + format_number(options.tolerance, "%g"));
   }
   return Status::success();
 }

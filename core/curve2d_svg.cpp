@@ -6,14 +6,10 @@
 #include <utility>
 #include <vector>
 
+#include "core/format_number.h"
+
 namespace meshdeform::core {
 namespace {
-
-std::string fmt_num(double value, const char* format) {
-  char buffer[64];
-  std::snprintf(buffer, sizeof(buffer), format, value);
-  return buffer;
-}
 
 std::string xml_escape(const std::string& text) {
   std::string out;
@@ -69,22 +65,22 @@ std::string curve_comparison_svg(const CurveEdit& edit, const std::vector<CurveP
                     "\" stroke-width=\"1.2\" stroke-linejoin=\"round\" points=\"";
     for (Eigen::Index i = 0; i < P.rows(); ++i) {
       const auto [px, py] = xy(panel, P(i, 0), P(i, 1));
-      s += fmt_num(px, "%.2f") + "," + fmt_num(py, "%.2f") + " ";
+      s += format_number(px, "%.2f") + "," + format_number(py, "%.2f") + " ";
     }
     if (edit.rest.closed && P.rows() > 0) {
       const auto [px, py] = xy(panel, P(0, 0), P(0, 1));
-      s += fmt_num(px, "%.2f") + "," + fmt_num(py, "%.2f");
+      s += format_number(px, "%.2f") + "," + format_number(py, "%.2f");
     }
     return s + "\"/>\n";
   };
   auto circle = [&](size_t panel, double x, double y, const char* fill, const char* stroke) {
     const auto [px, py] = xy(panel, x, y);
-    return "  <circle cx=\"" + fmt_num(px, "%.2f") + "\" cy=\"" + fmt_num(py, "%.2f") +
+    return "  <circle cx=\"" + format_number(px, "%.2f") + "\" cy=\"" + format_number(py, "%.2f") +
            "\" r=\"4\" fill=\"" + fill + "\" stroke=\"" + stroke + "\" stroke-width=\"1.5\"/>\n";
   };
   auto text = [&](size_t panel, double y, const std::string& content, int size) {
     const double cx = panel_w * (static_cast<double>(panel) + 0.5);
-    return "  <text x=\"" + fmt_num(cx, "%.1f") + "\" y=\"" + fmt_num(y, "%.1f") +
+    return "  <text x=\"" + format_number(cx, "%.1f") + "\" y=\"" + format_number(y, "%.1f") +
            "\" text-anchor=\"middle\" font-family=\"sans-serif\" font-size=\"" +
            std::to_string(size) + "\">" + content + "</text>\n";
   };
@@ -101,9 +97,9 @@ std::string curve_comparison_svg(const CurveEdit& edit, const std::vector<CurveP
 
   std::string svg;
   svg += "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n";
-  svg += "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" + fmt_num(total_w, "%.0f") +
-         "\" height=\"" + fmt_num(panel_h, "%.0f") + "\" viewBox=\"0 0 " +
-         fmt_num(total_w, "%.2f") + " " + fmt_num(panel_h, "%.2f") + "\">\n";
+  svg += "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" + format_number(total_w, "%.0f") +
+         "\" height=\"" + format_number(panel_h, "%.0f") + "\" viewBox=\"0 0 " +
+         format_number(total_w, "%.2f") + " " + format_number(panel_h, "%.2f") + "\">\n";
   svg += "  <title>2D curve editing (Liu et al., Fig. 9): original, then each method</title>\n";
   svg += "  <rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n";
   const double caption_y = panel_h - kCaption / 2 + 4;
@@ -115,8 +111,8 @@ std::string curve_comparison_svg(const CurveEdit& edit, const std::vector<CurveP
     if (edit.constrained(j) != edit.handle) continue;
     const auto [x0, y0] = xy(0, edit.rest.P(edit.handle, 0), edit.rest.P(edit.handle, 1));
     const auto [x1, y1] = xy(0, edit.targets(j, 0), edit.targets(j, 1));
-    svg += "  <line x1=\"" + fmt_num(x0, "%.2f") + "\" y1=\"" + fmt_num(y0, "%.2f") + "\" x2=\"" +
-           fmt_num(x1, "%.2f") + "\" y2=\"" + fmt_num(y1, "%.2f") +
+    svg += "  <line x1=\"" + format_number(x0, "%.2f") + "\" y1=\"" + format_number(y0, "%.2f") + "\" x2=\"" +
+           format_number(x1, "%.2f") + "\" y2=\"" + format_number(y1, "%.2f") +
            "\" stroke=\"#d62728\" stroke-width=\"1.5\" stroke-dasharray=\"4 3\"/>\n";
     svg += circle(0, edit.targets(j, 0), edit.targets(j, 1), "none", "#d62728");
   }
@@ -129,15 +125,15 @@ std::string curve_comparison_svg(const CurveEdit& edit, const std::vector<CurveP
     std::string label = "(";
     label += static_cast<char>('b' + k % 25);
     label += ") ";
-    svg += "  <line x1=\"" + fmt_num(panel_w * static_cast<double>(panel), "%.1f") +
-           "\" y1=\"0\" x2=\"" + fmt_num(panel_w * static_cast<double>(panel), "%.1f") +
-           "\" y2=\"" + fmt_num(panel_h, "%.1f") + "\" stroke=\"#cccccc\"/>\n";
+    svg += "  <line x1=\"" + format_number(panel_w * static_cast<double>(panel), "%.1f") +
+           "\" y1=\"0\" x2=\"" + format_number(panel_w * static_cast<double>(panel), "%.1f") +
+           "\" y2=\"" + format_number(panel_h, "%.1f") + "\" stroke=\"#cccccc\"/>\n";
     svg += text(panel, kTitle - 8, label + xml_escape(panels[k].title), 15);
     svg += polyline(panel, panels[k].P, "#1f3b73");
     svg += constraint_marks(panel, false);
     svg += text(panel, caption_y,
                 "E<tspan font-style=\"italic\">&#952;</tspan> = " +
-                    fmt_num(panels[k].e_theta, "%.4f") + " rad",
+                    format_number(panels[k].e_theta, "%.4f") + " rad",
                 13);
   }
   svg += "</svg>\n";

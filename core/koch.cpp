@@ -6,16 +6,12 @@
 #include <utility>
 #include <vector>
 
+#include "core/format_number.h"
+
 namespace meshdeform::core {
 namespace {
 
 constexpr int kMaxKochLevel = 10;
-
-std::string fmt_num(double value, const char* format) {
-  char buffer[64];
-  std::snprintf(buffer, sizeof(buffer), format, value);
-  return buffer;
-}
 
 }  // namespace
 
@@ -59,7 +55,7 @@ Result<CurveEdit> make_koch_edit(int level, double pull) {
                      std::to_string(level));
   }
   if (!std::isfinite(pull)) {
-    return Error(ErrorCode::InvalidArgument, "pull must be finite, got " + fmt_num(pull, "%g"));
+    return Error(ErrorCode::InvalidArgument, "pull must be finite, got " + format_number(pull, "%g"));
   }
   CurveEdit edit;
   MD_ASSIGN_OR_RETURN(edit.rest, make_koch_curve(level));
