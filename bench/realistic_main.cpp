@@ -960,41 +960,32 @@ Status run(int argc, char** argv) {
       }
       row.methods[method] = r;
     }
-    const MethodResult* plain_arap = find(row, "arap");
-    const MethodResult* fast_arap = find(row, "arap_anderson");
-    if (plain_arap && fast_arap && plain_arap->first.contains("converge_history")) {
-      const double target = plain_arap->first["converge_history"].back()["energy"].get<double>();
-      const json& history = fast_arap->first["converge_history"];
+    // Accelerated against plain: the first iteration (and its median time over the rounds) at
+    // which the accelerated run reaches the energy the plain run ended `timeline` with.
+    auto reaches_plain_energy = [&](const char* plain_name, const char* fast_name,
+                                    const char* timeline, int& iteration, double& seconds) {
+      const MethodResult* plain = find(row, plain_name);
+      const MethodResult* fast = find(row, fast_name);
+      if (!plain || !fast || !plain->first.contains(timeline) || plain->first[timeline].empty()) {
+        return;
+      }
+      const double target = plain->first[timeline].back()["energy"].get<double>();
+      const json& history = fast->first[timeline];
       for (size_t k = 0; k < history.size(); ++k) {
         if (history[k]["energy"].get<double>() <= target) {
-          row.aa_equal_energy_iteration = static_cast<int>(k);
+          iteration = static_cast<int>(k);
           std::vector<double> times;
-          for (const json& run : runs["arap_anderson"]) {
-            times.push_back(run["converge_history"][k]["elapsed"].get<double>());
-          }
-          row.aa_equal_energy_s = median(times);
-          break;
+          for (const json& run : runs[fast_name]) times.push_back(run[timeline][k]["elapsed"].get<double>());
+          seconds = median(times);
+          return;
         }
       }
-    }
-    // Accelerated scale-aware against the plain one's energy after the timed budget.
-    const MethodResult* plain_sa = find(row, "scale_aware");
-    const MethodResult* fast_sa = find(row, "scale_aware_anderson");
-    if (plain_sa && fast_sa && !plain_sa->first["history"].empty()) {
-      const double target = plain_sa->first["history"].back()["energy"].get<double>();
-      const json& history = fast_sa->first["history"];
-      for (size_t k = 0; k < history.size(); ++k) {
-        if (history[k]["energy"].get<double>() <= target) {
-          row.sa_aa_equal_energy_iteration = static_cast<int>(k);
-          std::vector<double> times;
-          for (const json& run : runs["scale_aware_anderson"]) {
-            times.push_back(run["history"][k]["elapsed"].get<double>());
-          }
-          row.sa_aa_equal_energy_s = median(times);
-          break;
-        }
-      }
-    }
+    };
+    // ARAP: against plain ARAP's convergence run; scale-aware: against the timed budget.
+    reaches_plain_energy("arap", "arap_anderson", "converge_history", row.aa_equal_energy_iteration,
+                         row.aa_equal_energy_s);
+    reaches_plain_energy("scale_aware", "scale_aware_anderson", "history",
+                         row.sa_aa_equal_energy_iteration, row.sa_aa_equal_energy_s);
     if (const MethodResult* cgal = find(row, "cgal")) {
       row.bar_theta = cgal->first["converged_errors"]["e_theta"].get<double>();
       row.bar_phi = cgal->first["converged_errors"]["e_phi"].get<double>();

@@ -7,7 +7,7 @@ import assert from "node:assert/strict";
 import { mkdtempSync, writeFileSync } from "node:fs";
 import { tmpdir } from "node:os";
 import path from "node:path";
-import { artifacts, bboxDiag, hook, newPage as openPage, poll, startAll, STEP_MS, withTimeout } from "./harness.mjs";
+import { artifacts, bboxDiag, hook, newPage as openPage, poll, settle, startAll, STEP_MS, withTimeout } from "./harness.mjs";
 
 let env;
 const newPage = (url) => openPage(env.browser, url);
@@ -140,17 +140,9 @@ test("viewer end to end", { timeout: 120_000 }, async (t) => {
   await t.test("(d2) the scale-control slider re-solves live; the area heat map shows scale", async () => {
     await editor.locator("#error-close").click();
     assert.equal(await editor.locator('[data-testid="rigidity"]').isDisabled(), false);
-    // Settles: waits (bounded) until no new revision arrived for a while, then reads the area.
+    // Settles (bounded: no new revision for a while), then reads the area.
     const settledArea = async () => {
-      await withTimeout((async () => {
-        let last = -1, same = 0;
-        while (same < 6) {
-          const r = await hook(editor, () => window.__meshdeform.revision);
-          same = r === last ? same + 1 : 0;
-          last = r;
-          await editor.waitForTimeout(250);
-        }
-      })(), STEP_MS, "revisions settle");
+      await settle(editor);
       return Number(await editor.locator("#metric-area").textContent());
     };
     const setStep = async (step) => {
