@@ -96,8 +96,8 @@ class DeformationService {
   [[nodiscard]] Result<DeformResult> move_handles(const SessionId& id, const Token& edit_token,
                                                   MoveRequest request, std::stop_token stop = {});
 
-  /// Serialises the mesh at `revision` (default: current). Only the newest
-  /// ServiceOptions::kept_revisions revisions are kept.
+  /// Serialises the mesh at `revision` (default: current). Revision 0 (the rest mesh) is always
+  /// kept; of the others, the newest ServiceOptions::kept_revisions.
   /// @return the bytes (GLB/glTF float32, OBJ/OFF/PLY full precision, STL float32); NotFound
   ///         for an unknown session or a revision not kept (naming the kept range);
   ///         PermissionDenied for a wrong token; InvalidArgument if the format cannot hold it.

@@ -73,6 +73,7 @@ Result<std::shared_ptr<Session>> Session::create(SessionId id, Token edit_token,
   auto rest = std::make_shared<DeformResult>();
   rest->revision = 0;
   rest->positions = std::make_shared<const Positions>(session->rest_.V);
+  session->rest_positions_ = rest->positions;
   rest->changed_positions.resize(0, 3);
   session->history_.push_back(std::move(rest));
   session->update_estimate();
@@ -650,13 +651,14 @@ std::uint64_t Session::revision() const {
 
 Result<std::shared_ptr<const Positions>> Session::positions_at(
     std::optional<std::uint64_t> revision) const {
+  if (revision && *revision == 0) return rest_positions_;
   std::lock_guard lock(state_mutex_);
   if (!revision) return history_.back()->positions;
   for (const auto& entry : history_) {
     if (entry->revision == *revision) return entry->positions;
   }
   return Error(ErrorCode::NotFound, "revision " + std::to_string(*revision) +
-                                        " is not kept (kept: " +
+                                        " is not kept (kept: 0 and " +
                                         std::to_string(history_.front()->revision) + ".." +
                                         std::to_string(history_.back()->revision) + ")");
 }

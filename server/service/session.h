@@ -128,7 +128,9 @@ class Session : public std::enable_shared_from_this<Session> {
   bool has_queued_edits();
 
   SessionInfo info() const;
-  /// Positions at `revision` (default: the current one).
+  /// Positions at `revision` (default: the current one). Revision 0, the rest mesh, is always
+  /// kept (a late watcher or a reopened link compares against it); of the others the newest
+  /// ServiceOptions::kept_revisions.
   /// @return NotFound naming the kept range for a revision that is not (or no longer) kept.
   [[nodiscard]] Result<std::shared_ptr<const Positions>> positions_at(
       std::optional<std::uint64_t> revision) const;
@@ -209,6 +211,7 @@ class Session : public std::enable_shared_from_this<Session> {
   SessionId id_;
   Token edit_token_, view_token_;
   MeshData rest_;
+  std::shared_ptr<const Positions> rest_positions_;  ///< revision 0, always kept
   core::MeshTopology topology_;
   core::Measures rest_measures_;
   int boundary_loops_ = 0;

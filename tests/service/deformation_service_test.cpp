@@ -367,6 +367,9 @@ TEST(GetMeshTest, CurrentAndKeptRevisions) {
   options.kept_revisions = 2;
   DeformationService service(options);
   Fixture f = create_with_handles(service, "cylinder_small");
+  Result<std::string> rest_before =
+      service.get_mesh(f.created.id, f.created.view_token, io::MeshFormat::Obj, 0);
+  ASSERT_TRUE(rest_before.ok()) << message_of(rest_before);
   Result<DeformResult> last = Status(ErrorCode::Internal, "unset");
   for (int step = 1; step <= 3; ++step) {
     last = service.move_handles(f.created.id, f.created.edit_token, bend_move(10.0 * step));
@@ -386,7 +389,15 @@ TEST(GetMeshTest, CurrentAndKeptRevisions) {
   ASSERT_TRUE(glb_back.ok()) << message_of(glb_back);
   EXPECT_LE((glb_back->V - *last->positions).cwiseAbs().maxCoeff(), 1e-6);  // float32
   expect_code(service.get_mesh(f.created.id, f.created.view_token, io::MeshFormat::Obj, 1).status(),
-              ErrorCode::NotFound, "kept: 2..3");
+              ErrorCode::NotFound, "kept: 0 and 2..3");
+  // Revision 0, the rest mesh, is always kept: a late watcher or a reopened link compares
+  // against it (the viewer's heat map).
+  Result<std::string> rest = service.get_mesh(f.created.id, f.created.view_token, io::MeshFormat::Obj, 0);
+  ASSERT_TRUE(rest.ok()) << message_of(rest);
+  EXPECT_EQ(*rest, *rest_before);
+  Result<MeshData> rest_back = io::read_mesh_from_memory(*rest, io::MeshFormat::Obj);
+  ASSERT_TRUE(rest_back.ok()) << message_of(rest_back);
+  EXPECT_NE(rest_back->V, *last->positions);
   expect_code(service.get_mesh(f.created.id, f.created.view_token, io::MeshFormat::Obj, 99).status(),
               ErrorCode::NotFound, "revision 99");
 }
