@@ -157,7 +157,9 @@ double mib(long kib) { return static_cast<double>(kib) / 1024.0; }
 /// Energy and elapsed seconds of each outer iteration (iteration 0: the start).
 json energy_history(const core::SolveReport& report) {
   json out = json::array();
-  for (const auto& h : report.history) out.push_back({{"energy", h.energy}, {"elapsed", h.elapsed_seconds}});
+  for (const auto& h : report.history) {
+    out.push_back({{"energy", h.energy}, {"elapsed", h.elapsed_seconds}});
+  }
   return out;
 }
 
@@ -407,7 +409,8 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
   }
 
   out << "\n## Full-resolution refinement and quality\n\n";
-  out << "E_theta / E_phi / area (RMS radians, radians, RMS log area ratio; core::angle_errors).\n\n";
+  out << "E_theta / E_phi / area (RMS radians, radians, RMS log area ratio; "
+         "core::angle_errors).\n\n";
   out << "| model | drag end (prolonged, 1 it/move) | coarse converged, prolonged | coarse "
          "converge s (its) | fine precompute s | refine from prolonged s (its) | single: "
          "precompute s | single: solve from Laplacian s (its) | multires converged | single "
@@ -571,8 +574,9 @@ Status run(int argc, char** argv) {
     for (int k = 1; k <= options.moves; ++k) {
       const Eigen::Matrix4d T =
           affine_power(model.bench.transform, static_cast<double>(k) / options.moves);
-      MD_ASSIGN_OR_RETURN(core::HandleSetup step, core::constraints_from_selection(
-                                                      model.bench.mesh.V, model.bench.selection, T));
+      MD_ASSIGN_OR_RETURN(
+          core::HandleSetup step,
+          core::constraints_from_selection(model.bench.mesh.V, model.bench.selection, T));
       model.drag.push_back(std::move(step.targets));
     }
     model.drag.back() = model.setup.targets;

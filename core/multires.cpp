@@ -237,8 +237,8 @@ MeshLevel snapshot(const OmMesh& om, const std::vector<int>& constrained_row) {
       rows.push_back(constrained_row[static_cast<size_t>(fine)]);
     }
   }
-  level.constrained = Eigen::Map<const Eigen::VectorXi>(constrained.data(),
-                                                        static_cast<Eigen::Index>(constrained.size()));
+  level.constrained = Eigen::Map<const Eigen::VectorXi>(
+      constrained.data(), static_cast<Eigen::Index>(constrained.size()));
   level.constrained_rows =
       Eigen::Map<const Eigen::VectorXi>(rows.data(), static_cast<Eigen::Index>(rows.size()));
   std::vector<int> faces;
@@ -323,7 +323,8 @@ Result<MeshHierarchy> MeshHierarchy::build_checked(const Positions& V, const Tri
           rows.push_back(constrained_row[static_cast<size_t>(v)]);
         }
       }
-      fine.constrained = Eigen::Map<const Eigen::VectorXi>(c.data(), static_cast<Eigen::Index>(c.size()));
+      fine.constrained =
+          Eigen::Map<const Eigen::VectorXi>(c.data(), static_cast<Eigen::Index>(c.size()));
       fine.constrained_rows =
           Eigen::Map<const Eigen::VectorXi>(rows.data(), static_cast<Eigen::Index>(rows.size()));
       hierarchy.levels_.push_back(std::move(fine));
@@ -387,7 +388,9 @@ Result<MeshHierarchy> MeshHierarchy::build_checked(const Positions& V, const Tri
                                ? static_cast<int>(constrained.size())
                                : locked;
     for (size_t k = 0; k < coarse.size(); ++k) {
-      if (progress) progress("validate", static_cast<double>(k) / static_cast<double>(coarse.size()));
+      if (progress) {
+        progress("validate", static_cast<double>(k) / static_cast<double>(coarse.size()));
+      }
       MeshLevel& level = coarse[k];
       const Status valid = validate_triangle_mesh(level.V, level.F);
       if (!valid.ok()) {
@@ -462,7 +465,8 @@ void Prolongation::Impl::normals_and_areas(const Positions& B, Positions& normal
   area.setZero(nv);
   for (Eigen::Index f = 0; f < F.rows(); ++f) {
     const Eigen::Vector3d a = B.row(F(f, 0));
-    const Eigen::Vector3d cross = (B.row(F(f, 1)).transpose() - a).cross(B.row(F(f, 2)).transpose() - a);
+    const Eigen::Vector3d cross =
+        (B.row(F(f, 1)).transpose() - a).cross(B.row(F(f, 2)).transpose() - a);
     const double face_area = 0.5 * cross.norm();
     for (int k = 0; k < 3; ++k) {
       normal_sum.row(F(f, k)) += cross.transpose();
@@ -624,7 +628,8 @@ Result<Positions> Prolongation::apply(const Positions& coarse) const {
       Eigen::Matrix3d frame;
       if (area(i) > 0 &&
           vertex_frame(normal_sum.row(i).transpose(), (B.row(j) - B.row(i)).transpose(), frame)) {
-        out.row(i) = B.row(i) + std::sqrt(area(i)) * (frame * s.detail.row(i).transpose()).transpose();
+        out.row(i) =
+            B.row(i) + std::sqrt(area(i)) * (frame * s.detail.row(i).transpose()).transpose();
       } else {
         out.row(i) = B.row(i);
       }
@@ -670,8 +675,9 @@ Result<MultiresDeformer> MultiresDeformer::create(const Positions& V, const Tria
   // prolongation (a second of the set-up budget at 187k vertices otherwise).
   MD_RETURN_IF_ERROR(validate_triangle_mesh(V, F));
   MD_ASSIGN_OR_RETURN(const MeshTopology topology, build_topology(F, static_cast<int>(V.rows())));
-  MD_ASSIGN_OR_RETURN(s.hierarchy, MeshHierarchy::build_checked(V, F, topology, constrained,
-                                                                settings.hierarchy, progress, stop));
+  MD_ASSIGN_OR_RETURN(s.hierarchy,
+                      MeshHierarchy::build_checked(V, F, topology, constrained, settings.hierarchy,
+                                                   progress, stop));
   s.report.hierarchy_seconds = seconds_since(start);
   const int coarsest = s.hierarchy.level_count() - 1;
   s.level = settings.level < 0 ? coarsest : settings.level;
@@ -729,8 +735,8 @@ Status MultiresDeformer::prepare_refinement(const BuildProgress& progress, std::
   for (Eigen::Index j = 0; j < fine.constrained.size(); ++j) {
     constrained(fine.constrained_rows(j)) = fine.constrained(j);
   }
-  MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver,
-                      ScaleAwareSolver::create(fine.V, fine.F, constrained, s.settings.solver, stop));
+  MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(fine.V, fine.F, constrained,
+                                                                        s.settings.solver, stop));
   s.fine.emplace(std::move(solver));
   if (progress) progress("fine_precompute", 1.0);
   return Status::success();
@@ -742,7 +748,8 @@ Result<SolveReport> MultiresDeformer::refine(const Positions& targets, const Sol
   Impl& s = *impl_;
   MD_RETURN_IF_ERROR(prepare_refinement({}, stop));
   SolveOptions run = options;
-  if (s.has_positions && (options.start == StartFrom::Auto || options.start == StartFrom::Previous)) {
+  if (s.has_positions &&
+      (options.start == StartFrom::Auto || options.start == StartFrom::Previous)) {
     MD_RETURN_IF_ERROR(s.fine->set_positions(s.positions));
     run.start = StartFrom::Previous;
   }

@@ -4,21 +4,23 @@
 /// level, bring the result back to full resolution with the fine detail, and refine there.
 ///
 /// Levels. `MeshHierarchy::build` decimates the input with OpenMesh's decimation framework
-/// (BaseDecimaterT and its modules): incremental half-edge collapses priced by Garland-Heckbert
-/// quadric error, plus boundary-edge quadrics so that open borders keep their shape, each chosen
-/// as the cheapest of a few random candidates (multiple-choice decimation, Wu & Kobbelt 2002:
-/// several times faster than a priority queue over all vertices, at nearly the same quality);
-/// collapses that rotate a face normal by more than
-/// `max_normal_deviation_degrees` or create faces worse than `max_aspect_ratio` are refused, and
-/// OpenMesh's link condition keeps every level a 2-manifold). Level 0 is the input, level k
-/// decimates level k - 1 to `level_vertices[k - 1]`. A half-edge collapse removes one vertex and
-/// never moves the other, so every level is a subset of the fine vertices at their rest positions
-/// (`MeshLevel::to_fine`), and the coarse targets of an edit are rows of the fine targets.
+/// (BaseDecimaterT and its modules). Each step collapses one half-edge, chosen as the cheapest of
+/// a few random candidates (multiple-choice decimation, Wu & Kobbelt 2002: several times faster
+/// than OpenMesh's priority queue over all vertices, at nearly the same quality) and priced by
+/// Garland-Heckbert quadric error plus boundary-edge quadrics, so that open borders keep their
+/// shape. Collapses that rotate a face normal by more than `max_normal_deviation_degrees` or
+/// create faces worse than `max_aspect_ratio` are refused, and OpenMesh's link condition keeps
+/// every level a 2-manifold of the input's topology; each level is then checked with
+/// validate_triangle_mesh (a failure is reported, never returned as a level). Level 0 is the
+/// input, level k decimates level k - 1 to `level_vertices[k - 1]`. A half-edge collapse removes
+/// one vertex and never moves the other, so every level is a subset of the fine vertices at
+/// their rest positions (`MeshLevel::to_fine`): no resampling, no coarse-to-fine correspondence
+/// to search for, and the coarse targets of an edit are rows of the fine targets.
 /// Constrained vertices are locked (never removed): with ConstraintLevels::KeepAll all of them,
 /// so each level holds the whole handle set; with KeepBorders only those with an unconstrained
-/// neighbour (the borders of the fixed and handle regions), for edits whose regions cover much of
-/// the mesh (Spot's cover 43% of it: KeepAll cannot go below that many vertices). Each level is
-/// checked with validate_triangle_mesh (manifold, oriented, no degenerate face).
+/// neighbour (the borders of the fixed and handle regions). KeepBorders is for edits whose
+/// regions cover much of the mesh: Spot's edits constrain 43% of the vertices, so with KeepAll no
+/// level of Spot 187k can have fewer than 81k vertices.
 ///
 /// Detail encoding (`Prolongation`; Kobbelt et al. 1998, Botsch & Sorkine 2008 section 6). The
 /// fine mesh is split into a smooth base surface B and details D = V - B:
@@ -35,8 +37,14 @@
 ///    of the deformed base, times the deformed local scale: rest poses are reproduced to
 ///    round-off, rigid motions and uniform scalings of the coarse mesh exactly (to round-off), and
 ///    details follow the local scale the scale-aware method lets vary.
-/// The harmonic base (rather than a bi-Laplacian one) keeps one sparse factor with the sparsity
-/// of L: a prolongation is three back-substitutions and two linear passes over the mesh.
+/// Why scale details: the scale-aware method keeps angles, not lengths, so a region may grow or
+/// shrink; details scaled with it keep their shape (their angles) there.
+/// Why a harmonic base rather than the bi-Laplacian (thin-plate) one of Botsch & Sorkine: one
+/// sparse factor with the sparsity of L, kept in simplicial form for its few right-hand sides,
+/// so a prolongation is three back-substitutions and two linear passes over the mesh (measured
+/// ~55 ms at 187k vertices, most of it the back-substitutions); a bi-Laplacian factor is several
+/// times denser. The harmonic base is smooth only between coarse vertices (it has a kink at each),
+/// but the details absorb that at rest and follow it under near-rigid local motion.
 ///
 /// `MultiresDeformer` drives the two levels: interactive moves solve on the coarse level and
 /// prolong; `refine` runs the full-resolution ScaleAwareSolver warm-started from the prolonged
@@ -222,17 +230,17 @@ class MultiresDeformer {
   /// @param[in] progress  phases "decimate", "validate", "prolongation", "coarse_precompute".
   /// @return errors of MeshHierarchy::build, Prolongation::create and ScaleAwareSolver::create;
   ///         InvalidArgument for a level out of range.
-  [[nodiscard]] static Result<MultiresDeformer> create(const Positions& V, const Triangles& F,
-                                                       const Eigen::VectorXi& constrained,
-                                                       const MultiresDeformerSettings& settings = {},
-                                                       const BuildProgress& progress = {},
-                                                       std::stop_token stop = {});
+  [[nodiscard]] static Result<MultiresDeformer> create(
+      const Positions& V, const Triangles& F, const Eigen::VectorXi& constrained,
+      const MultiresDeformerSettings& settings = {}, const BuildProgress& progress = {},
+      std::stop_token stop = {});
 
   /// Solves on the coarse level toward #C x 3 fine targets (the coarse solver warm-starts from
   /// its previous move as usual) and prolongs the result; it becomes positions().
   /// @return errors of ScaleAwareSolver::solve and Prolongation::apply; the deformer unchanged
   ///         on error.
-  [[nodiscard]] Result<MultiresMove> move(const Positions& targets, const SolveOptions& options = {},
+  [[nodiscard]] Result<MultiresMove> move(const Positions& targets,
+                                          const SolveOptions& options = {},
                                           const ProgressCallback& progress = {},
                                           std::stop_token stop = {});
 

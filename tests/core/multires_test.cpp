@@ -94,7 +94,8 @@ void expect_valid_level(const MeshHierarchy& hierarchy, int k, const Eigen::Vect
   // Constrained vertices: the level's are exactly the fine-constrained ones it holds, and the
   // target rows point back at them.
   std::vector<int> row_of(static_cast<size_t>(fine.V.rows()), -1);
-  for (Eigen::Index j = 0; j < constrained.size(); ++j) row_of[constrained(j)] = static_cast<int>(j);
+  for (Eigen::Index j = 0; j < constrained.size(); ++j)
+    row_of[constrained(j)] = static_cast<int>(j);
   std::set<int> level_constrained;
   ASSERT_EQ(level.constrained.size(), level.constrained_rows.size());
   for (Eigen::Index j = 0; j < level.constrained.size(); ++j) {
@@ -402,7 +403,8 @@ TEST(Prolongation, DetailsFollowALocalBendWithoutSeams) {
       build_topology(cylinder.mesh.F, static_cast<int>(cylinder.mesh.V.rows())).value();
   const Measures rest = compute_measures(cylinder.mesh.V, cylinder.mesh.F, topology);
   const AngleErrors ours = angle_errors(rest, compute_measures(*V, cylinder.mesh.F, topology));
-  const AngleErrors exact = angle_errors(rest, compute_measures(expected, cylinder.mesh.F, topology));
+  const AngleErrors exact =
+      angle_errors(rest, compute_measures(expected, cylinder.mesh.F, topology));
   // Without details (the bare base surface) E_theta is an order of magnitude larger.
   EXPECT_LT(ours.e_theta, exact.e_theta + 0.02);
   EXPECT_LT(ours.e_phi, exact.e_phi + 0.02);
