@@ -438,7 +438,7 @@ TEST(Prolongation, RejectsBadInput) {
 // ---- two-level driver ---------------------------------------------------------------------------
 
 TEST(MultiresDeformer, RefinedFromTheProlongedStartMatchesTheSingleLevelSolve) {
-  const Edit cactus = edit_of(make_cactus(3));  // 3,000 vertices
+  const Edit cactus = edit_of(make_cactus(2));  // 1,329 vertices
   const MeshTopology topology =
       build_topology(cactus.mesh.F, static_cast<int>(cactus.mesh.V.rows())).value();
   const Measures rest = compute_measures(cactus.mesh.V, cactus.mesh.F, topology);
@@ -446,19 +446,21 @@ TEST(MultiresDeformer, RefinedFromTheProlongedStartMatchesTheSingleLevelSolve) {
     return angle_errors(rest, compute_measures(V, cactus.mesh.F, topology));
   };
   SolveOptions converge;
-  converge.max_iterations = 100;
-  converge.tolerance = 1e-5;
+  // Converged for real: a looser relative-change test stops the two runs at different points of
+  // a slow tail (measured: 2-10% apart in E_theta at 1e-5 on the 3,000-vertex cactus).
+  converge.max_iterations = 400;
+  converge.tolerance = 1e-7;
   converge.track_metrics = false;
 
-  // Single level, from the Laplacian guess. (Measured: it meets the 1e-5 tolerance only after
-  // ~100 iterations; the refinement below, from the prolonged start, after ~15.)
+  // Single level, from the Laplacian guess. (Measured at the default settings: 256 iterations to
+  // the tolerance; the refinement below, from the prolonged start, 53.)
   auto single = deform_scale_aware(cactus.mesh.V, cactus.mesh.F, cactus.setup.constrained,
                                    cactus.setup.targets, converge);
   ASSERT_TRUE(single.ok()) << single.status().to_string();
   const AngleErrors reference = errors_of(single->V);
 
   MultiresDeformerSettings settings;
-  settings.hierarchy.level_vertices = {800};
+  settings.hierarchy.level_vertices = {500};
   std::vector<std::string> phases;
   auto deformer = MultiresDeformer::create(
       cactus.mesh.V, cactus.mesh.F, cactus.setup.constrained, settings,
@@ -467,7 +469,7 @@ TEST(MultiresDeformer, RefinedFromTheProlongedStartMatchesTheSingleLevelSolve) {
       });
   ASSERT_TRUE(deformer.ok()) << deformer.status().to_string();
   EXPECT_EQ(deformer->coarse_level(), 1);
-  EXPECT_EQ(deformer->build_report().coarse_vertices, 800);
+  EXPECT_EQ(deformer->build_report().coarse_vertices, 500);
   EXPECT_EQ(phases, (std::vector<std::string>{"decimate", "validate", "prolongation",
                                               "coarse_precompute"}));
   EXPECT_EQ(deformer->fine_solver(), nullptr);
@@ -491,6 +493,8 @@ TEST(MultiresDeformer, RefinedFromTheProlongedStartMatchesTheSingleLevelSolve) {
   ASSERT_TRUE(refined.ok()) << refined.status().to_string();
   ASSERT_NE(deformer->fine_solver(), nullptr);
   EXPECT_TRUE(refined->converged);
+  ASSERT_TRUE(single->converged);
+  EXPECT_LT(refined->iterations, single->iterations);
   // It started where the move ended (iteration 0 is the starting iterate's energy, not the
   // Laplacian guess's): the first recorded energy is below the single-level start's.
   EXPECT_LT(refined->history.front().energy, single->history.front().energy);

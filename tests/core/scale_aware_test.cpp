@@ -361,7 +361,7 @@ TEST(ScaleAwareSolver, SetPositionsIsWhereTheNextWarmSolveStarts) {
   auto solver = ScaleAwareSolver::create(bend.mesh.V, bend.mesh.F, bend.constrained);
   ASSERT_TRUE(solver.ok()) << solver.status().to_string();
   SolveOptions converge;
-  converge.max_iterations = 200;
+  converge.max_iterations = 1000;  // measured: ~400 at the default rigidity
   converge.tolerance = 1e-6;
   auto reference = solver->solve(bend.targets, converge);
   ASSERT_TRUE(reference.ok()) << reference.status().to_string();
@@ -382,7 +382,7 @@ TEST(ScaleAwareSolver, SetPositionsIsWhereTheNextWarmSolveStarts) {
     ASSERT_TRUE(none.ok()) << none.status().to_string();
     EXPECT_EQ(none->V, reference->V);
     EXPECT_LT(none->history.front().energy, 0.5 * reference->history.front().energy);
-    options.max_iterations = 200;
+    options.max_iterations = 1000;
     auto warm = other->solve(bend.targets, options);
     ASSERT_TRUE(warm.ok()) << warm.status().to_string();
     EXPECT_TRUE(warm->converged);
