@@ -7,12 +7,6 @@
 // Writes a Markdown report (stdout and <out-dir>/realistic.md), <out-dir>/realistic.json and a
 // log-log plot <out-dir>/realistic_scaling.svg.
 
-#include <malloc.h>
-#include <sys/resource.h>
-#include <sys/types.h>
-#include <sys/wait.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -34,6 +28,8 @@
 #include "bench/bench_config.h"
 #include "bench/cgal_arap.h"
 #include "bench/bench_args.h"
+#include "bench/bench_edits.h"
+#include "bench/bench_process.h"
 #include "bench/machine_info.h"
 #include "core/arap.h"
 #include "core/deform_types.h"
@@ -166,98 +162,13 @@ Result<Options> parse_options(int argc, char** argv) {
   return o;
 }
 
-// ---- memory -------------------------------------------------------------------------------------
-
-/// A field of /proc/self/status in KiB ("VmHWM", "VmRSS"), or -1.
-long proc_status_kib(const std::string& field) {
-  std::ifstream in("/proc/self/status");
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind(field + ":", 0) == 0) return std::atol(line.c_str() + field.size() + 1);
-  }
-  return -1;
-}
-
-/// Resets the peak resident set (VmHWM) to the current one (Linux >= 4.0); false if not allowed.
-bool reset_peak_rss() {
-  std::ofstream out("/proc/self/clear_refs");
-  out << "5";
-  out.flush();
-  return static_cast<bool>(out);
-}
-
-double seconds_since(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-}
-
-json errors_json(const core::AngleErrors& e) {
-  return {{"e_theta", e.e_theta}, {"e_phi", e.e_phi}, {"area", e.area_log_rms}};
-}
-
-// ---- one method in a child process ------------------------------------------------------------
-
-/// Runs `body` in a forked child and returns what it printed (JSON) plus the child's peak RSS.
-/// In the child: give the parent's free heap back (malloc_trim), reset VmHWM, note the baseline,
-/// run, and report VmHWM as the method's peak (its input mesh and the libraries included).
-Result<json> run_in_child(const std::function<json()>& body) {
-  int fds[2];
-  if (pipe(fds) != 0) return Error(ErrorCode::Internal, "pipe failed");
-  std::cout.flush();
-  std::cerr.flush();
-  const pid_t pid = fork();
-  if (pid < 0) return Error(ErrorCode::Internal, "fork failed");
-  if (pid == 0) {
-    close(fds[0]);
-    malloc_trim(0);
-    const bool reset = reset_peak_rss();
-    json out;
-    out["baseline_rss_kib"] = proc_status_kib("VmRSS");
-    try {
-      json result = body();
-      out.update(result);
-      out["hwm_reset"] = reset;
-    } catch (const std::exception& e) {
-      out["error"] = e.what();
-    }
-    const std::string text = out.dump();
-    size_t written = 0;
-    while (written < text.size()) {
-      const ssize_t n = write(fds[1], text.data() + written, text.size() - written);
-      if (n <= 0) break;
-      written += static_cast<size_t>(n);
-    }
-    close(fds[1]);
-    _exit(0);
-  }
-  close(fds[1]);
-  std::string text;
-  char buffer[65536];
-  for (;;) {
-    const ssize_t n = read(fds[0], buffer, sizeof(buffer));
-    if (n <= 0) break;
-    text.append(buffer, static_cast<size_t>(n));
-  }
-  close(fds[0]);
-  int status = 0;
-  struct rusage usage {};
-  wait4(pid, &status, 0, &usage);
-  if (!WIFEXITED(status) || text.empty()) {
-    return Error(ErrorCode::Internal,
-                 "child died (status " + std::to_string(status) + ", e.g. out of memory)");
-  }
-  json out = json::parse(text);
-  out["ru_maxrss_kib"] = usage.ru_maxrss;
-  if (out.contains("error")) return Error(ErrorCode::Internal, out["error"].get<std::string>());
-  return out;
-}
-
 struct Model {
   core::DeformationBenchmark bench;
   core::HandleSetup setup;
 };
 
 /// The peak of the timed part, read before the error metrics allocate their own measures.
-long peak_now() { return proc_status_kib("VmHWM"); }
+long peak_now() { return peak_rss_kib(); }
 
 json history_json(const std::vector<core::IterationInfo>& history) {
   json out = json::array();
@@ -362,13 +273,6 @@ json run_cgal(const Model& model, const Options& options) {
 }
 
 // ---- aggregation ------------------------------------------------------------------------------
-
-double median(std::vector<double> values) {
-  if (values.empty()) return std::nan("");
-  std::sort(values.begin(), values.end());
-  const size_t n = values.size();
-  return n % 2 == 1 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
-}
 
 /// One method's figures over the rounds: medians of the timings, the first round's results
 /// (identical across rounds: everything but the timings is deterministic).
@@ -525,9 +429,7 @@ Result<std::vector<ModelSpec>> model_specs(const Options& options) {
       const std::string path = options.spot_path;
       specs.push_back({tag + "_" + edit_name, "spot", estimate,
                        [path, level, edit]() -> Result<core::DeformationBenchmark> {
-                         MD_ASSIGN_OR_RETURN(MeshData spot, io::read_mesh(path));
-                         MD_ASSIGN_OR_RETURN(MeshData fine, core::subdivide_loop(spot, level));
-                         return core::make_spot_edit(fine, edit);
+                         return load_spot_edit(path, level, edit);
                        }});
     }
   }

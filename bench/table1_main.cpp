@@ -19,11 +19,11 @@
 
 #include <Eigen/Core>
 #include <nlohmann/json.hpp>
-#include <unsupported/Eigen/MatrixFunctions>
 
 #include "bench/bench_config.h"
 #include "bench/cgal_arap.h"
 #include "bench/bench_args.h"
+#include "bench/bench_edits.h"
 #include "bench/machine_info.h"
 #include "core/deform_types.h"
 #include "core/deformer.h"
@@ -160,17 +160,6 @@ Result<Options> parse_options(int argc, char** argv) {
 
 double seconds_since(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-}
-
-/// T^p for an affine 4x4 T (p = 1 + move_fraction continues the edit along the same screw motion,
-/// or translation). Falls back to extrapolating the displacement when the matrix log is not real.
-Eigen::Matrix4d affine_power(const Eigen::Matrix4d& T, double p, bool* used_fallback) {
-  const Eigen::Matrix4d result = Eigen::MatrixPower<Eigen::Matrix4d>(T)(p);
-  const bool is_affine = result.allFinite() &&
-                         (result.row(3) - Eigen::RowVector4d(0, 0, 0, 1)).cwiseAbs().maxCoeff() < 1e-9;
-  *used_fallback = !is_affine;
-  if (is_affine) return result;
-  return Eigen::Matrix4d::Identity() + p * (T - Eigen::Matrix4d::Identity());
 }
 
 struct OurRun {

@@ -656,6 +656,23 @@ void ScaleAwareSolver::reset() {
   s.has_previous = false;
 }
 
+Status ScaleAwareSolver::set_positions(const Positions& V) {
+  Impl& s = *impl_;
+  if (V.rows() != s.nv || !V.allFinite()) {
+    return Error(ErrorCode::InvalidArgument,
+                 "set_positions needs " + std::to_string(s.nv) + " finite rows, got " +
+                     std::to_string(V.rows()) + (V.allFinite() ? "" : " with a non-finite value"));
+  }
+  const RowPositions rows = V;
+  s.x = Eigen::Map<const Eigen::VectorXd>(rows.data(), 3 * s.nv);
+  s.current = V;
+  s.N = s.normals_of(s.x, s.N0);
+  s.rotations.assign(s.nv, Eigen::Quaterniond::Identity());
+  s.rotations_warm = false;
+  s.has_previous = true;
+  return Status::success();
+}
+
 Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const SolveOptions& options,
                                             const ProgressCallback& progress,
                                             std::stop_token stop) {

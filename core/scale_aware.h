@@ -96,6 +96,12 @@ class ScaleAwareSolver {
   const Eigen::VectorXi& constrained() const;
   /// Forgets the previous result: the next Auto solve starts from the Laplacian guess.
   void reset();
+  /// Makes `V` the previous result, so that the next Auto or Previous solve starts from it (for
+  /// example a coarse solution prolonged to this mesh, core/multires.h). Step one's rotations
+  /// restart cold, as after the Laplacian guess.
+  /// @param[in] V  #V x 3 finite positions.
+  /// @return InvalidArgument for a wrong shape or a non-finite coordinate (the solver unchanged).
+  [[nodiscard]] Status set_positions(const Positions& V);
 
   ScaleAwareSolver(ScaleAwareSolver&&) noexcept;
   ScaleAwareSolver& operator=(ScaleAwareSolver&&) noexcept;
