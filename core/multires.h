@@ -42,8 +42,8 @@
 /// Why a harmonic base rather than the bi-Laplacian (thin-plate) one of Botsch & Sorkine: one
 /// sparse factor with the sparsity of L, kept in simplicial form for its few right-hand sides,
 /// so a prolongation is three back-substitutions and two linear passes over the mesh (measured
-/// ~55 ms at 187k vertices, most of it the back-substitutions); a bi-Laplacian factor is several
-/// times denser. The harmonic base is smooth only between coarse vertices (it has a kink at each),
+/// 55-70 ms at 187k vertices, 280-350 ms at 750k, most of it the back-substitutions); a
+/// bi-Laplacian factor is several times denser. The harmonic base is smooth only between coarse vertices (it has a kink at each),
 /// but the details absorb that at rest and follow it under near-rigid local motion.
 ///
 /// `MultiresDeformer` drives the two levels: interactive moves solve on the coarse level and
