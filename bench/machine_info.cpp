@@ -107,4 +107,17 @@ MachineInfo collect_machine_info() {
   return info;
 }
 
+nlohmann::json machine_json(const MachineInfo& machine, const std::string& load_end) {
+  return {{"date_utc", machine.date_utc},
+          {"nproc", machine.hardware_threads},
+          {"cpu_model", machine.cpu_model},
+          {"blas", machine.blas},
+          {"blas_env", machine.blas_env},
+          {"compiler", machine.compiler},
+          {"build_type", machine.build_type},
+          {"git_revision", machine.git_revision},
+          {"load_average_start", machine.load_average},
+          {"load_average_end", load_end}};
+}
+
 }  // namespace meshdeform::bench

@@ -4,6 +4,8 @@
 
 #include <string>
 
+#include <nlohmann/json.hpp>
+
 namespace meshdeform::bench {
 
 /// Machine, library and build facts, each a printable string ("unknown" when not found).
@@ -24,5 +26,8 @@ std::string read_load_average();
 
 /// Collects the facts (reads /proc, /etc/alternatives and the environment; runs git once).
 MachineInfo collect_machine_info();
+
+/// The "machine" object of a results file: every fact, the load at start and `load_end`.
+nlohmann::json machine_json(const MachineInfo& machine, const std::string& load_end);
 
 }  // namespace meshdeform::bench

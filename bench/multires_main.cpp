@@ -502,16 +502,7 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
 json to_json(const MachineInfo& machine, const std::string& load_end, const Options& options,
              const std::vector<Row>& rows) {
   json out;
-  out["machine"] = {{"date_utc", machine.date_utc},
-                    {"nproc", machine.hardware_threads},
-                    {"cpu_model", machine.cpu_model},
-                    {"blas", machine.blas},
-                    {"blas_env", machine.blas_env},
-                    {"compiler", machine.compiler},
-                    {"build_type", machine.build_type},
-                    {"git_revision", machine.git_revision},
-                    {"load_average_start", machine.load_average},
-                    {"load_average_end", load_end}};
+  out["machine"] = machine_json(machine, load_end);
   out["options"] = {{"edit", options.edit},
                     {"coarse_vertices", options.coarse_vertices},
                     {"constraints", options.constraints},

@@ -512,16 +512,7 @@ nlohmann::json errors_json(const AngleErrors& e) {
 nlohmann::json to_json(const MachineInfo& machine, const std::string& load_at_end, const Options& options,
                        const std::vector<ModelRow>& rows, const std::vector<TargetCheck>& checks) {
   nlohmann::json out;
-  out["machine"] = {{"date_utc", machine.date_utc},
-                    {"nproc", machine.hardware_threads},
-                    {"cpu_model", machine.cpu_model},
-                    {"blas", machine.blas},
-                    {"blas_env", machine.blas_env},
-                    {"compiler", machine.compiler},
-                    {"build_type", machine.build_type},
-                    {"git_revision", machine.git_revision},
-                    {"load_average_start", machine.load_average},
-                    {"load_average_end", load_at_end}};
+  out["machine"] = machine_json(machine, load_at_end);
   out["options"] = {{"suite", options.small ? "small" : "paper"},
                     {"iterations", options.iterations},
                     {"rigidity", options.rigidity},
