@@ -155,10 +155,13 @@ TEST(ScaleControl, LargeRigidityBringsAreaTowardConvergedArap) {
       ASSERT_TRUE(solver.ok()) << solver.status().to_string();
       SolveOptions options;
       options.rigidity = rigidity;
-      // Run to a tight tolerance: at rigidity 1000 the twisted bar's energy creeps, and the
-      // default 1e-4 stops it after 13 iterations at 2.1x ARAP's area (0.8x at 1e-9).
-      options.max_iterations = 300;
-      options.tolerance = 1e-9;
+      options.max_iterations = 100;
+      if (rigidity == 1000.0) {
+        // Run to a tight tolerance: at rigidity 1000 the twisted bar's energy creeps, and the
+        // default 1e-4 stops it after 13 iterations at 2.1x ARAP's area (0.8x at 1e-9).
+        options.max_iterations = 300;
+        options.tolerance = 1e-9;
+      }
       auto report = solver->solve(edit.setup.targets, options);
       ASSERT_TRUE(report.ok()) << report.status().to_string();
       areas.push_back(errors_of(edit.mesh, report->V).area_log_rms);
