@@ -820,7 +820,9 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     // then PCG from x) can only lower it. Step one itself is not a minimiser of this energy (it
     // fits normals on the Gauss map), so energies of consecutive iterations are compared through
     // this value, not directly.
-    auto step_one = [&]() {
+    // Also returns, in `merit`, the energy after the scale step (Anderson's safeguard): the
+    // scale step leaves Eq. 12's part unchanged, so only the scale term is evaluated again.
+    auto step_one = [&](double& merit) {
       auto phase = Clock::now();
       N = s.normals_of(x, N);
       info.normal_sweeps += update_normals(s.N0, s.F, s.topology, N, rotations, rotations_warm,
@@ -829,25 +831,29 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
       info.normals_seconds += seconds_since(phase);
       phase = Clock::now();
       s.assemble(N, rho);
-      if (rho > 0) s.scale_control->update_rotations(x, N);
-      const double energy_before = s.joint_energy(x, target_vec, rho);
-      // An exact scale step (a good warm start for the joint solve, never an increase).
-      if (rho > 0) s.scale_control->update_scales(x);
+      const double e12 = s.energy(x, target_vec);
+      double energy_before = e12;
+      merit = e12;
+      if (rho > 0) {
+        s.scale_control->update_rotations(x, N);
+        energy_before += rho * s.scale_control->energy(x);
+        // An exact scale step (a good warm start for the joint solve, never an increase).
+        s.scale_control->update_scales(x);
+        if (accelerate) merit += rho * s.scale_control->energy(x);
+      }
       info.assemble_seconds += seconds_since(phase);
       return energy_before;
     };
-    info.energy_before = step_one();
+    double merit = 0;
+    info.energy_before = step_one(merit);
     if (accelerate) {
-      const double merit = rho > 0 ? s.joint_energy(x, target_vec, rho) : info.energy_before;
       if (unchecked && !(merit < accepted_merit)) {  // also rejects a non-finite mix
         x = plain;
-        info.energy_before = step_one();
-        accepted_merit = rho > 0 ? s.joint_energy(x, target_vec, rho) : info.energy_before;
+        info.energy_before = step_one(merit);
         accelerator.reset(x);
         ++report.anderson_rejections;
-      } else {
-        accepted_merit = merit;
       }
+      accepted_merit = merit;
       unchecked = false;
     }
 
