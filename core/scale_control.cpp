@@ -150,8 +150,7 @@ void ScaleControl::update_rotations(const Eigen::VectorXd& x, const RowPositions
       Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
       for (int k = 0; k < 3; ++k) {
         const size_t c = 3 * static_cast<size_t>(f) + k;
-        const Eigen::Vector3d e =
-            x.segment<3>(3 * F_(f, (k + 2) % 3)) - x.segment<3>(3 * F_(f, (k + 1) % 3));
+        const Eigen::Vector3d e = edge(x, f, k);
         M.noalias() += weight_[c] * e * rest_edge_[c].transpose();
       }
       const Eigen::Vector3d n = N.row(f).transpose();
@@ -195,8 +194,7 @@ void ScaleControl::update_scales(const Eigen::VectorXd& x) {
     double b = 0;
     for (int k = 0; k < 3; ++k) {
       const size_t c = 3 * static_cast<size_t>(f) + k;
-      const Eigen::Vector3d e =
-          x.segment<3>(3 * F_(f, (k + 2) % 3)) - x.segment<3>(3 * F_(f, (k + 1) % 3));
+      const Eigen::Vector3d e = edge(x, f, k);
       b += weight_[c] * e.dot(rotation_[f] * rest_edge_[c]);
     }
     fit_b_(f) = b;
@@ -236,8 +234,7 @@ void ScaleControl::multiply_coupling(const Eigen::VectorXd& x, Eigen::VectorXd& 
     double b = 0;
     for (int k = 0; k < 3; ++k) {
       const size_t c = 3 * static_cast<size_t>(f) + k;
-      const Eigen::Vector3d e =
-          x.segment<3>(3 * F_(f, (k + 2) % 3)) - x.segment<3>(3 * F_(f, (k + 1) % 3));
+      const Eigen::Vector3d e = edge(x, f, k);
       b += weight_[c] * e.dot(rotation_[f] * rest_edge_[c]);
     }
     out(f) = b;
@@ -280,8 +277,7 @@ double ScaleControl::energy(const Eigen::VectorXd& x) const {
   for (int f = 0; f < nf_; ++f) {
     for (int k = 0; k < 3; ++k) {
       const size_t c = 3 * static_cast<size_t>(f) + k;
-      const Eigen::Vector3d e =
-          x.segment<3>(3 * F_(f, (k + 2) % 3)) - x.segment<3>(3 * F_(f, (k + 1) % 3));
+      const Eigen::Vector3d e = edge(x, f, k);
       fit += weight_[c] * (e - s_(f) * (rotation_[f] * rest_edge_[c])).squaredNorm();
     }
   }

@@ -103,6 +103,11 @@ class ScaleControl {
   Eigen::VectorXd solve_scale_matrix(const Eigen::VectorXd& r) const;
 
  private:
+  /// e_k(x): the edge of face f opposite corner k, from corner k+1 to corner k+2.
+  Eigen::Vector3d edge(const Eigen::VectorXd& x, int f, int k) const {
+    return x.segment<3>(3 * F_(f, (k + 2) % 3)) - x.segment<3>(3 * F_(f, (k + 1) % 3));
+  }
+
   int nv_ = 0, nf_ = 0;
   Triangles F_;
   std::vector<double> weight_;                           // 3#F: w_k of the edge opposite corner k
