@@ -77,6 +77,13 @@ struct ScaleAwareSolver::Impl {
   std::vector<int> col_stride;             // #V: entries per column of b = 3 (deg(b) + 1)
   std::vector<std::array<int, 9>> face_rank;  // rank of F(f,p) within F(f,q)'s neighbourhood
   std::vector<Eigen::Matrix3d> corner_map;    // 3#F: l R(N_f, theta) per corner
+  // With the block-trace preconditioner (the default) A is never formed: multiply() applies
+  // G^T G + rho (L (x) I3) + lambda C^T C face by face from corner_map (matrix-free), which
+  // skips the per-iteration assembly and A's storage. The lagged-Cholesky preconditioner needs
+  // A's values to factor, so only that path fills A.
+  bool assembled = false;      // A's pattern exists and assemble() fills it
+  double step_two_rho = 0;     // the rigidity of the last assemble(): part of step two's matrix
+  mutable std::vector<double> face_products;  // 9#F scratch of the matrix-free multiply
   SparseCholesky cholesky;
   SparseCholesky trace_cholesky;  // BlockTrace preconditioner: n x n, constant
   // Scale control (issue 12), built on the first solve with rigidity > 0. The block-trace
@@ -104,7 +111,7 @@ struct ScaleAwareSolver::Impl {
                const ScaleAwareSettings& settings_in, const std::stop_token& stop);
   void build_pattern();
   void assemble(const RowPositions& normals, double rigidity = 0.0);
-  SparseMatrix block_trace_matrix() const;
+  SparseMatrix block_trace_matrix(double rigidity) const;
   Status prepare_rigidity(double rigidity);
   double joint_energy(const Eigen::VectorXd& pos, const Eigen::VectorXd& target_vec,
                       double rigidity) const;
@@ -177,12 +184,9 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   assemble(N0);
   MD_RETURN_IF_ERROR(check_stop());
   if (settings.preconditioner == StepTwoPreconditioner::BlockTrace) {
-    const SparseMatrix T = block_trace_matrix();
-    // Constant for the solver's life and solved once per PCG step: the simplicial form solves
-    // faster than the supernodal one (sparse_cholesky.h).
-    trace_cholesky.set_simplicial_solves(true);
-    MD_RETURN_IF_ERROR(trace_cholesky.analyze(T));
-    MD_RETURN_IF_ERROR(trace_cholesky.factorize(T));
+    // The block-trace factor is built by the first solve that needs it (prepare_rigidity): at
+    // rigidity 0 that is T's, with scale control T + rho L's, so creating a solver that only
+    // ever runs at the default rigidity never factors T (one n x n factorization less).
     refactor_pending = false;
   } else {
     MD_RETURN_IF_ERROR(cholesky.analyze(A));
@@ -210,6 +214,12 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
 }
 
 void ScaleAwareSolver::Impl::build_pattern() {
+  corner_map.resize(3 * static_cast<size_t>(nf));
+  assembled = settings.preconditioner == StepTwoPreconditioner::LaggedCholesky;
+  if (!assembled) {
+    face_products.resize(9 * static_cast<size_t>(nf));
+    return;
+  }
   col_base.resize(nv);
   col_stride.resize(nv);
   long long nnz = 0;
@@ -251,7 +261,6 @@ void ScaleAwareSolver::Impl::build_pattern() {
       for (int q = 0; q < 3; ++q) face_rank[f][3 * p + q] = rank_in(F(f, p), F(f, q));
     }
   }
-  corner_map.resize(3 * static_cast<size_t>(nf));
 }
 
 void ScaleAwareSolver::Impl::assemble(const RowPositions& normals, double rigidity) {
@@ -264,6 +273,8 @@ void ScaleAwareSolver::Impl::assemble(const RowPositions& normals, double rigidi
       corner_map[c] = corner_ratio(c) * rodrigues(n, corner_cos(c), corner_sin(c));
     }
   }
+  step_two_rho = rigidity;
+  if (!assembled) return;  // multiply() works from corner_map
   // Each thread owns whole block columns, so no two threads write the same value. Within a
   // column, faces are visited in ascending order, which keeps A exactly symmetric.
   double* values = A.valuePtr();
@@ -353,12 +364,17 @@ void ScaleAwareSolver::Impl::assemble(const RowPositions& normals, double rigidi
   }
 }
 
-SparseMatrix ScaleAwareSolver::Impl::block_trace_matrix() const {
+SparseMatrix ScaleAwareSolver::Impl::block_trace_matrix(double rigidity) const {
   // tr/3 of each block of G^T G with the case table of assemble(): tr M = l (1 + 2 cos theta),
-  // whatever the normal, so this matrix is fixed by the rest measures alone.
+  // whatever the normal, so this matrix is fixed by the rest measures alone. tr/3 of
+  // rho (L (x) I3) is rho L. Each face's 3 x 3 block is summed first, so the triplet list holds
+  // 9 entries per face (27 per face, plus 9 more for L, made the list the solver's peak memory).
   std::vector<Eigen::Triplet<double>> entries;
-  entries.reserve(27 * static_cast<size_t>(nf) + constrained.size());
+  entries.reserve(9 * static_cast<size_t>(nf) + constrained.size());
+  const std::vector<double>* face_laplacian =
+      rigidity > 0 ? &scale_control->face_laplacian() : nullptr;
   for (int f = 0; f < nf; ++f) {
+    double block[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
     for (int c = 0; c < 3; ++c) {
       const int k = 3 * f + c;
       const double l = corner_ratio(k), l2 = l * l;
@@ -375,8 +391,17 @@ SparseMatrix ScaleAwareSolver::Impl::block_trace_matrix() const {
             case 5: case 7: value = -tr / 3.0; break;
             default: value = 1.0; break;
           }
-          entries.emplace_back(F(f, p), F(f, q), value);
+          block[3 * p + q] += value;
         }
+      }
+    }
+    for (int p = 0; p < 3; ++p) {
+      for (int q = 0; q < 3; ++q) {
+        double value = block[3 * p + q];
+        if (face_laplacian != nullptr) {
+          value += rigidity * (*face_laplacian)[9 * static_cast<size_t>(f) + 3 * p + q];
+        }
+        entries.emplace_back(F(f, p), F(f, q), value);
       }
     }
   }
@@ -395,7 +420,18 @@ Status ScaleAwareSolver::Impl::prepare_rigidity(double rigidity) {
   }
   preconditioner_rho = rigidity;
   handle_weight = rigidity == 0 ? settings.lambda : settings.lambda * (1.0 + rigidity);
-  if (rigidity == 0) return Status::success();
+  if (rigidity == 0) {
+    if (settings.preconditioner == StepTwoPreconditioner::BlockTrace &&
+        !trace_cholesky.is_factorized()) {
+      const SparseMatrix T = block_trace_matrix(0.0);
+      // Constant for the solver's life and solved once per PCG step: the simplicial form solves
+      // faster than the supernodal one (sparse_cholesky.h).
+      trace_cholesky.set_simplicial_solves(true);
+      MD_RETURN_IF_ERROR(trace_cholesky.analyze(T));
+      MD_RETURN_IF_ERROR(trace_cholesky.factorize(T));
+    }
+    return Status::success();
+  }
   if (!scale_control) {
     ScaleControl control;
     MD_RETURN_IF_ERROR(control.build(V0, F, topology, N0, constrained, settings.scale_pull,
@@ -404,21 +440,9 @@ Status ScaleAwareSolver::Impl::prepare_rigidity(double rigidity) {
     scale_control.emplace(std::move(control));
   }
   if (settings.preconditioner == StepTwoPreconditioner::BlockTrace && trace_rigid_rho != rigidity) {
-    // tr/3 of rho (L (x) I3) is rho L: the preconditioner stays constant for a given rho, so
-    // only a change of rho (a slider move) refactors this n x n matrix.
-    const std::vector<double>& fl = scale_control->face_laplacian();
-    std::vector<Eigen::Triplet<double>> entries;
-    entries.reserve(9 * static_cast<size_t>(nf));
-    for (int f = 0; f < nf; ++f) {
-      for (int p = 0; p < 3; ++p) {
-        for (int q = 0; q < 3; ++q) {
-          entries.emplace_back(F(f, p), F(f, q), rigidity * fl[9 * static_cast<size_t>(f) + 3 * p + q]);
-        }
-      }
-    }
-    SparseMatrix L(nv, nv);
-    L.setFromTriplets(entries.begin(), entries.end());
-    const SparseMatrix T = block_trace_matrix() + L;
+    // The preconditioner stays constant for a given rho, so only a change of rho (a slider
+    // move) refactors this n x n matrix.
+    const SparseMatrix T = block_trace_matrix(rigidity);
     trace_rigid_cholesky.set_simplicial_solves(true);  // analysed anew per rigidity anyway
     MD_RETURN_IF_ERROR(trace_rigid_cholesky.analyze(T));
     MD_RETURN_IF_ERROR(trace_rigid_cholesky.factorize(T));
@@ -477,13 +501,68 @@ double ScaleAwareSolver::Impl::energy(const Eigen::VectorXd& pos,
 }
 
 void ScaleAwareSolver::Impl::multiply(const Eigen::VectorXd& in, Eigen::VectorXd& out) const {
+  const bool parallel = nv > 2000 && threads > 1;
+  if (!assembled) {
+    // Matrix-free: per face, the corner residuals r = M (v_a - v_b) + v_d - v_a of Eq. 12
+    // (a, b, d the corner's vertex and the next two) and G^T r, i.e. M^T r - r to a, -M^T r to b
+    // and r to d (the case table of assemble()); plus rho times the face's cotangent block. Each
+    // face writes its three vertex sums to its own slot, and each vertex then gathers its faces'
+    // slots in a fixed order: no races, and the same sums at any thread count.
+    const double rho = step_two_rho;
+    const std::vector<double>* face_laplacian =
+        rho > 0 ? &scale_control->face_laplacian() : nullptr;
+    double* products = face_products.data();
+#pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
+    for (int f = 0; f < nf; ++f) {
+      Eigen::Vector3d v[3], sum[3];
+      for (int p = 0; p < 3; ++p) {
+        v[p] = in.segment<3>(3 * F(f, p));
+        sum[p].setZero();
+      }
+      for (int c = 0; c < 3; ++c) {
+        const int b = (c + 1) % 3, d = (c + 2) % 3;
+        const Eigen::Matrix3d& M = corner_map[3 * f + c];
+        const Eigen::Vector3d r = M * (v[c] - v[b]) + (v[d] - v[c]);
+        const Eigen::Vector3d w = M.transpose() * r;
+        sum[c] += w - r;
+        sum[b] -= w;
+        sum[d] += r;
+      }
+      if (face_laplacian != nullptr) {
+        const double* block = face_laplacian->data() + 9 * static_cast<size_t>(f);
+        for (int p = 0; p < 3; ++p) {
+          sum[p] += rho * (block[3 * p] * v[0] + block[3 * p + 1] * v[1] + block[3 * p + 2] * v[2]);
+        }
+      }
+      double* slot_of_f = products + 9 * static_cast<size_t>(f);
+      for (int p = 0; p < 3; ++p) {
+        for (int d = 0; d < 3; ++d) slot_of_f[3 * p + d] = sum[p](d);
+      }
+    }
+    out.resize(3 * static_cast<Eigen::Index>(nv));
+    const double lambda = handle_weight;
+#pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
+    for (int b = 0; b < nv; ++b) {
+      double y[3] = {0, 0, 0};
+      for (int t = topology.vf_offsets[b]; t < topology.vf_offsets[b + 1]; ++t) {
+        const int f = topology.vf_faces[t];
+        const int q = F(f, 0) == b ? 0 : (F(f, 1) == b ? 1 : 2);
+        const double* from = products + 9 * static_cast<size_t>(f) + 3 * q;
+        for (int d = 0; d < 3; ++d) y[d] += from[d];
+      }
+      if (slot[b] >= 0) {
+        for (int d = 0; d < 3; ++d) y[d] += lambda * in[3 * b + d];
+      }
+      for (int d = 0; d < 3; ++d) out[3 * b + d] = y[d];
+    }
+    return;
+  }
   // A is stored in full, so A x = A^T x: each output entry gathers one column.
   const int* outer = A.outerIndexPtr();
   const int* inner = A.innerIndexPtr();
   const double* values = A.valuePtr();
   const int n = static_cast<int>(A.cols());
   out.resize(n);
-  const bool parallel = nv > 2000 && threads > 1;
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
   for (int c = 0; c < n; ++c) {
     double s = 0;
