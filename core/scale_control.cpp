@@ -135,10 +135,17 @@ void ScaleControl::set_reference(const Positions& targets) {
 }
 
 void ScaleControl::reset() {
-  rotation_.assign(nf_, Eigen::Matrix3d::Identity());
+  frame_edge_ = rest_edge_;  // identity frames
   s_ = Eigen::VectorXd::Ones(nf_);
   if (free_reference_) s_bar_ = 1.0;
   fit_b_ = Eigen::VectorXd::Zero(nf_);
+}
+
+void ScaleControl::set_frame(int f, const Eigen::Matrix3d& R) {
+  for (int k = 0; k < 3; ++k) {
+    const size_t c = 3 * static_cast<size_t>(f) + k;
+    frame_edge_[c] = R * rest_edge_[c];
+  }
 }
 
 void ScaleControl::update_rotations(const Eigen::VectorXd& x, const RowPositions& N) {
@@ -159,8 +166,9 @@ void ScaleControl::update_rotations(const Eigen::VectorXd& x, const RowPositions
       const Eigen::Vector3d n = N.row(f).transpose();
       const Eigen::Vector3d n0 = N0_.row(f).transpose();
       M = s_(f) * M + (normal_tie_ * area_(f)) * n * n0.transpose();
-      rotation_[f] = closest_rotation(M);
-      tie_energy_ += normal_tie_ * area_(f) * (rotation_[f] * n0 - n).squaredNorm();
+      const Eigen::Matrix3d R = closest_rotation(M);
+      set_frame(f, R);
+      tie_energy_ += normal_tie_ * area_(f) * (R * n0 - n).squaredNorm();
     }
     return;
   }
@@ -188,7 +196,7 @@ void ScaleControl::update_rotations(const Eigen::VectorXd& x, const RowPositions
     const double co = r > 0 ? rc / r : 1.0, si = r > 0 ? rs / r : 0.0;
     Eigen::Matrix2d C;
     C << co, -si, si, co;
-    rotation_[f] = U * C * V.transpose() + n * N0_.row(f);
+    set_frame(f, U * C * V.transpose() + n * N0_.row(f));
   }
 }
 
@@ -198,7 +206,7 @@ void ScaleControl::update_scales(const Eigen::VectorXd& x) {
     for (int k = 0; k < 3; ++k) {
       const size_t c = 3 * static_cast<size_t>(f) + k;
       const Eigen::Vector3d e = edge(x, f, k);
-      b += weight_[c] * e.dot(rotation_[f] * rest_edge_[c]);
+      b += weight_[c] * e.dot(frame_edge_[c]);
     }
     fit_b_(f) = b;
   }
@@ -238,7 +246,7 @@ void ScaleControl::multiply_coupling(const Eigen::VectorXd& x, Eigen::VectorXd& 
     for (int k = 0; k < 3; ++k) {
       const size_t c = 3 * static_cast<size_t>(f) + k;
       const Eigen::Vector3d e = edge(x, f, k);
-      b += weight_[c] * e.dot(rotation_[f] * rest_edge_[c]);
+      b += weight_[c] * e.dot(frame_edge_[c]);
     }
     out(f) = b;
   }
@@ -249,7 +257,7 @@ void ScaleControl::add_coupling_transpose(const Eigen::VectorXd& s, double alpha
   for (int f = 0; f < nf_; ++f) {
     for (int k = 0; k < 3; ++k) {
       const size_t c = 3 * static_cast<size_t>(f) + k;
-      const Eigen::Vector3d g = (alpha * weight_[c] * s(f)) * (rotation_[f] * rest_edge_[c]);
+      const Eigen::Vector3d g = (alpha * weight_[c] * s(f)) * frame_edge_[c];
       out_x.segment<3>(3 * F_(f, (k + 2) % 3)) += g;
       out_x.segment<3>(3 * F_(f, (k + 1) % 3)) -= g;
     }
@@ -268,7 +276,7 @@ void ScaleControl::add_rhs(double rho, Eigen::VectorXd& b) const {
   for (int f = 0; f < nf_; ++f) {
     for (int k = 0; k < 3; ++k) {
       const size_t c = 3 * static_cast<size_t>(f) + k;
-      const Eigen::Vector3d g = (rho * weight_[c] * s_(f)) * (rotation_[f] * rest_edge_[c]);
+      const Eigen::Vector3d g = (rho * weight_[c] * s_(f)) * frame_edge_[c];
       b.segment<3>(3 * F_(f, (k + 2) % 3)) += g;
       b.segment<3>(3 * F_(f, (k + 1) % 3)) -= g;
     }
@@ -281,7 +289,7 @@ double ScaleControl::energy(const Eigen::VectorXd& x) const {
     for (int k = 0; k < 3; ++k) {
       const size_t c = 3 * static_cast<size_t>(f) + k;
       const Eigen::Vector3d e = edge(x, f, k);
-      fit += weight_[c] * (e - s_(f) * (rotation_[f] * rest_edge_[c])).squaredNorm();
+      fit += weight_[c] * (e - s_(f) * frame_edge_[c]).squaredNorm();
     }
   }
   double smooth = 0;

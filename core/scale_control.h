@@ -103,6 +103,8 @@ class ScaleControl {
   Eigen::VectorXd solve_scale_matrix(const Eigen::VectorXd& r) const;
 
  private:
+  /// Stores face f's frame R as its rotated rest edges.
+  void set_frame(int f, const Eigen::Matrix3d& R);
   /// e_k(x): the edge of face f opposite corner k, from corner k+1 to corner k+2.
   Eigen::Vector3d edge(const Eigen::VectorXd& x, int f, int k) const {
     return x.segment<3>(3 * F_(f, (k + 2) % 3)) - x.segment<3>(3 * F_(f, (k + 1) % 3));
@@ -126,7 +128,9 @@ class ScaleControl {
   SparseCholesky scale_system_;  // H, #S x #S
   SparseMatrix scale_matrix_;    // H
   // State.
-  std::vector<Eigen::Matrix3d> rotation_;
+  // R_f e0_k per corner, the only use of the face frames: kept instead of R_f so that the
+  // products of every PCG step and energy read one vector per corner.
+  std::vector<Eigen::Vector3d> frame_edge_;  // 3#F
   Eigen::VectorXd s_;
   double s_bar_ = 1;
   double normal_tie_ = std::numeric_limits<double>::infinity();
