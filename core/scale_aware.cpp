@@ -119,6 +119,8 @@ struct ScaleAwareSolver::Impl {
   double energy(const Eigen::VectorXd& pos, const Eigen::VectorXd& target_vec) const;
   Eigen::VectorXd rhs(const Positions& targets) const;
   void multiply(const Eigen::VectorXd& in, Eigen::VectorXd& out) const;
+  void multiply_free(const double* in, double* out, const double* scale, double* coupling,
+                     double rigidity) const;
   void multiply_joint(const Eigen::VectorXd& in, Eigen::VectorXd& out, double rigidity) const;
   Eigen::VectorXd precondition_joint(const Eigen::VectorXd& r, double rigidity) const;
   PcgOutcome pcg_joint(const Eigen::VectorXd& b, Eigen::VectorXd& sol, double rigidity,
@@ -500,61 +502,70 @@ double ScaleAwareSolver::Impl::energy(const Eigen::VectorXd& pos,
   return e;
 }
 
-void ScaleAwareSolver::Impl::multiply(const Eigen::VectorXd& in, Eigen::VectorXd& out) const {
+void ScaleAwareSolver::Impl::multiply_free(const double* in, double* out, const double* scale,
+                                           double* coupling, double rigidity) const {
+  // Per face, the corner residuals r = M (v_a - v_b) + v_d - v_a of Eq. 12 (a, b, d the corner's
+  // vertex and the next two) and G^T r, i.e. M^T r - r to a, -M^T r to b and r to d (the case
+  // table of assemble()); plus rho times the face's cotangent block; with `scale`, the joint
+  // system's coupling in the same pass (the face's -rho s_f C^T column, and (C x)_f). Each face
+  // writes its three vertex sums to its own slot, and each vertex then gathers its faces' slots
+  // in a fixed order: no races, and the same sums at any thread count.
   const bool parallel = nv > 2000 && threads > 1;
+  const double rho = step_two_rho;
+  const std::vector<double>* face_laplacian =
+      rho > 0 ? &scale_control->face_laplacian() : nullptr;
+  double* products = face_products.data();
+#pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
+  for (int f = 0; f < nf; ++f) {
+    Eigen::Vector3d v[3], sum[3];
+    for (int p = 0; p < 3; ++p) {
+      v[p] = Eigen::Map<const Eigen::Vector3d>(in + 3 * static_cast<size_t>(F(f, p)));
+      sum[p].setZero();
+    }
+    for (int c = 0; c < 3; ++c) {
+      const int b = (c + 1) % 3, d = (c + 2) % 3;
+      const Eigen::Matrix3d& M = corner_map[3 * f + c];
+      const Eigen::Vector3d r = M * (v[c] - v[b]) + (v[d] - v[c]);
+      const Eigen::Vector3d w = M.transpose() * r;
+      sum[c] += w - r;
+      sum[b] -= w;
+      sum[d] += r;
+    }
+    if (face_laplacian != nullptr) {
+      const double* block = face_laplacian->data() + 9 * static_cast<size_t>(f);
+      for (int p = 0; p < 3; ++p) {
+        sum[p] += rho * (block[3 * p] * v[0] + block[3 * p + 1] * v[1] + block[3 * p + 2] * v[2]);
+      }
+    }
+    if (scale != nullptr) {
+      coupling[f] = scale_control->face_coupling(f, v, -rigidity * scale[f], sum);
+    }
+    double* slot_of_f = products + 9 * static_cast<size_t>(f);
+    for (int p = 0; p < 3; ++p) {
+      for (int d = 0; d < 3; ++d) slot_of_f[3 * p + d] = sum[p](d);
+    }
+  }
+  const double lambda = handle_weight;
+#pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
+  for (int b = 0; b < nv; ++b) {
+    double y[3] = {0, 0, 0};
+    for (int t = topology.vf_offsets[b]; t < topology.vf_offsets[b + 1]; ++t) {
+      const int f = topology.vf_faces[t];
+      const int q = F(f, 0) == b ? 0 : (F(f, 1) == b ? 1 : 2);
+      const double* from = products + 9 * static_cast<size_t>(f) + 3 * q;
+      for (int d = 0; d < 3; ++d) y[d] += from[d];
+    }
+    if (slot[b] >= 0) {
+      for (int d = 0; d < 3; ++d) y[d] += lambda * in[3 * b + d];
+    }
+    for (int d = 0; d < 3; ++d) out[3 * b + d] = y[d];
+  }
+}
+
+void ScaleAwareSolver::Impl::multiply(const Eigen::VectorXd& in, Eigen::VectorXd& out) const {
   if (!assembled) {
-    // Matrix-free: per face, the corner residuals r = M (v_a - v_b) + v_d - v_a of Eq. 12
-    // (a, b, d the corner's vertex and the next two) and G^T r, i.e. M^T r - r to a, -M^T r to b
-    // and r to d (the case table of assemble()); plus rho times the face's cotangent block. Each
-    // face writes its three vertex sums to its own slot, and each vertex then gathers its faces'
-    // slots in a fixed order: no races, and the same sums at any thread count.
-    const double rho = step_two_rho;
-    const std::vector<double>* face_laplacian =
-        rho > 0 ? &scale_control->face_laplacian() : nullptr;
-    double* products = face_products.data();
-#pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
-    for (int f = 0; f < nf; ++f) {
-      Eigen::Vector3d v[3], sum[3];
-      for (int p = 0; p < 3; ++p) {
-        v[p] = in.segment<3>(3 * F(f, p));
-        sum[p].setZero();
-      }
-      for (int c = 0; c < 3; ++c) {
-        const int b = (c + 1) % 3, d = (c + 2) % 3;
-        const Eigen::Matrix3d& M = corner_map[3 * f + c];
-        const Eigen::Vector3d r = M * (v[c] - v[b]) + (v[d] - v[c]);
-        const Eigen::Vector3d w = M.transpose() * r;
-        sum[c] += w - r;
-        sum[b] -= w;
-        sum[d] += r;
-      }
-      if (face_laplacian != nullptr) {
-        const double* block = face_laplacian->data() + 9 * static_cast<size_t>(f);
-        for (int p = 0; p < 3; ++p) {
-          sum[p] += rho * (block[3 * p] * v[0] + block[3 * p + 1] * v[1] + block[3 * p + 2] * v[2]);
-        }
-      }
-      double* slot_of_f = products + 9 * static_cast<size_t>(f);
-      for (int p = 0; p < 3; ++p) {
-        for (int d = 0; d < 3; ++d) slot_of_f[3 * p + d] = sum[p](d);
-      }
-    }
-    out.resize(3 * static_cast<Eigen::Index>(nv));
-    const double lambda = handle_weight;
-#pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
-    for (int b = 0; b < nv; ++b) {
-      double y[3] = {0, 0, 0};
-      for (int t = topology.vf_offsets[b]; t < topology.vf_offsets[b + 1]; ++t) {
-        const int f = topology.vf_faces[t];
-        const int q = F(f, 0) == b ? 0 : (F(f, 1) == b ? 1 : 2);
-        const double* from = products + 9 * static_cast<size_t>(f) + 3 * q;
-        for (int d = 0; d < 3; ++d) y[d] += from[d];
-      }
-      if (slot[b] >= 0) {
-        for (int d = 0; d < 3; ++d) y[d] += lambda * in[3 * b + d];
-      }
-      for (int d = 0; d < 3; ++d) out[3 * b + d] = y[d];
-    }
+    out.resize(in.size());
+    multiply_free(in.data(), out.data(), nullptr, nullptr, 0.0);
     return;
   }
   // A is stored in full, so A x = A^T x: each output entry gathers one column.
@@ -563,6 +574,7 @@ void ScaleAwareSolver::Impl::multiply(const Eigen::VectorXd& in, Eigen::VectorXd
   const double* values = A.valuePtr();
   const int n = static_cast<int>(A.cols());
   out.resize(n);
+  const bool parallel = nv > 2000 && threads > 1;
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
   for (int c = 0; c < n; ++c) {
     double s = 0;
@@ -628,6 +640,16 @@ void ScaleAwareSolver::Impl::multiply_joint(const Eigen::VectorXd& in, Eigen::Ve
                                             double rigidity) const {
   const Eigen::Index n3 = 3 * static_cast<Eigen::Index>(nv);
   const Eigen::Index m = in.size() - n3;
+  if (!assembled) {
+    // One pass over the faces for the x block and both coupling products.
+    out.resize(in.size());
+    Eigen::VectorXd cx = Eigen::VectorXd::Zero(m);  // (C x); 0 for a free reference scale
+    multiply_free(in.data(), out.data(), in.data() + n3, cx.data(), rigidity);
+    Eigen::VectorXd hs;
+    scale_control->multiply_scale_matrix(in.tail(m), hs);
+    out.tail(m) = rigidity * (hs - cx);
+    return;
+  }
   Eigen::VectorXd out_x;
   multiply(in.head(n3), out_x);
   scale_control->add_coupling_transpose(in.tail(m), -rigidity, out_x);

@@ -97,6 +97,23 @@ class ScaleControl {
   void multiply_coupling(const Eigen::VectorXd& x, Eigen::VectorXd& out) const;
   /// out_x += alpha C^T s.
   void add_coupling_transpose(const Eigen::VectorXd& s, double alpha, Eigen::VectorXd& out_x) const;
+  /// Face f's part of the coupling, for a product that visits faces anyway (the solver's
+  /// matrix-free one): adds alpha_s times face f's column of C^T to the sums of its corners
+  /// (sum[k] for F(f, k)) and returns (C x)_f, with v[k] the position of F(f, k).
+  double face_coupling(int f, const Eigen::Vector3d v[3], double alpha_s,
+                       Eigen::Vector3d sum[3]) const {
+    double b = 0;
+    for (int k = 0; k < 3; ++k) {
+      const size_t c = 3 * static_cast<size_t>(f) + k;
+      const Eigen::Vector3d& target = frame_edge_[c];
+      const int head = (k + 2) % 3, tail = (k + 1) % 3;
+      b += weight_[c] * (v[head] - v[tail]).dot(target);
+      const Eigen::Vector3d g = (alpha_s * weight_[c]) * target;
+      sum[head] += g;
+      sum[tail] -= g;
+    }
+    return b;
+  }
   /// out = H s.
   void multiply_scale_matrix(const Eigen::VectorXd& s, Eigen::VectorXd& out) const;
   /// H^-1 r with the constant factor.
