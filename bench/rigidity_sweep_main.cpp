@@ -287,20 +287,6 @@ Result<Row> run_edit(const Edit& edit, const Options& options) {
 
 // ---- output -----------------------------------------------------------------------------------
 
-const char* start_name(core::StartFrom start) {
-  switch (start) {
-    case core::StartFrom::Auto:
-      return "auto (the Laplacian guess)";
-    case core::StartFrom::Laplacian:
-      return "laplacian";
-    case core::StartFrom::Previous:
-      return "previous";
-    case core::StartFrom::Rigid:
-      return "rigid";
-  }
-  return "auto";
-}
-
 std::string fmt(const char* format, double value) {
   char buffer[64];
   std::snprintf(buffer, sizeof(buffer), format, value);
@@ -335,7 +321,7 @@ std::string markdown(const MachineInfo& machine, const Options& options,
       << "; source: git " << machine.git_revision << "\n";
   out << "- scale-aware: SolveOptions defaults except rigidity (max_iterations "
       << options.iterations << ", tolerance " << options.tolerance << ", start "
-      << start_name(options.start) << ", rigid start " << options.rigid_start_iterations
+      << core::start_name(options.start) << ", rigid start " << options.rigid_start_iterations
       << " ARAP iterations when used); scale_pull " << options.pull << ", scale_smooth_length "
       << options.smooth_length << "; default rigidity " << core::kDefaultRigidity << "\n";
   out << "- ARAP: core::Method::Arap (cotangent, handles pinned) to relative energy change < "
@@ -683,15 +669,7 @@ Result<Options> parse_options(int argc, char** argv) {
       options.iterations = static_cast<int>(k);
     } else if (arg == "--start") {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
-      if (value == "laplacian") {
-        options.start = core::StartFrom::Laplacian;
-      } else if (value == "rigid") {
-        options.start = core::StartFrom::Rigid;
-      } else if (value == "auto") {
-        options.start = core::StartFrom::Auto;
-      } else {
-        return Error(ErrorCode::InvalidArgument, "--start wants auto, laplacian or rigid");
-      }
+      MD_ASSIGN_OR_RETURN(options.start, core::parse_start(value));
     } else if (arg == "--tolerance") {
       MD_ASSIGN_OR_RETURN(const std::string value, next());
       MD_ASSIGN_OR_RETURN(options.tolerance, parse_number(arg, value));
@@ -726,11 +704,11 @@ void print_usage(std::ostream& out) {
          "  --rigidities a,b    values swept (0 and the default are always included)\n"
          "  --pull X            ScaleAwareSettings::scale_pull (study only)\n"
          "  --smooth-length X   ScaleAwareSettings::scale_smooth_length (study only)\n"
-         "  --normal-tie X      ScaleAwareSettings::scale_normal_tie (study only; default inf)\n"
+         "  --normal-tie X      ScaleAwareSettings::scale_normal_tie (study only; default 0.3)\n"
          "  --rigid-start-iterations K  SolveOptions::rigid_start_iterations\n"
          "  --iterations N      SolveOptions::max_iterations of the scale-aware runs (default 15)\n"
          "  --tolerance T       SolveOptions::tolerance of the scale-aware runs (default 1e-4)\n"
-         "  --start S           auto (default), laplacian or rigid\n";
+         "  --start S           auto (default), laplacian, rigid or propagated\n";
 }
 
 Status run(int argc, char** argv) {

@@ -69,8 +69,9 @@ Solver:
   --inner-iterations K      step-one sweeps per outer iteration (default 5)
   --anderson M              Anderson acceleration of the outer iteration: mix the last M
                             updates (default 6; 0 = the plain iteration)
-  --start laplacian|previous|rigid  starting guess (default: laplacian, the paper's
-                            initialisation; rigid: a few ARAP iterations first)
+  --start laplacian|previous|rigid|propagated  starting guess (default: laplacian, the
+                            paper's initialisation; rigid: a few ARAP iterations first;
+                            propagated: the handles' rotations spread over the surface)
   --lambda L                handle weight (default 100)
   --threads N               solver threads, 0 = all (default 1)
 Output control:
@@ -156,15 +157,12 @@ std::optional<std::string> apply_solver_flags(const ParsedArgs& parsed, RunSetti
     run.options.anderson_window = static_cast<int>(*value);
   }
   if (auto text = parsed.get("start")) {
-    if (*text == "laplacian") {
-      run.options.start = core::StartFrom::Laplacian;
-    } else if (*text == "previous") {
-      run.options.start = core::StartFrom::Previous;
-    } else if (*text == "rigid") {
-      run.options.start = core::StartFrom::Rigid;
-    } else {
-      return "--start must be 'laplacian', 'previous' or 'rigid', got '" + *text + "'";
+    const Result<core::StartFrom> start = core::parse_start(*text);
+    if (!start.ok() || *start == core::StartFrom::Auto) {
+      return "--start must be 'laplacian', 'previous', 'rigid' or 'propagated', got '" + *text +
+             "'";
     }
+    run.options.start = *start;
   }
   if (auto text = parsed.get("lambda")) {
     const auto value = parse_double(*text);

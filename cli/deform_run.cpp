@@ -114,20 +114,6 @@ double seconds_between(std::chrono::steady_clock::time_point a,
 
 }  // namespace
 
-const char* start_name(core::StartFrom start) {
-  switch (start) {
-    case core::StartFrom::Auto:
-      return "auto";
-    case core::StartFrom::Laplacian:
-      return "laplacian";
-    case core::StartFrom::Previous:
-      return "previous";
-    case core::StartFrom::Rigid:
-      return "rigid";
-  }
-  return "auto";
-}
-
 Result<DeformInput> load_benchmark_input(const std::filesystem::path& mesh_path,
                                          const std::filesystem::path& sel_path,
                                          const std::filesystem::path& def_path) {
@@ -246,7 +232,7 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
                   {"tolerance", run.options.tolerance},
                   {"inner_iterations", run.options.inner_iterations},
                   {"lambda", run.options.lambda},
-                  {"start", start_name(run.options.start)},
+                  {"start", core::start_name(run.options.start)},
                   {"pcg_tolerance", run.options.pcg_tolerance},
                   {"adaptive_pcg", run.options.adaptive_pcg},
                   {"ora", run.options.ora},

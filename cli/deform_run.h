@@ -83,6 +83,6 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
 [[nodiscard]] Status write_json(const std::filesystem::path& path, const nlohmann::json& json);
 
 /// "laplacian", "previous" or "auto".
-const char* start_name(core::StartFrom start);
+
 
 }  // namespace meshdeform::cli

@@ -23,6 +23,10 @@ enum class StartFrom {
   /// bench/results/rigidity_rigid_start/: it avoids the twisted bar's folds, but creases the bent
   /// cylinders, so Auto does not use it.
   Rigid,
+  /// Scale-aware only (other methods treat it as Laplacian): the handles' rotations propagated
+  /// harmonically over the surface, then ARAP's global step with them (core/rotation_start.h;
+  /// Zayer et al. 2005): a rotation-aware start without ARAP iterations.
+  Propagated,
 };
 
 /// Default SolveOptions::rigidity, chosen from bench/results/rigidity_sweep.md (with the default

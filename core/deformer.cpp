@@ -28,8 +28,9 @@ class SolverDeformer final : public Deformer {
   Result<SolveReport> solve(const Positions& targets, const SolveOptions& options,
                             const ProgressCallback& progress, std::stop_token stop) override {
     if constexpr (kMethod == Method::Arap) {
-      // ARAP's rotation-aware start would be itself: a Rigid start is its Laplacian guess.
-      if (options.start == StartFrom::Rigid) {
+      // ARAP's rotation-aware starts are the scale-aware solver's: here they are its Laplacian
+      // guess.
+      if (options.start == StartFrom::Rigid || options.start == StartFrom::Propagated) {
         SolveOptions laplacian_start = options;
         laplacian_start.start = StartFrom::Laplacian;
         return solver_.solve(targets, laplacian_start, progress, std::move(stop));
@@ -138,6 +139,32 @@ Result<Method> parse_method(std::string_view name) {
   return Error(ErrorCode::InvalidArgument,
                "unknown method \"" + std::string(name) +
                    "\" (expected \"scale_aware\", \"arap\" or \"laplacian\")");
+}
+
+const char* start_name(StartFrom start) {
+  switch (start) {
+    case StartFrom::Auto:
+      return "auto";
+    case StartFrom::Laplacian:
+      return "laplacian";
+    case StartFrom::Previous:
+      return "previous";
+    case StartFrom::Rigid:
+      return "rigid";
+    case StartFrom::Propagated:
+      return "propagated";
+  }
+  return "auto";
+}
+
+Result<StartFrom> parse_start(std::string_view name) {
+  for (StartFrom start : {StartFrom::Auto, StartFrom::Laplacian, StartFrom::Previous,
+                          StartFrom::Rigid, StartFrom::Propagated}) {
+    if (name == start_name(start)) return start;
+  }
+  return Error(ErrorCode::InvalidArgument,
+               "unknown start \"" + std::string(name) +
+                   "\" (expected auto, laplacian, previous, rigid or propagated)");
 }
 
 Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& V0,

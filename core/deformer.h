@@ -31,6 +31,11 @@ const char* method_name(Method method);
 /// Inverse of method_name (also accepts "scale-aware"); InvalidArgument names the bad value.
 [[nodiscard]] Result<Method> parse_method(std::string_view name);
 
+/// "auto", "laplacian", "previous", "rigid", "propagated".
+const char* start_name(StartFrom start);
+/// Inverse of start_name; InvalidArgument names the bad value and the accepted ones.
+[[nodiscard]] Result<StartFrom> parse_start(std::string_view name);
+
 /// Settings fixed per handle set (they define the cached matrices).
 struct DeformerSettings {
   double lambda = 100.0;  ///< soft handle weight (scale-aware, Laplacian); ARAP pins handles exactly

@@ -20,6 +20,7 @@
 #include "core/measures.h"
 #include "core/normals_step.h"
 #include "core/ora.h"
+#include "core/rotation_start.h"
 #include "core/scale_control.h"
 #include "core/sparse_cholesky.h"
 #include "core/topology.h"
@@ -69,6 +70,7 @@ struct ScaleAwareSolver::Impl {
   std::optional<LaplacianEditor> laplacian;
   std::optional<RigidityStitcher> stitcher;  // built on the first ORA / magnification request
   std::optional<ArapSolver> rigid_start;     // built on the first Rigid start
+  std::optional<RotationPropagationStart> propagated_start;  // built on the first Propagated start
 
   // Step two: A(N) = G^T G + lambda C^T C in a fixed 3x3-block pattern (full symmetric storage,
   // columns 3b..3b+2 hold the blocks of b's sorted closed neighbourhood).
@@ -839,6 +841,18 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     arap_options.track_metrics = false;
     MD_ASSIGN_OR_RETURN(const SolveReport guess, s.rigid_start->solve(targets, arap_options, {}, stop));
     const RowPositions guess_rows = guess.V;
+    x = Eigen::Map<const Eigen::VectorXd>(guess_rows.data(), 3 * s.nv);
+    rotations_warm = false;
+  }
+  if (options.start == StartFrom::Propagated) {
+    if (!s.propagated_start) {
+      MD_ASSIGN_OR_RETURN(RotationPropagationStart built,
+                          RotationPropagationStart::create(s.V0, s.F, s.topology, s.constrained,
+                                                           s.settings.lambda));
+      s.propagated_start.emplace(std::move(built));
+    }
+    MD_ASSIGN_OR_RETURN(Positions guess, s.propagated_start->guess(targets));
+    const RowPositions guess_rows = guess;
     x = Eigen::Map<const Eigen::VectorXd>(guess_rows.data(), 3 * s.nv);
     rotations_warm = false;
   }

@@ -166,6 +166,10 @@ TEST_F(MethodCliTest, RigidityComesFromTheFlagOrTheSpecAndIsReported) {
   j = report();
   EXPECT_EQ(j["options"]["rigidity"], 0.5);
   EXPECT_EQ(j["options"]["start"], "rigid");
+  r = run("deform --mesh grid.obj --edit rigid.json --out out.obj --report report.json "
+          "--start propagated");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(report()["options"]["start"], "propagated");
 
   // Bad values are usage errors (flag) or runtime errors (spec), naming the option.
   for (const char* bad : {"-1", "nan", "abc", "inf"}) {
