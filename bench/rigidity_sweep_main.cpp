@@ -321,7 +321,9 @@ std::string markdown(const MachineInfo& machine, const Options& options,
       << "; source: git " << machine.git_revision << "\n";
   out << "- scale-aware: SolveOptions defaults except rigidity (max_iterations "
       << options.iterations << ", tolerance " << options.tolerance << ", start "
-      << core::start_name(options.start) << ", rigid start " << options.rigid_start_iterations
+      << (options.start == core::StartFrom::Auto ? "auto (the Laplacian guess)"
+                                                  : core::start_name(options.start))
+      << ", rigid start " << options.rigid_start_iterations
       << " ARAP iterations when used); scale_pull " << options.pull << ", scale_smooth_length "
       << options.smooth_length << "; default rigidity " << core::kDefaultRigidity << "\n";
   out << "- ARAP: core::Method::Arap (cotangent, handles pinned) to relative energy change < "
@@ -333,10 +335,14 @@ std::string markdown(const MachineInfo& machine, const Options& options,
   out << "- handles: max |v - target| / bbox diagonal; folds: interior edges whose dihedral angle "
          "changed by more than 90 degrees from the rest\n\n";
 
+  // Auto starts a fresh solver from the Laplacian guess, the paper's start.
+  const bool paper_start =
+      options.start == core::StartFrom::Auto || options.start == core::StartFrom::Laplacian;
   out << "## Default (rigidity " << core::kDefaultRigidity << ") against converged ARAP\n\n";
   out << "| edit | #V | ARAP its | ARAP E_theta / E_phi / area | default E_theta / E_phi / area | "
          "ratios | targets met | rigidity 0 "
-      << (options.start == core::StartFrom::Rigid ? "(rigid start, not the paper)" : "(paper)")
+      << (paper_start ? std::string("(paper)")
+                      : "(" + std::string(core::start_name(options.start)) + " start, not the paper)")
       << " E_theta / E_phi / area | ORA (rigidity 0) "
          "E_theta / E_phi / area |\n";
   out << "|---|---:|---:|---|---|---|---|---|---|\n";
