@@ -26,9 +26,13 @@
 #include "meshdeform/v1/deformation.grpc.pb.h"
 #include "server/service/deformation_service.h"
 #include "server/transport/deform_service_impl.h"
+#include "server/transport/grpc_web_codec.h"
 #include "server/transport/grpc_web_gateway.h"
+#include "server/transport/http_router.h"
 #include "server/transport/http_server.h"
+#include "server/transport/ops_endpoints.h"
 #include "server/transport/server_setup.h"
+#include "server/transport/static_files.h"
 
 namespace meshdeform::transport {
 namespace {
