@@ -1021,21 +1021,6 @@ TEST_F(GrpcWebTest, StaticFilesShareTheListenerWithTheGatewayAndOps) {
   std::filesystem::remove_all(root);
 }
 
-TEST(GrpcWebHelpers, ParseGrpcTimeout) {
-  using std::chrono::nanoseconds;
-  EXPECT_EQ(*parse_grpc_timeout("500m"), milliseconds(500));
-  EXPECT_EQ(*parse_grpc_timeout("2S"), seconds(2));
-  EXPECT_EQ(*parse_grpc_timeout("1H"), std::chrono::hours(1));
-  EXPECT_EQ(*parse_grpc_timeout("3M"), std::chrono::minutes(3));
-  EXPECT_EQ(*parse_grpc_timeout("10u"), std::chrono::microseconds(10));
-  EXPECT_EQ(*parse_grpc_timeout("7n"), nanoseconds(7));
-  EXPECT_EQ(*parse_grpc_timeout("99999999H"), std::chrono::hours(100'000));  // saturates
-  for (const std::string_view bad : {"", "5", "m", "5x", "123456789S", "-5S", "5 S", "1.5S"}) {
-    EXPECT_FALSE(parse_grpc_timeout(bad).ok()) << bad;
-  }
-  EXPECT_EQ(percent_encode_grpc_message("a%b\n\xC3\xA9 ok"), "a%25b%0A%C3%A9 ok");
-}
-
 TEST_F(GrpcWebTest, RateLimitsCountEachBrowserByItsOwnAddress) {
   // The gateway forwards in-process, so without the browser's address every browser would share
   // one rate-limit bucket. Two loopback addresses play two browsers.
