@@ -1,7 +1,8 @@
 #pragma once
 /// @file grpc_web_gateway.h
 /// The browser path (design notes, "Browser path"): a gRPC-Web gateway on the HTTP/1.1 listener
-/// (http_server.h), and a small static file server for the built viewer.
+/// (http_server.h), mounted by the router (http_router.h) beside the viewer's static files
+/// (static_files.h). The wire format itself is grpc_web_codec.h; CORS is grpc_web_cors.h.
 ///
 /// GrpcWebGateway speaks the gRPC-Web protocol (github.com/grpc/grpc/blob/master/doc/PROTOCOL-WEB.md)
 /// and forwards every call, as bytes, through an in-process channel of the grpc::Server to the
@@ -40,14 +41,16 @@
 
 #include <chrono>
 #include <cstddef>
-#include <filesystem>
 #include <memory>
 #include <string>
 #include <string_view>
 #include <vector>
 
-#include "core/status.h"
-#include "server/transport/http_server.h"
+#include "server/transport/http_message.h"
+// Not used here: server/main.cpp reaches the router and the static files through this header.
+// New code includes them itself.
+#include "server/transport/http_router.h"
+#include "server/transport/static_files.h"
 
 namespace grpc {
 class Server;
@@ -125,49 +128,5 @@ class GrpcWebGateway {
  private:
   std::unique_ptr<Shared> shared_;
 };
-
-/// Serves the files under a directory (the built viewer) for GET: "/" and directories
-/// serve their index.html; content types for .html .js .mjs .css .wasm .svg .png .json .map
-/// .ico .txt (others application/octet-stream), with X-Content-Type-Options: nosniff and
-/// Cache-Control: no-cache. Paths are percent-decoded, then refused (400) if they contain a NUL,
-/// a backslash, or a "." / ".." / hidden (".name") segment; a path whose resolved file (symlinks
-/// followed) is outside the root is 404, as are missing and non-regular files. Files over
-/// max_file_bytes: 404 (logged). Thread-safe (stateless besides the root).
-class StaticFileServer {
- public:
-  /// @param[in] root  an existing directory; resolved (symlinks followed) once, here.
-  /// @return the server; InvalidArgument when `root` is not a directory.
-  [[nodiscard]] static Result<StaticFileServer> open(const std::filesystem::path& root,
-                                                     std::size_t max_file_bytes = 64 << 20);
-
-  /// The response to one request (405 for methods other than GET).
-  HttpResponse serve(const HttpRequest& request) const;
-
- private:
-  StaticFileServer(std::filesystem::path root, std::size_t max_file_bytes)
-      : root_(std::move(root)), max_file_bytes_(max_file_bytes) {}
-  std::filesystem::path root_;
-  std::size_t max_file_bytes_;
-};
-
-/// One listener's routing: gateway.handles() -> the gateway; GET of any path but /metrics
-/// and /healthz -> `files` (when not null); everything else -> `fallback` (handle_ops_request,
-/// which answers /metrics, /healthz and 404). `gateway`, `files` must outlive the listener.
-/// Synchronous answers are given on the listener thread; bodies over the route limit that are not
-/// the gateway's get 413.
-AsyncHttpHandler make_http_router(GrpcWebGateway& gateway, const StaticFileServer* files,
-                                  HttpHandler fallback);
-
-/// The HttpServerOptions::body_limit for make_http_router: gateway.max_request_bytes() for the
-/// gateway's routes, `other_limit` for the rest.
-std::function<std::size_t(std::string_view, std::string_view)> make_body_limit(
-    const GrpcWebGateway& gateway, std::size_t other_limit = 1 << 20);
-
-/// "500m" -> 500 ms etc. (gRPC's TimeoutValue: 1-8 digits and one of H M S m u n).
-/// @return the duration; InvalidArgument naming the value when malformed.
-[[nodiscard]] Result<std::chrono::nanoseconds> parse_grpc_timeout(std::string_view value);
-
-/// grpc-message percent-encoding: bytes outside 0x20..0x7E, and '%', as %XX (upper-case hex).
-std::string percent_encode_grpc_message(std::string_view message);
 
 }  // namespace meshdeform::transport

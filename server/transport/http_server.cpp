@@ -1,6 +1,5 @@
 #include "server/transport/http_server.h"
 
-#include "server/service/deformation_service.h"
 #include "server/service/log.h"
 
 #include <boost/asio/dispatch.hpp>
@@ -14,20 +13,14 @@
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
 #include <boost/beast/ssl.hpp>
-#include <openssl/err.h>
-#include <openssl/pem.h>
-#include <openssl/ssl.h>
 
 #include <algorithm>
 #include <array>
 #include <atomic>
 #include <charconv>
 #include <chrono>
-#include <cerrno>
 #include <cstring>
 #include <deque>
-#include <fstream>
-#include <iterator>
 #include <limits>
 #include <mutex>
 #include <optional>
@@ -77,84 +70,7 @@ Result<tcp::endpoint> parse_endpoint(const std::string& address) {
   return tcp::endpoint(ip, static_cast<unsigned short>(port));
 }
 
-/// How make_ssl_context names the three parts in its errors.
-struct TlsLabels {
-  std::string cert = "the TLS certificate";
-  std::string key = "the TLS key";
-  std::string client_ca = "the TLS client CA";
-};
-
-/// An OpenSSL error as text, e.g. "no start line (PEM routines)".
-std::string ssl_message(const beast::error_code& error) {
-  std::string message = error.message();
-  return message.empty() ? "rejected by OpenSSL" : message;
-}
-
-bool is_pem_private_key(const std::string& pem) {
-  BIO* bio = BIO_new_mem_buf(pem.data(), static_cast<int>(pem.size()));
-  if (bio == nullptr) return false;
-  EVP_PKEY* key = PEM_read_bio_PrivateKey(bio, nullptr, nullptr, nullptr);
-  BIO_free(bio);
-  ERR_clear_error();  // a failed parse leaves errors queued for later, unrelated calls
-  if (key == nullptr) return false;
-  EVP_PKEY_free(key);
-  return true;
-}
-
-/// A TLS 1.2+ server context with `tls`'s identity (and client verification with its CAs).
-/// @return InvalidArgument naming the part OpenSSL rejects.
-Result<std::unique_ptr<asio::ssl::context>> make_ssl_context(const TlsConfig& tls,
-                                                             const TlsLabels& labels = {}) {
-  auto context = std::make_unique<asio::ssl::context>(asio::ssl::context::tls_server);
-  SSL_CTX* native = context->native_handle();
-  // TLS 1.0 and 1.1 are deprecated (RFC 8996); every browser and gRPC client speaks 1.2+.
-  SSL_CTX_set_min_proto_version(native, TLS1_2_VERSION);
-  context->set_options(asio::ssl::context::default_workarounds |
-                       asio::ssl::context::no_compression | asio::ssl::context::single_dh_use);
-  beast::error_code error;
-  context->use_certificate_chain(asio::buffer(tls.cert_chain_pem), error);
-  if (error) {
-    return Error(ErrorCode::InvalidArgument,
-                 labels.cert + " is not a PEM certificate: " + ssl_message(error));
-  }
-  // OpenSSL checks the key against the certificate while loading it: tell the two failures apart.
-  if (!is_pem_private_key(tls.private_key_pem)) {
-    return Error(ErrorCode::InvalidArgument, labels.key + " is not a PEM private key");
-  }
-  context->use_private_key(asio::buffer(tls.private_key_pem), asio::ssl::context::pem, error);
-  if (error || SSL_CTX_check_private_key(native) != 1) {
-    return Error(ErrorCode::InvalidArgument, labels.key + " does not belong to " + labels.cert);
-  }
-  if (!tls.client_ca_pem.empty()) {
-    context->add_certificate_authority(asio::buffer(tls.client_ca_pem), error);
-    if (error) {
-      return Error(ErrorCode::InvalidArgument,
-                   labels.client_ca + " is not a PEM certificate: " + ssl_message(error));
-    }
-    context->set_verify_mode(asio::ssl::verify_peer | asio::ssl::verify_fail_if_no_peer_cert);
-  }
-  return context;
-}
-
-/// @return the file's bytes, or InvalidArgument naming it (`what`) with the system's reason.
-Result<std::string> read_file(const std::string& path, const std::string& what) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) {
-    return Error(ErrorCode::InvalidArgument, "cannot read " + what + ": " + std::strerror(errno));
-  }
-  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) return Error(ErrorCode::InvalidArgument, "cannot read " + what);
-  return bytes;
-}
-
 std::string_view to_std(beast::string_view text) { return {text.data(), text.size()}; }
-
-bool iequals(std::string_view a, std::string_view b) {
-  return a.size() == b.size() && std::equal(a.begin(), a.end(), b.begin(), [](char x, char y) {
-           const auto lower = [](char c) { return c >= 'A' && c <= 'Z' ? char(c - 'A' + 'a') : c; };
-           return lower(x) == lower(y);
-         });
-}
 
 /// Header values never carry CR or LF (no response splitting, whatever a handler passes).
 std::string header_safe(std::string_view value) {
@@ -452,7 +368,7 @@ class Connection final : public ConnectionBase {
       return;
     }
     parser_->body_limit(static_cast<std::uint64_t>(limit));
-    if (iequals(to_std(header[http::field::expect]), "100-continue")) {
+    if (iequals_ascii(to_std(header[http::field::expect]), "100-continue")) {
       auto reply = std::make_shared<std::string>(
           header.version() >= 11 ? "HTTP/1.1 100 Continue\r\n\r\n" : "HTTP/1.0 100 Continue\r\n\r\n");
       asio::async_write(stream_, asio::buffer(*reply),
@@ -479,9 +395,7 @@ class Connection final : public ConnectionBase {
       version_ = parser_->get().version();
       keep_alive_ = false;
       is_response_done_ = false;
-      do_respond(seq_, HttpResponse{413, "text/plain; charset=utf-8",
-                                    "request body over " + std::to_string(limit_) + " bytes\n",
-                                    {}});
+      do_respond(seq_, text_response(413, "request body over " + std::to_string(limit_) + " bytes\n"));
       return;
     }
     if (error) {
@@ -674,7 +588,7 @@ class ConnectionExchange final : public HttpExchange {
   ~ConnectionExchange() override {
     if (!is_answered_.exchange(true)) {
       post([seq = seq_](ConnectionBase& c) {
-        c.do_respond(seq, HttpResponse{500, "text/plain; charset=utf-8", "no response\n", {}});
+        c.do_respond(seq, text_response(500, "no response\n"));
       });
     }
   }
@@ -751,36 +665,11 @@ void Connection<Stream>::dispatch(HttpRequest in, bool keep_alive, unsigned vers
   try {
     server_.handler(std::move(in), exchange);
   } catch (const std::exception&) {
-    exchange->respond(HttpResponse{500, "text/plain; charset=utf-8", "internal error\n", {}});
+    exchange->respond(text_response(500, "internal error\n"));
   }
 }
 
 }  // namespace
-
-Result<TlsConfig> load_tls_config(const std::string& cert_path, const std::string& key_path,
-                                  const std::string& client_ca_path) {
-  TlsLabels labels;
-  labels.cert = "TLS certificate file '" + cert_path + "'";
-  labels.key = "TLS key file '" + key_path + "'";
-  labels.client_ca = "TLS client CA file '" + client_ca_path + "'";
-  TlsConfig tls;
-  MD_ASSIGN_OR_RETURN(tls.cert_chain_pem, read_file(cert_path, labels.cert));
-  MD_ASSIGN_OR_RETURN(tls.private_key_pem, read_file(key_path, labels.key));
-  if (!client_ca_path.empty()) {
-    MD_ASSIGN_OR_RETURN(tls.client_ca_pem, read_file(client_ca_path, labels.client_ca));
-  }
-  // gRPC takes PEM text too but reports a bad one only as a failed listen: check it here.
-  MD_ASSIGN_OR_RETURN(auto checked, make_ssl_context(tls, labels));
-  (void)checked;
-  return tls;
-}
-
-std::string_view HttpRequest::find_header(std::string_view name) const {
-  for (const auto& [key, value] : headers) {
-    if (iequals(key, name)) return value;
-  }
-  return {};
-}
 
 void HttpServer::Impl::accept() {
   acceptor.async_accept(asio::make_strand(io), [this](beast::error_code error, tcp::socket socket) {
@@ -819,20 +708,7 @@ Result<std::unique_ptr<HttpServer>> HttpServer::start(const std::string& address
                                                       HttpServerOptions options) {
   AsyncHttpHandler adapted = [handler = std::move(handler)](
                                  HttpRequest request, std::shared_ptr<HttpExchange> exchange) {
-    if (request.is_body_over_limit) {
-      exchange->respond(HttpResponse{
-          413, "text/plain; charset=utf-8",
-          "request body of " + std::to_string(request.declared_body_bytes) + " bytes over the limit\n",
-          {}});
-      return;
-    }
-    HttpResponse response;
-    try {
-      response = handler(request);
-    } catch (const std::exception&) {
-      response = HttpResponse{500, "text/plain; charset=utf-8", "internal error\n", {}};
-    }
-    exchange->respond(std::move(response));
+    respond_synchronously(handler, request, *exchange);
   };
   return start_async(address, std::move(adapted), std::move(options));
 }
@@ -894,21 +770,5 @@ void HttpServer::stop() {
 }
 
 HttpServer::~HttpServer() { stop(); }
-
-HttpResponse handle_ops_request(const HttpRequest& request,
-                                const service::DeformationService& service, bool serving) {
-  const std::string path = request.target.substr(0, request.target.find('?'));
-  if (path != "/metrics" && path != "/healthz") {
-    return HttpResponse{404, "text/plain; charset=utf-8", "not found: " + path.substr(0, 200) + "\n", {}};
-  }
-  if (request.method != "GET") {
-    return HttpResponse{405, "text/plain; charset=utf-8", "use GET\n", {{"Allow", "GET"}}};
-  }
-  if (path == "/healthz") {
-    return serving ? HttpResponse{200, "text/plain; charset=utf-8", "ok\n", {}}
-                   : HttpResponse{503, "text/plain; charset=utf-8", "shutting down\n", {}};
-  }
-  return HttpResponse{200, "text/plain; version=0.0.4; charset=utf-8", service.render_metrics(), {}};
-}
 
 }  // namespace meshdeform::transport

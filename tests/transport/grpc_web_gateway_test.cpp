@@ -26,9 +26,13 @@
 #include "meshdeform/v1/deformation.grpc.pb.h"
 #include "server/service/deformation_service.h"
 #include "server/transport/deform_service_impl.h"
+#include "server/transport/grpc_web_codec.h"
 #include "server/transport/grpc_web_gateway.h"
+#include "server/transport/http_router.h"
 #include "server/transport/http_server.h"
+#include "server/transport/ops_endpoints.h"
 #include "server/transport/server_setup.h"
+#include "server/transport/static_files.h"
 
 namespace meshdeform::transport {
 namespace {
@@ -1015,21 +1019,6 @@ TEST_F(GrpcWebTest, StaticFilesShareTheListenerWithTheGatewayAndOps) {
             413);
   http_->stop();
   std::filesystem::remove_all(root);
-}
-
-TEST(GrpcWebHelpers, ParseGrpcTimeout) {
-  using std::chrono::nanoseconds;
-  EXPECT_EQ(*parse_grpc_timeout("500m"), milliseconds(500));
-  EXPECT_EQ(*parse_grpc_timeout("2S"), seconds(2));
-  EXPECT_EQ(*parse_grpc_timeout("1H"), std::chrono::hours(1));
-  EXPECT_EQ(*parse_grpc_timeout("3M"), std::chrono::minutes(3));
-  EXPECT_EQ(*parse_grpc_timeout("10u"), std::chrono::microseconds(10));
-  EXPECT_EQ(*parse_grpc_timeout("7n"), nanoseconds(7));
-  EXPECT_EQ(*parse_grpc_timeout("99999999H"), std::chrono::hours(100'000));  // saturates
-  for (const std::string_view bad : {"", "5", "m", "5x", "123456789S", "-5S", "5 S", "1.5S"}) {
-    EXPECT_FALSE(parse_grpc_timeout(bad).ok()) << bad;
-  }
-  EXPECT_EQ(percent_encode_grpc_message("a%b\n\xC3\xA9 ok"), "a%25b%0A%C3%A9 ok");
 }
 
 TEST_F(GrpcWebTest, RateLimitsCountEachBrowserByItsOwnAddress) {

@@ -21,6 +21,7 @@
 #include "server/service/deformation_service.h"
 #include "server/transport/deform_service_impl.h"
 #include "server/transport/http_server.h"
+#include "server/transport/ops_endpoints.h"
 #include "server/transport/server_setup.h"
 
 namespace meshdeform::transport {
