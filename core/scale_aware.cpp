@@ -78,11 +78,14 @@ struct ScaleAwareSolver::Impl {
   std::vector<int> col_base;               // #V: offset of column 3b in the value array
   std::vector<int> col_stride;             // #V: entries per column of b = 3 (deg(b) + 1)
   std::vector<std::array<int, 9>> face_rank;  // rank of F(f,p) within F(f,q)'s neighbourhood
-  std::vector<Eigen::Matrix3d> corner_map;    // 3#F: l R(N_f, theta) per corner
+  std::vector<Eigen::Matrix3d> corner_map;    // 3#F: l R(N_f, theta) per corner (lagged path)
   // With the block-trace preconditioner (the default) A is never formed: multiply() applies
-  // G^T G + rho (L (x) I3) + lambda C^T C face by face from corner_map (matrix-free), which
-  // skips the per-iteration assembly and A's storage. The lagged-Cholesky preconditioner needs
-  // A's values to factor, so only that path fills A.
+  // G^T G + rho (L (x) I3) + lambda C^T C face by face (matrix-free), applying each corner's
+  // l R(N_f, theta) from the normal and the rest cosine, sine and ratio (corner_apply) rather
+  // than a stored 3x3 matrix: 96 bytes read per face instead of 216, and no per-iteration
+  // assembly or storage for A. The lagged-Cholesky preconditioner needs A's values to factor,
+  // so only that path forms the corner matrices and fills A.
+  RowPositions map_normals;    // #F: the normals of the last assemble()
   bool assembled = false;      // A's pattern exists and assemble() fills it
   double step_two_rho = 0;     // the rigidity of the last assemble(): part of step two's matrix
   mutable std::vector<double> face_products;  // 9#F scratch of the matrix-free multiply
@@ -131,6 +134,13 @@ struct ScaleAwareSolver::Impl {
   PcgOutcome pcg(const Eigen::VectorXd& b, Eigen::VectorXd& sol, double reduction,
                  double tolerance, int max_iterations, const std::stop_token& stop) const;
   RowPositions normals_of(const Eigen::VectorXd& pos, const RowPositions& fallback) const;
+  /// M u for corner k (3f + c) of a face with normal n, M = l R(n, theta) (rodrigues()), or
+  /// M^T u with sign -1: l (cos u + sign sin n x u + (1 - cos)(n . u) n).
+  Eigen::Vector3d corner_apply(int k, const Eigen::Vector3d& n, const Eigen::Vector3d& u,
+                               double sign) const {
+    const double c = corner_cos(k);
+    return corner_ratio(k) * (c * u + (sign * corner_sin(k)) * n.cross(u) + ((1.0 - c) * n.dot(u)) * n);
+  }
 };
 
 Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_in,
@@ -218,12 +228,12 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
 }
 
 void ScaleAwareSolver::Impl::build_pattern() {
-  corner_map.resize(3 * static_cast<size_t>(nf));
   assembled = settings.preconditioner == StepTwoPreconditioner::LaggedCholesky;
   if (!assembled) {
     face_products.resize(9 * static_cast<size_t>(nf));
     return;
   }
+  corner_map.resize(3 * static_cast<size_t>(nf));
   col_base.resize(nv);
   col_stride.resize(nv);
   long long nnz = 0;
@@ -268,6 +278,9 @@ void ScaleAwareSolver::Impl::build_pattern() {
 }
 
 void ScaleAwareSolver::Impl::assemble(const RowPositions& normals, double rigidity) {
+  map_normals = normals;
+  step_two_rho = rigidity;
+  if (!assembled) return;  // multiply() works from the normals
   const bool parallel = nv > 2000 && threads > 1;
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
   for (int f = 0; f < nf; ++f) {
@@ -277,8 +290,6 @@ void ScaleAwareSolver::Impl::assemble(const RowPositions& normals, double rigidi
       corner_map[c] = corner_ratio(c) * rodrigues(n, corner_cos(c), corner_sin(c));
     }
   }
-  step_two_rho = rigidity;
-  if (!assembled) return;  // multiply() works from corner_map
   // Each thread owns whole block columns, so no two threads write the same value. Within a
   // column, faces are visited in ascending order, which keeps A exactly symmetric.
   double* values = A.valuePtr();
@@ -486,12 +497,13 @@ double ScaleAwareSolver::Impl::energy(const Eigen::VectorXd& pos,
   const bool parallel = nv > 2000 && threads > 1;
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
   for (int f = 0; f < nf; ++f) {
+    const Eigen::Vector3d n = map_normals.row(f).transpose();
     double s = 0;
     for (int c = 0; c < 3; ++c) {
       const Eigen::Vector3d v = pos.segment<3>(3 * F(f, c));
       const Eigen::Vector3d e1 = pos.segment<3>(3 * F(f, (c + 1) % 3)) - v;
       const Eigen::Vector3d e2 = pos.segment<3>(3 * F(f, (c + 2) % 3)) - v;
-      s += (e2 - corner_map[3 * f + c] * e1).squaredNorm();
+      s += (e2 - corner_apply(3 * f + c, n, e1, 1.0)).squaredNorm();
     }
     per_face[f] = s;
   }
@@ -524,11 +536,11 @@ void ScaleAwareSolver::Impl::multiply_free(const double* in, double* out, const 
       v[p] = Eigen::Map<const Eigen::Vector3d>(in + 3 * static_cast<size_t>(F(f, p)));
       sum[p].setZero();
     }
+    const Eigen::Vector3d n = map_normals.row(f).transpose();
     for (int c = 0; c < 3; ++c) {
       const int b = (c + 1) % 3, d = (c + 2) % 3;
-      const Eigen::Matrix3d& M = corner_map[3 * f + c];
-      const Eigen::Vector3d r = M * (v[c] - v[b]) + (v[d] - v[c]);
-      const Eigen::Vector3d w = M.transpose() * r;
+      const Eigen::Vector3d r = corner_apply(3 * f + c, n, v[c] - v[b], 1.0) + (v[d] - v[c]);
+      const Eigen::Vector3d w = corner_apply(3 * f + c, n, r, -1.0);
       sum[c] += w - r;
       sum[b] -= w;
       sum[d] += r;
