@@ -197,15 +197,16 @@ TEST(RedisReplicasTest, RacingReplicasGiveOneWinnerPerRevisionAndLoseNothing) {
   };
   std::mutex mutex;
   std::vector<Acked> acked;
-  std::atomic<int> aborted{0}, other_errors{0};
+  std::atomic<int> aborted{0}, other_errors{0}, won_by_a{0}, won_by_b{0};
   std::string first_error;
-  auto editor = [&](DeformationService& service, double sign) {
+  auto editor = [&](DeformationService& service, double sign, std::atomic<int>& won) {
     for (int i = 1; i <= kMovesEach; ++i) {
       Result<service::DeformResult> moved =
           service.move_handles(created.id, created.edit_token, lift(sign * 0.001 * i));
       const std::lock_guard lock(mutex);
       if (moved.ok()) {
         acked.push_back({moved->revision, *moved->positions});
+        won.fetch_add(1);
       } else if (moved.status().code() == ErrorCode::Aborted) {
         aborted.fetch_add(1);
       } else {
@@ -215,10 +216,17 @@ TEST(RedisReplicasTest, RacingReplicasGiveOneWinnerPerRevisionAndLoseNothing) {
     }
   };
   {
-    std::jthread ta([&] { editor(a.service, 1.0); });
-    std::jthread tb([&] { editor(b.service, -1.0); });
+    std::jthread ta([&] { editor(a.service, 1.0, won_by_a); });
+    std::jthread tb([&] { editor(b.service, -1.0, won_by_b); });
   }
   EXPECT_EQ(other_errors.load(), 0) << first_error;
+  // Both replicas really edited the one session (each catching up with the other's revisions
+  // before its own commit), not one replica always refused.
+  EXPECT_GT(won_by_a.load(), 0);
+  EXPECT_GT(won_by_b.load(), 0);
+  RecordProperty("won_by_a", won_by_a.load());
+  RecordProperty("won_by_b", won_by_b.load());
+  RecordProperty("aborted", aborted.load());
   ASSERT_FALSE(acked.empty());
   // Exactly one acknowledged commit per revision, and the revisions are 1..R without a hole.
   std::map<std::uint64_t, const Acked*> by_revision;
