@@ -71,9 +71,10 @@ std::optional<std::uint64_t> as_u64(const redisReply* reply) {
 // --- Scripts (indices into kScripts) ------------------------------------------------------------
 enum ScriptIndex { kCreate, kAcquire, kRelease, kCommit, kLoad, kRemove, kRenew };
 
-// KEYS: state ver rev. ARGV: state bytes, ttl ms, revision.
+// KEYS: state ver rev mesh. ARGV: state bytes, ttl ms, revision, mesh bytes.
 constexpr const char* kCreateScript = R"lua(
-if redis.call('EXISTS', KEYS[1]) == 1 then return 0 end
+if redis.call('EXISTS', KEYS[4]) == 1 then return 0 end
+redis.call('SET', KEYS[4], ARGV[4], 'PX', ARGV[2])
 redis.call('SET', KEYS[1], ARGV[1], 'PX', ARGV[2])
 redis.call('SET', KEYS[2], '0', 'PX', ARGV[2])
 redis.call('SET', KEYS[3], ARGV[3], 'PX', ARGV[2])
@@ -109,8 +110,8 @@ if redis.call('GET', KEYS[1]) == ARGV[1] then return redis.call('DEL', KEYS[1]) 
 return 0
 )lua";
 
-// KEYS: state ver rev lease log. ARGV: owner, base version, state bytes, ttl ms, kind, revision,
-// entry bytes, log length. Returns {code, version, revision}: 0 written, 1 lost the lease,
+// KEYS: state ver rev lease log mesh. ARGV: owner, base version, state bytes, ttl ms, kind,
+// revision, entry bytes, log length, lease ms. Returns {code, version, revision}: 0 written, 1 lost the lease,
 // 2 another write won, 3 not stored.
 constexpr const char* kCommitScript = R"lua(
 local ver = redis.call('GET', KEYS[2])
@@ -125,18 +126,19 @@ redis.call('SET', KEYS[3], ARGV[6], 'PX', ARGV[4])
 redis.call('XADD', KEYS[5], 'MAXLEN', '~', ARGV[8], nv .. '-0', 'k', ARGV[5], 'r', ARGV[6],
            'd', ARGV[7])
 redis.call('PEXPIRE', KEYS[5], ARGV[4])
+redis.call('PEXPIRE', KEYS[6], ARGV[4])
 redis.call('PEXPIRE', KEYS[4], ARGV[9])
 return {0, nv, ARGV[6]}
 )lua";
 
-// KEYS: state ver. Returns {state, version} (nil parts when not stored).
+// KEYS: mesh state ver. Returns {mesh, state, version} (false parts when not stored).
 constexpr const char* kLoadScript = R"lua(
-return {redis.call('GET', KEYS[1]), redis.call('GET', KEYS[2])}
+return {redis.call('GET', KEYS[1]), redis.call('GET', KEYS[2]), redis.call('GET', KEYS[3])}
 )lua";
 
-// KEYS: state ver rev lease log.
+// KEYS: state ver rev lease log mesh.
 constexpr const char* kRemoveScript = R"lua(
-return redis.call('DEL', KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5])
+return redis.call('DEL', KEYS[1], KEYS[2], KEYS[3], KEYS[4], KEYS[5], KEYS[6])
 )lua";
 
 const char* script_text(int index) {
@@ -259,6 +261,75 @@ Result<SharedLogEntry> decode_entry(std::string_view bytes) {
   entry.result = std::move(result);
   entry.targets = std::move(targets);
   return entry;
+}
+
+// --- The changing part of a session's state (md:{id}:state) -------------------------------------
+// The rest mesh, the tokens and lambda never change: they are stored once (md:{id}:mesh, the
+// persistence.h file format) and a commit writes only this. "MDDYN1", u32 group count, per group
+// u8 role (0 fixed), u32 size, i32 vertices; matrix anchors, targets, positions; u64 revision;
+// i32 last method (-1 none).
+
+constexpr std::string_view kDynamicMagic = "MDDYN1";
+
+std::string encode_dynamic(const PersistedSession& state) {
+  Bytes out;
+  std::string bytes(kDynamicMagic);
+  out.pod(static_cast<std::uint32_t>(state.groups.size()));
+  for (const HandleGroup& g : state.groups) {
+    out.pod(static_cast<std::uint8_t>(g.role == HandleRole::Fixed ? 0 : 1));
+    out.pod(static_cast<std::uint32_t>(g.vertices.size()));
+    for (int v : g.vertices) out.pod(static_cast<std::int32_t>(v));
+  }
+  out.matrix(state.anchors);
+  out.matrix(state.targets);
+  out.matrix(state.positions);
+  out.pod(state.revision);
+  out.pod(static_cast<std::int32_t>(state.last_method ? static_cast<int>(*state.last_method) : -1));
+  bytes += out.take();
+  return bytes;
+}
+
+/// Overlays the changing part onto `state` (decoded from the mesh key) and checks the sizes.
+Status decode_dynamic(std::string_view bytes, PersistedSession& state) {
+  const auto corrupt = [&state](const char* what) {
+    return Error(ErrorCode::InvalidArgument,
+                 "stored state of session " + state.id.value + " is corrupt (" + what + ")");
+  };
+  if (!bytes.starts_with(kDynamicMagic)) return corrupt("magic");
+  Parse in(bytes.substr(kDynamicMagic.size()));
+  const auto nv = static_cast<std::int32_t>(state.rest.V.rows());
+  std::uint32_t groups = 0;
+  if (!in.pod(groups) || groups > static_cast<std::uint32_t>(nv)) return corrupt("groups");
+  state.groups.clear();
+  std::size_t constrained = 0;
+  for (std::uint32_t g = 0; g < groups; ++g) {
+    HandleGroup group;
+    std::uint8_t role = 0;
+    std::uint32_t size = 0;
+    if (!in.pod(role) || !in.pod(size) || size > static_cast<std::uint32_t>(nv)) {
+      return corrupt("group");
+    }
+    group.role = role == 0 ? HandleRole::Fixed : HandleRole::Handle;
+    for (std::uint32_t i = 0; i < size; ++i) {
+      std::int32_t v = 0;
+      if (!in.pod(v) || v < 0 || v >= nv) return corrupt("group vertex");
+      group.vertices.push_back(v);
+    }
+    constrained += size;
+    state.groups.push_back(std::move(group));
+  }
+  std::int32_t method = -1;
+  if (!in.matrix(state.anchors) || !in.matrix(state.targets) || !in.matrix(state.positions) ||
+      !in.pod(state.revision) || !in.pod(method) || !in.done()) {
+    return corrupt("truncated");
+  }
+  if (state.positions.rows() != nv || static_cast<std::size_t>(state.anchors.rows()) != constrained ||
+      state.targets.rows() != state.anchors.rows() || method < -1 || method > 2) {
+    return corrupt("sizes");
+  }
+  state.last_method.reset();
+  if (method >= 0) state.last_method = static_cast<core::Method>(method);
+  return Status::success();
 }
 
 Status store_error(std::string_view what) {
@@ -469,8 +540,10 @@ Status RedisStateStore::create(const PersistedSession& state) {
   const std::string ttl = std::to_string(std::chrono::milliseconds(config_.idle_ttl).count());
   MD_ASSIGN_OR_RETURN(Reply reply,
                       script(kCreate,
-                             {key(state.id, "state"), key(state.id, "ver"), key(state.id, "rev")},
-                             {encode_session(state), ttl, std::to_string(state.revision)}));
+                             {key(state.id, "state"), key(state.id, "ver"), key(state.id, "rev"),
+                              key(state.id, "mesh")},
+                             {encode_dynamic(state), ttl, std::to_string(state.revision),
+                              encode_session(state)}));
   if (reply->type != REDIS_REPLY_INTEGER) return store_error("unexpected reply to create");
   if (reply->integer == 0) {
     return Error(ErrorCode::Aborted, "session " + state.id.value + " already exists");
@@ -479,20 +552,23 @@ Status RedisStateStore::create(const PersistedSession& state) {
 }
 
 Result<SharedState> RedisStateStore::load(const SessionId& id) {
-  MD_ASSIGN_OR_RETURN(Reply reply, script(kLoad, {key(id, "state"), key(id, "ver")}, {}));
+  MD_ASSIGN_OR_RETURN(Reply reply,
+                      script(kLoad, {key(id, "mesh"), key(id, "state"), key(id, "ver")}, {}));
   if (reply->type != REDIS_REPLY_ARRAY) return store_error("unexpected reply to load");
-  // A nil table element ends a Lua array: a missing state gives an empty reply.
-  if (reply->elements < 2 || reply->element[0]->type != REDIS_REPLY_STRING) {
+  if (reply->elements < 3 || reply->element[0]->type != REDIS_REPLY_STRING ||
+      reply->element[1]->type != REDIS_REPLY_STRING) {
     return Error(ErrorCode::NotFound, "session " + id.value + " is not stored");
   }
-  const std::optional<std::uint64_t> version = as_u64(reply->element[1]);
+  const std::optional<std::uint64_t> version = as_u64(reply->element[2]);
   if (!version) return store_error("session " + id.value + " has no valid version");
-  const redisReply* bytes = reply->element[0];
+  const redisReply* mesh = reply->element[0];
   MD_ASSIGN_OR_RETURN(PersistedSession state,
-                      decode_session(std::string_view(bytes->str, bytes->len)));
+                      decode_session(std::string_view(mesh->str, mesh->len)));
   if (state.id.value != id.value) {
     return Error(ErrorCode::InvalidArgument, "stored state of " + id.value + " names another id");
   }
+  const redisReply* dynamic = reply->element[1];
+  MD_RETURN_IF_ERROR(decode_dynamic(std::string_view(dynamic->str, dynamic->len), state));
   return SharedState{std::move(state), *version};
 }
 
@@ -594,8 +670,9 @@ Status RedisStateStore::commit(const PersistedSession& state, std::uint64_t base
   MD_ASSIGN_OR_RETURN(
       Reply reply,
       script(kCommit,
-             {key(id, "state"), key(id, "ver"), key(id, "rev"), key(id, "lease"), key(id, "log")},
-             {owner_, std::to_string(base_version), encode_session(state), ttl,
+             {key(id, "state"), key(id, "ver"), key(id, "rev"), key(id, "lease"), key(id, "log"),
+              key(id, "mesh")},
+             {owner_, std::to_string(base_version), encode_dynamic(state), ttl,
               entry.result ? "m" : "h", std::to_string(state.revision),
               entry.result ? encode_entry(entry) : std::string(), std::to_string(kLogLength),
               std::to_string(config_.lease.count())}));
@@ -630,7 +707,9 @@ void RedisStateStore::remove(const SessionId& id) {
   }
   const Result<Reply> reply = script(
       kRemove,
-      {key(id, "state"), key(id, "ver"), key(id, "rev"), key(id, "lease"), key(id, "log")}, {});
+      {key(id, "state"), key(id, "ver"), key(id, "rev"), key(id, "lease"), key(id, "log"),
+       key(id, "mesh")},
+      {});
   if (!reply.ok()) {
     log_event(LogLevel::Warn, "state_remove_failed",
               LogFields().add("session", id.value).add("message", reply.status().message()));

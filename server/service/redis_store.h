@@ -4,7 +4,9 @@
 /// of connections).
 ///
 /// Keys, all hash-tagged with the session id so that a session's keys share one Redis Cluster
-/// slot (the scripts touch several): `md:{<id>}:state` (encode_session bytes), `md:{<id>}:ver`
+/// slot (the scripts touch several): `md:{<id>}:mesh` (encode_session bytes written at creation:
+/// the rest mesh, tokens and lambda never change), `md:{<id>}:state` (the changing part: handle
+/// groups, anchors, targets, positions, revision, method), `md:{<id>}:ver`
 /// (write version), `md:{<id>}:rev` (revision), `md:{<id>}:lease` (the owning replica's id,
 /// SET NX PX), `md:{<id>}:log` (a stream; entry id `<version>-0`, trimmed to the newest
 /// kLogLength entries). State keys expire idle_ttl after the last write.

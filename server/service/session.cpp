@@ -124,13 +124,13 @@ Result<std::shared_ptr<Session>> Session::restore(PersistedSession state,
   return session;
 }
 
-PersistedSession Session::persisted_state() const {
+PersistedSession Session::persisted_state(bool with_rest) const {
   PersistedSession state;
   state.id = id_;
   state.edit_token = edit_token_;
   state.view_token = view_token_;
   state.lambda = settings_.lambda;
-  state.rest = rest_;
+  if (with_rest) state.rest = rest_;
   {
     std::lock_guard lock(state_mutex_);
     state.groups = groups_;
@@ -316,7 +316,7 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
     if (shared_ != nullptr) {
       // The anchors are the current positions: no replay may slip in between.
       shared_lock.lock();
-      PersistedSession state = persisted_state();
+      PersistedSession state = persisted_state(/*with_rest=*/false);
       state.groups = request.groups;
       state.anchors.resize(static_cast<Eigen::Index>(constrained.size()), 3);
       for (std::size_t j = 0; j < constrained.size(); ++j)
@@ -563,7 +563,7 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
                                            "... was changed by another replica (revision " +
                                            std::to_string(revision()) + " is current); retry");
     }
-    PersistedSession state = persisted_state();
+    PersistedSession state = persisted_state(/*with_rest=*/false);
     state.revision = base_revision + 1;
     state.positions = *result->positions;
     state.targets = targets;

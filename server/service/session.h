@@ -67,8 +67,9 @@ class Session : public std::enable_shared_from_this<Session> {
   /// Writes the current state now (creation). Errors are logged and counted, not returned:
   /// the edit stands in memory either way.
   void persist();
-  /// The state as a state file or the shared store holds it.
-  PersistedSession persisted_state() const;
+  /// The state as a state file or the shared store holds it; without `with_rest` the rest mesh
+  /// is left empty (what a shared-store commit writes).
+  PersistedSession persisted_state(bool with_rest = true) const;
 
   /// Shares the session through `store` (issue 16) from now on: every edit first takes the
   /// session's lease and catches this copy up with the store, and every committed revision and

@@ -69,7 +69,8 @@ class SharedStateStore {
                                              std::stop_token stop = {}) = 0;
   /// Gives the lease back if this replica holds it (errors are only logged).
   virtual void release_lease(const SessionId& id) = 0;
-  /// Writes `state` as version base_version + 1 and appends `entry` (whose version and revision
+  /// Writes `state` as version base_version + 1 (its changing part: the rest mesh, the tokens and
+  /// lambda are the ones stored at create and may be left empty here) and appends `entry` (whose version and revision
   /// are filled in here) to the log, atomically, if and only if the stored version is still
   /// `base_version` and this replica holds the lease.
   /// @return success; Aborted naming the stored revision when another write won or the lease

@@ -255,6 +255,49 @@ TEST(RedisReplicasTest, RacingReplicasGiveOneWinnerPerRevisionAndLoseNothing) {
   }
 }
 
+TEST(RedisReplicasTest, RoundRobinOverThreeReplicasIsCorrect) {
+  // What nginx round robin does to one client's calls: each goes to the next replica. Every call
+  // must see the previous one's effect (revisions consecutive, handles set elsewhere honoured).
+  MD_REQUIRE_REDIS();
+  auto redis = start_redis();
+  ASSERT_NE(redis, nullptr);
+  Replica r0(*redis), r1(*redis), r2(*redis);
+  DeformationService* replicas[] = {&r0.service, &r1.service, &r2.service};
+  const service::CreatedSession created = create_with_handles(r0.service);
+  ASSERT_FALSE(created.id.value.empty());
+  std::uint64_t expected = 0;
+  Positions last;
+  for (int i = 0; i < 60; ++i) {
+    DeformationService& service = *replicas[i % 3];
+    if (i == 30) {
+      // New handles through one replica (a handle change: the others reload the whole state):
+      // the handle group alone, anchored where the drag left it.
+      service::SetHandlesRequest handles;
+      handles.groups = created.suggested_groups;
+      Result<service::SessionInfo> set =
+          service.set_handles(created.id, created.edit_token, handles);
+      ASSERT_TRUE(set.ok()) << set.status().to_string();
+      EXPECT_EQ(set->revision, expected);
+      continue;
+    }
+    Result<service::DeformResult> moved =
+        service.move_handles(created.id, created.edit_token, lift(0.002 * (i % 30 + 1)));
+    ASSERT_TRUE(moved.ok()) << "call " << i << ": " << moved.status().to_string();
+    EXPECT_EQ(moved->revision, ++expected) << "call " << i;
+    last = *moved->positions;
+  }
+  for (DeformationService* service : replicas) {
+    Result<service::SessionInfo> info = service->session_info(created.id, created.view_token);
+    ASSERT_TRUE(info.ok());
+    EXPECT_EQ(info->revision, expected);
+    Result<std::string> mesh = service->get_mesh(created.id, created.view_token, io::MeshFormat::Obj);
+    ASSERT_TRUE(mesh.ok());
+    Result<io::LoadedMesh> parsed = io::load_mesh_from_memory(*mesh, io::MeshFormat::Obj);
+    ASSERT_TRUE(parsed.ok());
+    EXPECT_TRUE(parsed->mesh.V.isApprox(last, 1e-12));
+  }
+}
+
 TEST(RedisReplicasTest, WatcherOnReplicaBSeesEveryRevisionCommittedThroughA) {
   MD_REQUIRE_REDIS();
   auto redis = start_redis();
