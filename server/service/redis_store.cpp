@@ -1,6 +1,7 @@
 #include "server/service/redis_store.h"
 
 #include <hiredis/hiredis.h>
+#include <poll.h>
 
 #include <charconv>
 #include <condition_variable>
@@ -421,13 +422,19 @@ Result<std::unique_ptr<RedisStateStore>> RedisStateStore::connect(RedisConfig co
 }
 
 Result<redisContext*> RedisStateStore::take() {
-  {
-    std::lock_guard lock(pool_mutex_);
-    if (!idle_.empty()) {
-      redisContext* context = idle_.back();
+  for (;;) {
+    redisContext* context = nullptr;
+    {
+      std::lock_guard lock(pool_mutex_);
+      if (idle_.empty()) break;
+      context = idle_.back();
       idle_.pop_back();
-      return context;
     }
+    // An idle connection has nothing to read: readable means the server closed it (a restart, a
+    // timeout, a failover). Drop it rather than fail the next command on it.
+    pollfd p{context->fd, POLLIN, 0};
+    if (::poll(&p, 1, 0) == 0) return context;
+    redisFree(context);
   }
   const std::string where = "redis at " + config_.host + ":" + std::to_string(config_.port);
   timeval timeout{};
@@ -495,10 +502,7 @@ void RedisStateStore::give_back(redisContext* context) {
   idle_.push_back(context);
 }
 
-Result<Reply> RedisStateStore::run(const std::vector<std::string>& args) {
-  Result<redisContext*> taken = take();
-  if (!taken.ok()) return store_error(taken.status().message());
-  redisContext* context = *taken;
+Result<Reply> RedisStateStore::run(const std::vector<std::string>& args, bool idempotent) {
   std::vector<const char*> argv;
   std::vector<std::size_t> lengths;
   argv.reserve(args.size());
@@ -507,16 +511,24 @@ Result<Reply> RedisStateStore::run(const std::vector<std::string>& args) {
     argv.push_back(a.data());
     lengths.push_back(a.size());
   }
-  auto* reply = static_cast<redisReply*>(
-      redisCommandArgv(context, static_cast<int>(argv.size()), argv.data(), lengths.data()));
-  if (reply == nullptr) {
+  // An idempotent command is sent once more on a new connection after an I/O error; a write
+  // that is not (a commit) is not: whether it was applied is unknown, the caller is told so.
+  for (int attempt = 0;; ++attempt) {
+    Result<redisContext*> taken = take();
+    if (!taken.ok()) return store_error(taken.status().message());
+    redisContext* context = *taken;
+    auto* reply = static_cast<redisReply*>(
+        redisCommandArgv(context, static_cast<int>(argv.size()), argv.data(), lengths.data()));
+    if (reply != nullptr) {
+      give_back(context);
+      return Reply(reply);
+    }
     // The connection is in an unknown state (timeout mid-reply, reset): never reuse it.
-    Status error = store_error(std::string(args.empty() ? "" : args[0]) + ": " + context->errstr);
+    Status error = store_error(std::string(args.empty() ? "" : args[0]) + ": " + context->errstr +
+                               (idempotent ? "" : " (the write may or may not have been applied)"));
     redisFree(context);
-    return error;
+    if (!idempotent || attempt > 0) return error;
   }
-  give_back(context);
-  return Reply(reply);
 }
 
 Result<Reply> RedisStateStore::script(int index, const std::vector<std::string>& keys,
@@ -525,12 +537,14 @@ Result<Reply> RedisStateStore::script(int index, const std::vector<std::string>&
                                       std::to_string(keys.size())};
   command.insert(command.end(), keys.begin(), keys.end());
   command.insert(command.end(), args.begin(), args.end());
-  MD_ASSIGN_OR_RETURN(Reply reply, run(command));
+  const bool idempotent = index != kCommit && index != kCreate;
+  MD_ASSIGN_OR_RETURN(Reply reply, run(command, idempotent));
   if (is_error(reply.get()) && text(reply.get()).starts_with("NOSCRIPT")) {
     // A restarted server or another Cluster node: send the script itself (it is cached again).
+    // NOSCRIPT means it did not run, so this is no second attempt of a write.
     command[0] = "EVAL";
     command[1] = script_text(index);
-    MD_ASSIGN_OR_RETURN(reply, run(command));
+    MD_ASSIGN_OR_RETURN(reply, run(command, idempotent));
   }
   if (is_error(reply.get())) return store_error(text(reply.get()));
   return reply;

@@ -82,9 +82,10 @@ class RedisStateStore final : public SharedStateStore {
   /// A connected, authenticated context (from the pool or new).
   Result<redisContext*> take();
   void give_back(redisContext* context);
-  /// Runs one command. @return the reply (a Redis error reply is returned as a reply);
-  ///         Internal naming the I/O error (the connection is then dropped).
-  Result<Reply> run(const std::vector<std::string>& args);
+  /// Runs one command; an `idempotent` one once more on a new connection after an I/O error.
+  /// @return the reply (a Redis error reply is returned as a reply); Internal naming the I/O
+  ///         error (the connection is then dropped).
+  Result<Reply> run(const std::vector<std::string>& args, bool idempotent = true);
   /// EVALSHA of script `index`, EVAL when the server lacks it. @return as run(); a Redis error
   ///         reply is returned as Internal naming it.
   Result<Reply> script(int index, const std::vector<std::string>& keys,

@@ -180,6 +180,29 @@ TEST(RedisStoreTest, CommitIsACompareAndSetOnTheVersionFromTheLeaseHolder) {
   a->release_lease(created.id);
 }
 
+TEST(RedisStoreTest, PooledConnectionsSurviveARedisRestart) {
+  MD_REQUIRE_REDIS();
+  auto redis = start_redis();
+  ASSERT_NE(redis, nullptr);
+  auto store = connect_store(*redis);
+  ASSERT_TRUE(store);
+  const service::SessionId unknown{std::string(32, 'a')};
+  Result<std::optional<std::uint64_t>> before = store->version(unknown);
+  ASSERT_TRUE(before.ok()) << before.status().to_string();
+  EXPECT_FALSE(before->has_value());
+  // The pooled connection now points at a dead server; a new one listens on the same port.
+  ASSERT_TRUE(redis->stop(SIGKILL));
+  test::RedisOptions same;
+  same.dir = redis->dir();
+  same.port = redis->port();
+  auto restarted = start_redis(same);
+  ASSERT_NE(restarted, nullptr);
+  Result<std::optional<std::uint64_t>> after = store->version(unknown);
+  EXPECT_TRUE(after.ok()) << after.status().to_string();
+  EXPECT_TRUE(store->acquire_lease(unknown, milliseconds(0)).ok());
+  store->release_lease(unknown);
+}
+
 // --- Two replicas -------------------------------------------------------------------------------
 
 TEST(RedisReplicasTest, RacingReplicasGiveOneWinnerPerRevisionAndLoseNothing) {
@@ -373,27 +396,25 @@ TEST(RedisReplicasTest, NothingIsAcknowledgedThatRedisDidNotTakeAndAppendonlyKee
   const std::string dir = redis->dir();
   std::uint64_t acked_revision = 0;
   Positions acked_positions;
-  service::CreatedSession created;
-  {
-    Replica a(*redis);
-    created = create_with_handles(a.service);
-    ASSERT_FALSE(created.id.value.empty());
-    for (int i = 1; i <= 20; ++i) {
-      Result<service::DeformResult> moved =
-          a.service.move_handles(created.id, created.edit_token, lift(0.003 * i));
-      ASSERT_TRUE(moved.ok()) << moved.status().to_string();
-      acked_revision = moved->revision;
-      acked_positions = *moved->positions;
-    }
-    // Redis crashes: the next edit fails and the replica's copy does not move on.
-    ASSERT_TRUE(redis->stop(SIGKILL));
-    Result<service::DeformResult> refused =
-        a.service.move_handles(created.id, created.edit_token, lift(0.5));
-    EXPECT_FALSE(refused.ok());
-    EXPECT_NE(refused.status().message().find("redis"), std::string::npos)
-        << refused.status().to_string();
+  Replica a(*redis);
+  const service::CreatedSession created = create_with_handles(a.service);
+  ASSERT_FALSE(created.id.value.empty());
+  for (int i = 1; i <= 20; ++i) {
+    Result<service::DeformResult> moved =
+        a.service.move_handles(created.id, created.edit_token, lift(0.003 * i));
+    ASSERT_TRUE(moved.ok()) << moved.status().to_string();
+    acked_revision = moved->revision;
+    acked_positions = *moved->positions;
   }
-  // Restarted on its append-only file: every acknowledged revision is there.
+  // Redis crashes: the next edit fails and the replica's copy does not move on.
+  ASSERT_TRUE(redis->stop(SIGKILL));
+  Result<service::DeformResult> refused =
+      a.service.move_handles(created.id, created.edit_token, lift(0.5));
+  EXPECT_FALSE(refused.ok());
+  EXPECT_NE(refused.status().message().find("redis"), std::string::npos)
+      << refused.status().to_string();
+
+  // Restarted on its append-only file: every acknowledged revision is there, for a new replica.
   test::RedisOptions same;
   same.dir = dir;
   same.port = port;
@@ -408,11 +429,15 @@ TEST(RedisReplicasTest, NothingIsAcknowledgedThatRedisDidNotTakeAndAppendonlyKee
   Result<io::LoadedMesh> parsed = io::load_mesh_from_memory(*mesh, io::MeshFormat::Obj);
   ASSERT_TRUE(parsed.ok());
   EXPECT_TRUE(parsed->mesh.V.isApprox(acked_positions, 1e-12));
+  // The replica that lived through the outage edits again at once: its pooled connections to
+  // the dead server are dropped, not failed on, and its copy was not ahead of Redis.
   Result<service::DeformResult> next =
-      b.service.move_handles(created.id, created.edit_token, lift(0.1));
+      a.service.move_handles(created.id, created.edit_token, lift(0.1));
   ASSERT_TRUE(next.ok()) << next.status().to_string();
   EXPECT_EQ(next->revision, acked_revision + 1);
-  restarted.reset();  // stopped before `redis` removes the directory they share
+  Result<service::SessionInfo> after = b.service.session_info(created.id, created.view_token);
+  ASSERT_TRUE(after.ok()) << after.status().to_string();
+  EXPECT_EQ(after->revision, acked_revision + 1);
 }
 
 // --- Through the binary -------------------------------------------------------------------------
