@@ -53,6 +53,7 @@ struct Flags {
   std::string redis_url;            // --redis: sessions on Redis (issue 16)
   std::string redis_password_file;  // the password never comes from the command line
   int redis_lease_ms = 5000;
+  int redis_log_length = 32;
   std::string tls_cert;       // PEM files; both or neither
   std::string tls_key;
   std::string tls_client_ca;  // optional: require client certificates (mTLS)
@@ -105,6 +106,10 @@ constexpr const char* kUsage =
     "  --redis-lease-ms N          how long a replica's edit lease on a session lasts unrenewed:\n"
     "                              after a crash, other replicas take the session over within N\n"
     "                              ms (default 5000)\n"
+    "  --redis-log-length N        committed revisions kept per session in Redis for replicas\n"
+    "                              and watchers catching up (each holds the positions, 24 bytes\n"
+    "                              a vertex; further behind, they load the whole state; default\n"
+    "                              32)\n"
     "  --tls-cert FILE             serve TLS (1.2+) on --listen and HTTPS on --http-listen with\n"
     "                              this PEM certificate chain (needs --tls-key; default: off)\n"
     "  --tls-key FILE              the certificate's PEM private key (unencrypted)\n"
@@ -208,6 +213,8 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
       ok = !value.empty();
     } else if (arg == "--redis-lease-ms") {
       ok = parse_number(value, 100, 600'000, flags.redis_lease_ms);
+    } else if (arg == "--redis-log-length") {
+      ok = parse_number(value, 1, 100'000, flags.redis_log_length);
     } else if (arg == "--tls-cert") {
       flags.tls_cert = std::string(value);
       ok = !value.empty();
@@ -317,6 +324,7 @@ int main(int argc, char** argv) {
       config->password = env;
     }
     config->lease = std::chrono::milliseconds(flags.redis_lease_ms);
+    config->log_length = flags.redis_log_length;
     config->idle_ttl = std::chrono::seconds(flags.idle_ttl_seconds);
     auto connected = meshdeform::service::RedisStateStore::connect(std::move(config).value());
     if (!connected.ok()) return redis_error(connected.status().message());

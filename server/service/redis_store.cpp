@@ -124,7 +124,7 @@ local nv = string.format('%d', tonumber(ver) + 1)
 redis.call('SET', KEYS[1], ARGV[3], 'PX', ARGV[4])
 redis.call('SET', KEYS[2], nv, 'PX', ARGV[4])
 redis.call('SET', KEYS[3], ARGV[6], 'PX', ARGV[4])
-redis.call('XADD', KEYS[5], 'MAXLEN', '~', ARGV[8], nv .. '-0', 'k', ARGV[5], 'r', ARGV[6],
+redis.call('XADD', KEYS[5], 'MAXLEN', ARGV[8], nv .. '-0', 'k', ARGV[5], 'r', ARGV[6],
            'd', ARGV[7])
 redis.call('PEXPIRE', KEYS[5], ARGV[4])
 redis.call('PEXPIRE', KEYS[6], ARGV[4])
@@ -688,7 +688,7 @@ Status RedisStateStore::commit(const PersistedSession& state, std::uint64_t base
               key(id, "mesh")},
              {owner_, std::to_string(base_version), encode_dynamic(state), ttl,
               entry.result ? "m" : "h", std::to_string(state.revision),
-              entry.result ? encode_entry(entry) : std::string(), std::to_string(kLogLength),
+              entry.result ? encode_entry(entry) : std::string(), std::to_string(config_.log_length),
               std::to_string(config_.lease.count())}));
   if (reply->type != REDIS_REPLY_ARRAY || reply->elements != 3) {
     return store_error("unexpected reply to the commit script");

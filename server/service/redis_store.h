@@ -9,7 +9,8 @@
 /// groups, anchors, targets, positions, revision, method), `md:{<id>}:ver`
 /// (write version), `md:{<id>}:rev` (revision), `md:{<id>}:lease` (the owning replica's id,
 /// SET NX PX), `md:{<id>}:log` (a stream; entry id `<version>-0`, trimmed to the newest
-/// kLogLength entries). State keys expire idle_ttl after the last write.
+/// RedisConfig::log_length entries: a replica further behind loads the whole state). State keys
+/// expire idle_ttl after the last write.
 ///
 /// Writes are Lua scripts (EVALSHA, EVAL when the server does not have them cached): the
 /// compare-and-set of a commit checks the lease and the version and writes the state, the
@@ -41,6 +42,10 @@ struct RedisConfig {
   std::chrono::milliseconds io_timeout{2000};  ///< connect and per-command timeout
   std::chrono::milliseconds lease{5000};       ///< lease duration (renewed while in use)
   std::chrono::seconds idle_ttl{30 * 60};      ///< state keys expire this long after a write
+  /// Log entries kept per session. Each holds the revision's positions (24 bytes per vertex), so
+  /// this bounds Redis memory per session; a replica or watcher further behind than this reloads
+  /// the whole state (watchers then get a snapshot).
+  int log_length = 32;
 };
 
 /// Parses `redis://[user@]host[:port][/db]`.
@@ -72,8 +77,6 @@ class RedisStateStore final : public SharedStateStore {
 
   /// This replica's lease owner id (random, per process).
   const std::string& owner() const { return owner_; }
-  /// Log entries kept per session (older ones are trimmed).
-  static constexpr int kLogLength = 512;
 
   class Reply;  // a redisReply owner (redis_store.cpp)
 

@@ -52,13 +52,11 @@ std::unique_ptr<test::RedisProcess> start_redis(const test::RedisOptions& option
 }
 
 std::shared_ptr<RedisStateStore> connect_store(const test::RedisProcess& redis,
-                                               milliseconds lease = milliseconds(5000),
-                                               const std::string& password = "") {
+                                               int log_length = 32) {
   Result<service::RedisConfig> config = service::parse_redis_url(redis.url());
   EXPECT_TRUE(config.ok()) << config.status().to_string();
   if (!config.ok()) return nullptr;
-  config->lease = lease;
-  config->password = password;
+  config->log_length = log_length;
   Result<std::unique_ptr<RedisStateStore>> store = RedisStateStore::connect(*config);
   EXPECT_TRUE(store.ok()) << store.status().to_string();
   if (!store.ok()) return nullptr;
@@ -74,8 +72,8 @@ service::ServiceOptions replica_options() {
 
 /// A replica: a service on its own connection pool and lease owner id.
 struct Replica {
-  explicit Replica(const test::RedisProcess& redis)
-      : store(connect_store(redis)), service(replica_options(), store) {}
+  explicit Replica(const test::RedisProcess& redis, int log_length = 32)
+      : store(connect_store(redis, log_length)), service(replica_options(), store) {}
   std::shared_ptr<RedisStateStore> store;
   DeformationService service;
 };
@@ -319,6 +317,41 @@ TEST(RedisReplicasTest, RoundRobinOverThreeReplicasIsCorrect) {
     ASSERT_TRUE(parsed.ok());
     EXPECT_TRUE(parsed->mesh.V.isApprox(last, 1e-12));
   }
+}
+
+TEST(RedisReplicasTest, AReplicaBehindTheTrimmedLogLoadsTheWholeState) {
+  MD_REQUIRE_REDIS();
+  auto redis = start_redis();
+  ASSERT_NE(redis, nullptr);
+  constexpr int kLog = 4;  // the log keeps the newest 4 revisions only
+  Replica a(*redis, kLog), b(*redis, kLog);
+  const service::CreatedSession created = create_with_handles(a.service);
+  ASSERT_FALSE(created.id.value.empty());
+  Result<service::SessionInfo> loaded = b.service.session_info(created.id, created.view_token);
+  ASSERT_TRUE(loaded.ok()) << loaded.status().to_string();
+  EXPECT_EQ(loaded->revision, 0u);
+  Result<service::DeformResult> moved = Error(ErrorCode::Internal, "no move yet");
+  for (int i = 1; i <= 3 * kLog; ++i) {
+    moved = a.service.move_handles(created.id, created.edit_token, lift(0.002 * i));
+    ASSERT_TRUE(moved.ok()) << moved.status().to_string();
+  }
+  Result<service::SessionInfo> caught_up = b.service.session_info(created.id, created.view_token);
+  ASSERT_TRUE(caught_up.ok()) << caught_up.status().to_string();
+  EXPECT_EQ(caught_up->revision, moved->revision);
+  Result<std::string> mesh = b.service.get_mesh(created.id, created.view_token, io::MeshFormat::Obj);
+  ASSERT_TRUE(mesh.ok());
+  Result<io::LoadedMesh> parsed = io::load_mesh_from_memory(*mesh, io::MeshFormat::Obj);
+  ASSERT_TRUE(parsed.ok());
+  EXPECT_TRUE(parsed->mesh.V.isApprox(*moved->positions, 1e-12));
+  // And B edits on from there.
+  Result<service::DeformResult> next =
+      b.service.move_handles(created.id, created.edit_token, lift(0.05));
+  ASSERT_TRUE(next.ok()) << next.status().to_string();
+  EXPECT_EQ(next->revision, moved->revision + 1);
+  // The log really is trimmed to kLog entries.
+  Result<std::vector<service::SharedLogEntry>> log = a.store->read_log(created.id, 0, 100);
+  ASSERT_TRUE(log.ok()) << log.status().to_string();
+  EXPECT_EQ(log->size(), static_cast<std::size_t>(kLog));
 }
 
 TEST(RedisReplicasTest, WatcherOnReplicaBSeesEveryRevisionCommittedThroughA) {
