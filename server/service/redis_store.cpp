@@ -82,18 +82,19 @@ redis.call('SET', KEYS[3], ARGV[3], 'PX', ARGV[2])
 return 1
 )lua";
 
-// KEYS: lease. ARGV: owner, lease ms. Returns {1, 0} when held now, {0, pttl} when another has it.
+// KEYS: lease rev. ARGV: owner, lease ms. Returns {1, 0, ''} when held now, {0, pttl, revision}
+// when another replica has it.
 constexpr const char* kAcquireScript = R"lua(
 local owner = redis.call('GET', KEYS[1])
 if owner == ARGV[1] then
   redis.call('PEXPIRE', KEYS[1], ARGV[2])
-  return {1, 0}
+  return {1, 0, ''}
 end
 if not owner then
   redis.call('SET', KEYS[1], ARGV[1], 'PX', ARGV[2])
-  return {1, 0}
+  return {1, 0, ''}
 end
-return {0, redis.call('PTTL', KEYS[1])}
+return {0, redis.call('PTTL', KEYS[1]), redis.call('GET', KEYS[2]) or '?'}
 )lua";
 
 // KEYS: lease. ARGV: owner, lease ms. Returns 1 when renewed, 0 when the lease is not ours.
@@ -643,8 +644,9 @@ Status RedisStateStore::acquire_lease(const SessionId& id, std::chrono::millisec
   const std::string ms = std::to_string(config_.lease.count());
   std::chrono::milliseconds pause(2);
   for (;;) {
-    MD_ASSIGN_OR_RETURN(Reply reply, script(kAcquire, {key(id, "lease")}, {owner_, ms}));
-    if (reply->type != REDIS_REPLY_ARRAY || reply->elements != 2) {
+    MD_ASSIGN_OR_RETURN(Reply reply,
+                        script(kAcquire, {key(id, "lease"), key(id, "rev")}, {owner_, ms}));
+    if (reply->type != REDIS_REPLY_ARRAY || reply->elements != 3) {
       return store_error("unexpected reply to the lease script");
     }
     if (reply->element[0]->integer == 1) {
@@ -657,7 +659,8 @@ Status RedisStateStore::acquire_lease(const SessionId& id, std::chrono::millisec
     if (waited >= wait || stop.stop_requested()) {
       return Error(ErrorCode::Aborted,
                    "session " + id.value.substr(0, 8) +
-                       "... is being edited through another replica (its lease ends in " +
+                       "... is being edited through another replica (revision " +
+                       text(reply->element[2]) + " is current; its lease ends in " +
                        std::to_string(std::max(remaining, 0LL)) + " ms); retry the call");
     }
     std::this_thread::sleep_for(pause);

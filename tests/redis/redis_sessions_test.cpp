@@ -155,7 +155,8 @@ TEST(RedisStoreTest, CommitIsACompareAndSetOnTheVersionFromTheLeaseHolder) {
   ASSERT_TRUE(b->acquire_lease(created.id, milliseconds(0)).ok());
   const Status busy = a->acquire_lease(created.id, milliseconds(50));
   EXPECT_EQ(busy.code(), ErrorCode::Aborted) << busy.to_string();
-  EXPECT_NE(busy.message().find("another replica"), std::string::npos) << busy.message();
+  EXPECT_NE(busy.message().find("another replica (revision 0 is current"), std::string::npos)
+      << busy.message();
   // The holder commits version + 1; the same base version again loses and names revision 1.
   ASSERT_TRUE(b->commit(next, version, entry).ok());
   const Status stale = b->commit(next, version, entry);
@@ -176,6 +177,30 @@ TEST(RedisStoreTest, CommitIsACompareAndSetOnTheVersionFromTheLeaseHolder) {
   b->release_lease(created.id);
   EXPECT_TRUE(a->acquire_lease(created.id, milliseconds(0)).ok());
   a->release_lease(created.id);
+}
+
+TEST(RedisStoreTest, TheLeaseOfADeadReplicaRunsOutAndALiveOneIsRenewed) {
+  MD_REQUIRE_REDIS();
+  auto redis = start_redis();
+  ASSERT_NE(redis, nullptr);
+  Result<service::RedisConfig> config = service::parse_redis_url(redis->url());
+  ASSERT_TRUE(config.ok());
+  config->lease = milliseconds(1000);
+  const service::SessionId id{std::string(32, 'b')};
+  Result<std::unique_ptr<RedisStateStore>> alive = RedisStateStore::connect(*config);
+  Result<std::unique_ptr<RedisStateStore>> other = RedisStateStore::connect(*config);
+  ASSERT_TRUE(alive.ok() && other.ok());
+  // A live holder renews its lease (every lease/3) for as long as it holds it: several lease
+  // durations later another replica still cannot take it.
+  ASSERT_TRUE((*alive)->acquire_lease(id, milliseconds(0)).ok());
+  std::this_thread::sleep_for(milliseconds(2500));
+  EXPECT_EQ((*other)->acquire_lease(id, milliseconds(0)).code(), ErrorCode::Aborted);
+  // The holder dies without giving it back (its renewer stops): the lease runs out and the
+  // other replica, waiting, takes it.
+  alive->reset();
+  const Status taken = (*other)->acquire_lease(id, milliseconds(10'000));
+  EXPECT_TRUE(taken.ok()) << taken.to_string();
+  (*other)->release_lease(id);
 }
 
 TEST(RedisStoreTest, PooledConnectionsSurviveARedisRestart) {
