@@ -404,9 +404,17 @@ RedisStateStore::~RedisStateStore() {
 
 Result<std::unique_ptr<RedisStateStore>> RedisStateStore::connect(RedisConfig config) {
   std::unique_ptr<RedisStateStore> store(new RedisStateStore(std::move(config)));
-  // take() connects and authenticates: its errors are the startup errors.
-  MD_ASSIGN_OR_RETURN(redisContext * context, store->take());
-  store->give_back(context);
+  // take() connects and authenticates: its errors are the startup errors. A Redis that is still
+  // loading its data set (a restart) answers LOADING: wait for it, bounded.
+  Result<redisContext*> context = store->take();
+  for (int i = 0; i < 120 && !context.ok() &&
+                  context.status().message().find("LOADING") != std::string::npos;
+       ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    context = store->take();
+  }
+  if (!context.ok()) return context.status();
+  store->give_back(*context);
   store->script_sha_.resize(kScriptCount);
   for (int i = 0; i < kScriptCount; ++i) {
     MD_ASSIGN_OR_RETURN(Reply reply, store->run({"SCRIPT", "LOAD", script_text(i)}));
@@ -490,10 +498,12 @@ Result<redisContext*> RedisStateStore::take() {
   if (!pong.ok()) return fail(pong.status().message());
   if (is_error(pong->get())) {
     // NOAUTH: the server wants a password and none was given.
-    return fail(where + " refused PING: " + text(pong->get()) +
-                (config_.password.empty() ? " (give the password with --redis-password-file or "
-                                            "MESHDEFORM_REDIS_PASSWORD)"
-                                          : ""));
+    const std::string refusal = text(pong->get());
+    return fail(where + " refused PING: " + refusal +
+                (config_.password.empty() && refusal.starts_with("NOAUTH")
+                     ? " (give the password with --redis-password-file or "
+                       "MESHDEFORM_REDIS_PASSWORD)"
+                     : ""));
   }
   return context;
 }

@@ -11,6 +11,7 @@
 #include <fstream>
 #include <random>
 #include <sstream>
+#include <string_view>
 #include <thread>
 
 namespace meshdeform::test {
@@ -18,8 +19,8 @@ namespace {
 
 namespace fs = std::filesystem;
 
-/// True when something on 127.0.0.1:port answers a RESP PING (+PONG, or -NOAUTH with a
-/// password) within `timeout`.
+/// True when a Redis on 127.0.0.1:port answers a RESP PING within `timeout` as a ready server
+/// does: +PONG, or -NOAUTH with a password (not -LOADING while it reads its append-only file).
 bool answers_ping(int port, std::chrono::milliseconds timeout) {
   const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
   if (fd < 0) return false;
@@ -32,9 +33,11 @@ bool answers_ping(int port, std::chrono::milliseconds timeout) {
     constexpr char kPing[] = "*1\r\n$4\r\nPING\r\n";
     if (::write(fd, kPing, sizeof kPing - 1) == static_cast<ssize_t>(sizeof kPing - 1)) {
       pollfd p{fd, POLLIN, 0};
-      char reply = 0;
-      if (::poll(&p, 1, static_cast<int>(timeout.count())) == 1 && ::read(fd, &reply, 1) == 1) {
-        ok = reply == '+' || reply == '-';
+      char reply[64] = {};
+      if (::poll(&p, 1, static_cast<int>(timeout.count())) == 1) {
+        const ssize_t n = ::read(fd, reply, sizeof reply - 1);
+        const std::string_view answer(reply, n > 0 ? static_cast<std::size_t>(n) : 0);
+        ok = answer.starts_with("+PONG") || answer.starts_with("-NOAUTH");
       }
     }
   }
