@@ -574,7 +574,8 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
     if (const Status stored = shared_->commit(state, shared_version_, std::move(logged));
         !stored.ok()) {
       entry->state_revision = ~std::uint64_t{0};
-      counters_->persist_failures.fetch_add(1);
+      // Losing a race (Aborted) is not a store failure; an error of the store is.
+      if (stored.code() != ErrorCode::Aborted) counters_->persist_failures.fetch_add(1);
       log_event(LogLevel::Warn, "shared_commit_refused",
                 LogFields().add("session", id_.value).add("message", stored.message()));
       return stored;
