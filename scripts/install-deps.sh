@@ -14,6 +14,8 @@ packages=(
   libboost-dev libmeshoptimizer-dev libssl-dev openssl
   nginx  # tests/scaleout: nginx in front of replicas (no daemon is started without systemd)
   procps  # scripts/kill-check.sh: pgrep finds the test's server child
+  libhiredis-dev  # --redis: sessions on Redis (server/service/redis_store.cpp)
+  redis-server  # tests/redis start their own on a loopback port (no daemon without systemd)
   "$@"
 )
 

@@ -12,6 +12,8 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdio>
+#include <cstdlib>
+#include <fstream>
 #include <iostream>
 #include <memory>
 #include <mutex>
@@ -25,6 +27,7 @@
 #include "server/service/deformation_service.h"
 #include "server/service/log.h"
 #include "server/service/persistence.h"
+#include "server/service/redis_store.h"
 #include "server/transport/deform_service_impl.h"
 #include "server/transport/grpc_web_gateway.h"
 #include "server/transport/http_server.h"
@@ -47,6 +50,10 @@ struct Flags {
   std::string web_root;
   std::vector<std::string> cors_origins;
   std::string state_dir;
+  std::string redis_url;            // --redis: sessions on Redis (issue 16)
+  std::string redis_password_file;  // the password never comes from the command line
+  int redis_lease_ms = 5000;
+  int redis_log_length = 32;
   std::string tls_cert;       // PEM files; both or neither
   std::string tls_key;
   std::string tls_client_ca;  // optional: require client certificates (mTLS)
@@ -88,6 +95,21 @@ constexpr const char* kUsage =
     "  --state-dir DIR             keep every session's state in DIR (written atomically before\n"
     "                              each edit is acknowledged) and resume sessions from it after a\n"
     "                              restart or on another replica sharing DIR (default: memory only)\n"
+    "  --redis URL                 keep sessions in Redis (redis://[user@]host[:port][/db]) so\n"
+    "                              that any replica on the same Redis serves any session: edits\n"
+    "                              take a per-session lease, commit by compare-and-set and are\n"
+    "                              acknowledged only once Redis accepted them; watchers see the\n"
+    "                              edits of every replica (default: off; not with --state-dir;\n"
+    "                              rediss:// is refused: Debian's hiredis 0.14 has no TLS)\n"
+    "  --redis-password-file FILE  the Redis password (first line of FILE; else the environment\n"
+    "                              variable MESHDEFORM_REDIS_PASSWORD; never on the command line)\n"
+    "  --redis-lease-ms N          how long a replica's edit lease on a session lasts unrenewed:\n"
+    "                              after a crash, other replicas take the session over within N\n"
+    "                              ms (default 5000)\n"
+    "  --redis-log-length N        committed revisions kept per session in Redis for replicas\n"
+    "                              and watchers catching up (each holds the positions, 24 bytes\n"
+    "                              a vertex; further behind, they load the whole state; default\n"
+    "                              32)\n"
     "  --tls-cert FILE             serve TLS (1.2+) on --listen and HTTPS on --http-listen with\n"
     "                              this PEM certificate chain (needs --tls-key; default: off)\n"
     "  --tls-key FILE              the certificate's PEM private key (unencrypted)\n"
@@ -183,6 +205,16 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
     } else if (arg == "--state-dir") {
       flags.state_dir = std::string(value);
       ok = !value.empty();
+    } else if (arg == "--redis") {
+      flags.redis_url = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--redis-password-file") {
+      flags.redis_password_file = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--redis-lease-ms") {
+      ok = parse_number(value, 100, 600'000, flags.redis_lease_ms);
+    } else if (arg == "--redis-log-length") {
+      ok = parse_number(value, 1, 100'000, flags.redis_log_length);
     } else if (arg == "--tls-cert") {
       flags.tls_cert = std::string(value);
       ok = !value.empty();
@@ -270,6 +302,40 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
+  // Redis is checked before anything listens: a wrong URL, password or an unreachable server
+  // stops the server with one line naming the cause.
+  std::shared_ptr<meshdeform::service::SharedStateStore> shared;
+  if (!flags.redis_url.empty()) {
+    auto redis_error = [&](const std::string& message) {
+      log_event(LogLevel::Error, "redis_unusable", LogFields().add("message", message));
+      return 2;
+    };
+    if (!flags.state_dir.empty()) {
+      return redis_error("--redis and --state-dir exclude each other: Redis holds the state");
+    }
+    auto config = meshdeform::service::parse_redis_url(flags.redis_url);
+    if (!config.ok()) return redis_error(config.status().message());
+    if (!flags.redis_password_file.empty()) {
+      std::ifstream file(flags.redis_password_file);
+      if (!file) return redis_error("cannot read --redis-password-file " + flags.redis_password_file);
+      std::getline(file, config->password);
+      if (!config->password.empty() && config->password.back() == '\r') config->password.pop_back();
+    } else if (const char* env = std::getenv("MESHDEFORM_REDIS_PASSWORD"); env != nullptr) {
+      config->password = env;
+    }
+    config->lease = std::chrono::milliseconds(flags.redis_lease_ms);
+    config->log_length = flags.redis_log_length;
+    config->idle_ttl = std::chrono::seconds(flags.idle_ttl_seconds);
+    auto connected = meshdeform::service::RedisStateStore::connect(std::move(config).value());
+    if (!connected.ok()) return redis_error(connected.status().message());
+    shared = std::move(connected).value();
+    log_event(LogLevel::Info, "redis",
+              LogFields().add("url", flags.redis_url).add("lease_ms", flags.redis_lease_ms));
+  } else if (!flags.redis_password_file.empty()) {
+    log_event(LogLevel::Error, "redis_unusable",
+              LogFields().add("message", "--redis-password-file needs --redis"));
+    return 2;
+  }
   // TLS files are checked before anything listens, so that a typo stops the server with a
   // message naming the file (gRPC itself would only report a failed listen).
   std::optional<meshdeform::transport::TlsConfig> tls;
@@ -291,7 +357,7 @@ int main(int argc, char** argv) {
     }
     tls = std::move(loaded).value();
   }
-  meshdeform::service::DeformationService service(options);
+  meshdeform::service::DeformationService service(options, shared);
   meshdeform::transport::DeformServiceImpl impl(
       service, meshdeform::transport::ClientIdentityOptions{flags.trust_forwarded_for});
 

@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
 #include <exception>
 #include <future>
@@ -117,6 +118,16 @@ class CombinedStop {
 
 }  // namespace
 
+DeformationService::DeformationService(ServiceOptions options,
+                                       std::shared_ptr<SharedStateStore> shared)
+    : DeformationService([&] {
+        if (shared) options.state_dir.clear();  // the shared store replaces the state directory
+        return std::move(options);
+      }()) {
+  shared_ = std::move(shared);
+  if (shared_) feed_ = std::jthread([this](std::stop_token stop) { feed_loop(stop); });
+}
+
 DeformationService::DeformationService(ServiceOptions options)
     : options_([&] {
         if (!options.clock) options.clock = [] { return std::chrono::steady_clock::now(); };
@@ -154,6 +165,10 @@ DeformationService::DeformationService(ServiceOptions options)
 
 DeformationService::~DeformationService() {
   shutdown_.request_stop();
+  if (feed_.joinable()) {
+    feed_.request_stop();
+    feed_.join();
+  }
   // pool_ is destroyed after this body (drains with the stop requested), then store_.
   store_.clear();
 }
@@ -221,6 +236,11 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
     if (state_dir_) {
       session->set_state_directory(&*state_dir_);
       session->persist();
+    }
+    if (shared_) {
+      // Stored before anyone hears of it: any replica can serve it from the first call on.
+      session->set_shared_store(shared_.get(), 0);
+      MD_RETURN_IF_ERROR(shared_->create(session->persisted_state()));
     }
     MD_RETURN_IF_ERROR(store_.insert(session));
     created.info = session->info();
@@ -331,8 +351,79 @@ std::shared_ptr<Session> DeformationService::find_or_restore(const SessionId& id
   return session;
 }
 
+Result<std::shared_ptr<Session>> DeformationService::find_shared(const SessionId& id) {
+  const auto not_found = [&id] {
+    return Error(ErrorCode::NotFound,
+                 "session '" + short_id(id) + "' not found (unknown, closed or expired)");
+  };
+  if (std::shared_ptr<Session> cached = store_.find(id)) {
+    // One round trip tells whether another replica committed since: then replay its revisions.
+    if (const Status synced = cached->sync_shared(); !synced.ok()) {
+      if (synced.code() == ErrorCode::NotFound) {
+        store_.erase(id);
+        return not_found();
+      }
+      return synced;
+    }
+    return cached;
+  }
+  if (!is_valid_session_id(id.value)) return not_found();
+  const std::lock_guard lock(restore_mutex_);
+  if (std::shared_ptr<Session> cached = store_.find(id)) return cached;  // loaded meanwhile
+  Result<SharedState> loaded = shared_->load(id);
+  if (!loaded.ok()) {
+    if (loaded.status().code() == ErrorCode::NotFound) return not_found();
+    if (loaded.status().code() == ErrorCode::InvalidArgument) state_files_corrupt_.fetch_add(1);
+    log_event(LogLevel::Warn, "shared_load_failed",
+              LogFields().add("session", id.value).add("message", loaded.status().message()));
+    return loaded.status();
+  }
+  const std::uint64_t version = loaded->version;
+  SessionStore* store = &store_;
+  // The factorizations are this replica's own: they are built on the first edit here.
+  MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, run_guarded([&] {
+                        return Session::restore(std::move(loaded->state), options_, counters_,
+                                                [store](std::size_t bytes, const Session& who) {
+                                                  return store->reserve(bytes, who);
+                                                });
+                      }));
+  session->set_shared_store(shared_.get(), version);
+  MD_RETURN_IF_ERROR(store_.insert(session));
+  sessions_restored_.fetch_add(1);
+  log_event(LogLevel::Info, "session_loaded_shared",
+            LogFields().add("session", id.value).add("revision", session->revision())
+                .add("version", version));
+  return session;
+}
+
+void DeformationService::feed_loop(std::stop_token stop) {
+  std::mutex mutex;
+  std::condition_variable_any cv;
+  while (!stop.stop_requested()) {
+    for (const std::shared_ptr<Session>& session : store_.watched()) {
+      if (stop.stop_requested()) return;
+      const Status synced = session->sync_shared();
+      if (synced.code() == ErrorCode::NotFound) {
+        store_.erase(session->id());  // closed through another replica: end the watches
+      } else if (!synced.ok()) {
+        log_event(LogLevel::Debug, "shared_sync_failed",
+                  LogFields().add("session", session->id().value).add("message", synced.message()));
+      }
+    }
+    std::unique_lock lock(mutex);
+    cv.wait_for(lock, stop, options_.shared_poll, [] { return false; });
+  }
+}
+
 Result<std::shared_ptr<Session>> DeformationService::find_for_view(const SessionId& id,
                                                                    const Token& token) {
+  if (shared_) {
+    MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, find_shared(id));
+    if (!session->can_view(token)) {
+      return Error(ErrorCode::PermissionDenied, "wrong token for session '" + short_id(id) + "'");
+    }
+    return session;
+  }
   std::shared_ptr<Session> session = find_or_restore(id);
   if (!session) {
     return Error(ErrorCode::NotFound,
@@ -365,6 +456,8 @@ void DeformationService::post(const std::shared_ptr<Session>& session, std::func
       SessionStore* store;
       ~Done() {
         session->touch(store->now());
+        // With a shared store: the lease goes back once this replica has nothing queued.
+        if (!session->has_queued_edits()) session->end_shared_edit();
         session->inflight().fetch_sub(1);
       }
     } done{session.get(), store};
@@ -531,6 +624,7 @@ Status DeformationService::close_session(const SessionId& id, const Token& edit_
   if (!found.ok()) return found.status();
   store_.erase(id);
   if (state_dir_) state_dir_->remove(id);
+  if (shared_) shared_->remove(id);
   return Status::success();
 }
 

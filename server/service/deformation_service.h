@@ -24,6 +24,7 @@
 #include <stop_token>
 #include <string>
 #include <string_view>
+#include <thread>
 #include <vector>
 
 #include "core/io/mesh_io.h"
@@ -34,6 +35,7 @@
 #include "server/service/rate_limiter.h"
 #include "server/service/session.h"
 #include "server/service/session_store.h"
+#include "server/service/shared_store.h"
 #include "server/service/types.h"
 #include "server/service/watcher.h"
 #include "server/service/worker_pool.h"
@@ -43,6 +45,12 @@ namespace meshdeform::service {
 class DeformationService {
  public:
   explicit DeformationService(ServiceOptions options = {});
+  /// With `shared` (issue 16): sessions live in that store instead of options.state_dir, so
+  /// that every replica on the same store can serve every session (see shared_store.h): a
+  /// session unknown here is loaded from the store on first use, edits take the session's lease
+  /// and commit by compare-and-set, and watchers also receive the revisions other replicas
+  /// commit (polled every ServiceOptions::shared_poll while the session has watchers here).
+  DeformationService(ServiceOptions options, std::shared_ptr<SharedStateStore> shared);
   /// Cancels running solves (their `done` receives Cancelled), runs the queued ones (which see
   /// the stop at once), joins the workers and closes every session.
   ~DeformationService();
@@ -152,6 +160,11 @@ class DeformationService {
  private:
   /// The session from the store, or restored from the state directory (nullptr if neither).
   std::shared_ptr<Session> find_or_restore(const SessionId& id);
+  /// With a shared store: the session, caught up with the store (loaded on first use).
+  /// @return NotFound when the store does not have it; Internal when the store fails.
+  Result<std::shared_ptr<Session>> find_shared(const SessionId& id);
+  /// Keeps the watched sessions caught up with the shared store until stopped.
+  void feed_loop(std::stop_token stop);
   Result<std::shared_ptr<Session>> find_for_edit(const SessionId& id, const Token& token);
   Result<std::shared_ptr<Session>> find_for_view(const SessionId& id, const Token& token);
   /// Queues `task` on the session's strand and the strand on the pool. An edit (not
@@ -179,7 +192,9 @@ class DeformationService {
   HeavyWorkAdmission heavy_;  // declared before pool_: tickets held by queued tasks outlive it
   SessionStore store_;
   WorkerPool pool_;  // destroyed (drained, joined) before the store
-  DelayQueue delays_;  // declared last: destroyed first, so no timer posts into a dead pool
+  DelayQueue delays_;  // no timer posts into a dead pool: destroyed before it
+  std::shared_ptr<SharedStateStore> shared_;  ///< null without a shared store
+  std::jthread feed_;  // declared last: stopped and joined first
 };
 
 }  // namespace meshdeform::service

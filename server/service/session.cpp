@@ -124,14 +124,13 @@ Result<std::shared_ptr<Session>> Session::restore(PersistedSession state,
   return session;
 }
 
-void Session::persist() {
-  if (state_dir_ == nullptr) return;
+PersistedSession Session::persisted_state(bool with_rest) const {
   PersistedSession state;
   state.id = id_;
   state.edit_token = edit_token_;
   state.view_token = view_token_;
   state.lambda = settings_.lambda;
-  state.rest = rest_;
+  if (with_rest) state.rest = rest_;
   {
     std::lock_guard lock(state_mutex_);
     state.groups = groups_;
@@ -143,6 +142,12 @@ void Session::persist() {
   }
   if (state.anchors.rows() == 0) state.anchors.resize(0, 3);
   if (state.targets.rows() == 0) state.targets.resize(0, 3);
+  return state;
+}
+
+void Session::persist() {
+  if (state_dir_ == nullptr) return;
+  const PersistedSession state = persisted_state();
   const Result<FileStamp> written = state_dir_->write(state);
   if (written.ok()) {
     counters_->persisted_writes.fetch_add(1);
@@ -270,6 +275,7 @@ Result<Session::CachedDeformer*> Session::get_or_build(core::Method method,
 Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::stop_token stop) {
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
   if (!is_fresh()) return stale_copy(id_);  // never overwrite a newer revision of another replica
+  if (shared_ != nullptr) MD_RETURN_IF_ERROR(begin_shared_edit(shared_->lease_wait(), stop));
   refine_.reset();  // new anchors: the old solve is not worth continuing
   const int nv = static_cast<int>(rest_.V.rows());
   if (request.groups.empty()) {
@@ -306,6 +312,19 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
   (void)entry;
 
   {
+    std::unique_lock shared_lock(shared_mutex_, std::defer_lock);
+    if (shared_ != nullptr) {
+      // The anchors are the current positions: no replay may slip in between.
+      shared_lock.lock();
+      PersistedSession state = persisted_state(/*with_rest=*/false);
+      state.groups = request.groups;
+      state.anchors.resize(static_cast<Eigen::Index>(constrained.size()), 3);
+      for (std::size_t j = 0; j < constrained.size(); ++j)
+        state.anchors.row(static_cast<Eigen::Index>(j)) = state.positions.row(constrained[j]);
+      state.targets = state.anchors;
+      MD_RETURN_IF_ERROR(shared_->commit(state, shared_version_, SharedLogEntry{}));
+      ++shared_version_;
+    }
     std::lock_guard lock(state_mutex_);
     const Positions& current = *history_.back()->positions;
     Positions anchors(static_cast<Eigen::Index>(constrained.size()), 3);
@@ -324,6 +343,15 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
 Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token stop) {
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
   if (!is_fresh()) return stale_copy(id_);  // never overwrite a newer revision of another replica
+  if (shared_ != nullptr) {
+    std::chrono::milliseconds wait = shared_->lease_wait();
+    if (request.deadline) {
+      wait = std::min(wait, std::max(std::chrono::milliseconds(0),
+                                     std::chrono::duration_cast<std::chrono::milliseconds>(
+                                         *request.deadline - std::chrono::steady_clock::now())));
+    }
+    MD_RETURN_IF_ERROR(begin_shared_edit(wait, stop));
+  }
   std::vector<HandleGroup> groups;
   std::vector<int> constrained;
   Positions anchors, targets;
@@ -473,8 +501,11 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   }
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " was closed");
 
-  DeformResult result = commit(std::move(report).value(), request.method, rigidity, targets,
-                               base_positions, built, request.editor, /*refinement=*/false, entry);
+  Result<DeformResult> committed =
+      commit(std::move(report).value(), request.method, rigidity, targets, base_revision,
+             base_positions, built, request.editor, /*refinement=*/false, entry);
+  if (!committed.ok()) return committed.status();
+  DeformResult result = std::move(committed).value();
   counters_->moves_committed.fetch_add(1);
   last_move_ticks_.store(std::chrono::steady_clock::now().time_since_epoch().count());
   if (options_.refine_budget > 0 && !result.converged) {
@@ -486,10 +517,12 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   return result;
 }
 
-DeformResult Session::commit(core::SolveReport report, core::Method method, double rigidity,
-                             const Positions& targets,
-                             const std::shared_ptr<const Positions>& base_positions, bool built,
-                             const std::string& editor, bool refinement, CachedDeformer* entry) {
+Result<DeformResult> Session::commit(core::SolveReport report, core::Method method,
+                                     double rigidity, const Positions& targets,
+                                     std::uint64_t base_revision,
+                                     const std::shared_ptr<const Positions>& base_positions,
+                                     bool built, const std::string& editor, bool refinement,
+                                     CachedDeformer* entry) {
   const int nv = static_cast<int>(rest_.V.rows());
   auto result = std::make_shared<DeformResult>();
   result->method = method;
@@ -519,6 +552,37 @@ DeformResult Session::commit(core::SolveReport report, core::Method method, doub
   counters_->metrics.record_solve(refinement, report.seconds);
 
   std::vector<std::shared_ptr<Watcher>> watchers;
+  std::unique_lock shared_lock(shared_mutex_, std::defer_lock);
+  if (shared_ != nullptr) {
+    // Acknowledged only once the store took it: a compare-and-set on the stored version, from
+    // the lease holder. Refused, nothing changes here and the deformer restarts next time.
+    shared_lock.lock();
+    if (revision() != base_revision) {
+      entry->state_revision = ~std::uint64_t{0};
+      return Error(ErrorCode::Aborted, "session " + id_.value.substr(0, 8) +
+                                           "... was changed by another replica (revision " +
+                                           std::to_string(revision()) + " is current); retry");
+    }
+    PersistedSession state = persisted_state(/*with_rest=*/false);
+    state.revision = base_revision + 1;
+    state.positions = *result->positions;
+    state.targets = targets;
+    state.last_method = method;
+    SharedLogEntry logged;
+    logged.result = result;
+    logged.targets = targets;
+    if (const Status stored = shared_->commit(state, shared_version_, std::move(logged));
+        !stored.ok()) {
+      entry->state_revision = ~std::uint64_t{0};
+      // Losing a race (Aborted) is not a store failure; an error of the store is.
+      if (stored.code() != ErrorCode::Aborted) counters_->persist_failures.fetch_add(1);
+      log_event(LogLevel::Warn, "shared_commit_refused",
+                LogFields().add("session", id_.value).add("message", stored.message()));
+      return stored;
+    }
+    ++shared_version_;
+    counters_->persisted_writes.fetch_add(1);
+  }
   {
     std::lock_guard lock(state_mutex_);
     result->revision = ++revision_;
@@ -538,6 +602,11 @@ DeformResult Session::commit(core::SolveReport report, core::Method method, doub
 
 Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
   if (!refine_ || is_closed() || !is_fresh()) {
+    refine_.reset();
+    return std::optional<DeformResult>{};
+  }
+  // Shared: refinement never waits for another replica's lease; whoever edits there wins.
+  if (shared_ != nullptr && !begin_shared_edit(std::chrono::milliseconds(0), stop).ok()) {
     refine_.reset();
     return std::optional<DeformResult>{};
   }
@@ -605,9 +674,14 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
     return Error(ErrorCode::NotFound, "session " + id_.value + " was closed");
   }
   const int iterations = report->iterations;
-  DeformResult result = commit(std::move(report).value(), state.method, state.rigidity, targets,
-                               base_positions, /*built=*/false, "refinement", /*refinement=*/true,
-                               entry);
+  Result<DeformResult> committed =
+      commit(std::move(report).value(), state.method, state.rigidity, targets, base_revision,
+             base_positions, /*built=*/false, "refinement", /*refinement=*/true, entry);
+  if (!committed.ok()) {
+    refine_.reset();
+    return committed.status();
+  }
+  DeformResult result = std::move(committed).value();
   counters_->refinements_committed.fetch_add(1);
   refine_->remaining -= std::max(iterations, 1);
   if (result.converged || refine_->remaining <= 0) refine_.reset();
@@ -742,6 +816,162 @@ std::optional<Session::StrandStep> Session::run_next() {
     return std::nullopt;
   }
   return strand_.front().step;
+}
+
+// --- Shared store (issue 16) ----------------------------------------------------------------------
+
+void Session::set_shared_store(SharedStateStore* store, std::uint64_t version) {
+  const std::lock_guard lock(shared_mutex_);
+  shared_ = store;
+  shared_version_ = version;
+}
+
+Status Session::sync_shared() {
+  if (shared_ == nullptr) return Status::success();
+  const std::lock_guard lock(shared_mutex_);
+  return sync_shared_locked();
+}
+
+void Session::end_shared_edit() {
+  if (shared_ != nullptr) shared_->release_lease(id_);
+}
+
+Status Session::begin_shared_edit(std::chrono::milliseconds wait, std::stop_token stop) {
+  MD_RETURN_IF_ERROR(shared_->acquire_lease(id_, wait, std::move(stop)));
+  return sync_shared();
+}
+
+Status Session::sync_shared_locked() {
+  if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
+  MD_ASSIGN_OR_RETURN(const std::optional<std::uint64_t> stored, shared_->version(id_));
+  if (!stored) {
+    close();
+    return Error(ErrorCode::NotFound,
+                 "session " + id_.value.substr(0, 8) + "... was closed or expired");
+  }
+  if (*stored == shared_version_) return Status::success();
+  if (*stored > shared_version_) {
+    // Replay the log in version order; a bounded number of rounds, then load the whole state.
+    constexpr int kBatch = 128, kRounds = 8;
+    for (int round = 0; round < kRounds && shared_version_ < *stored; ++round) {
+      MD_ASSIGN_OR_RETURN(std::vector<SharedLogEntry> entries,
+                          shared_->read_log(id_, shared_version_, kBatch));
+      if (entries.empty()) break;
+      for (const SharedLogEntry& logged : entries) {
+        if (logged.version <= shared_version_) continue;
+        // A handle change, a trimmed gap or an entry that does not fit: load the whole state.
+        if (logged.version != shared_version_ + 1 || !logged.result ||
+            !apply_shared_locked(logged)) {
+          return reload_shared_locked();
+        }
+      }
+    }
+    if (shared_version_ >= *stored) return Status::success();
+  } else {
+    // The store went back (Redis lost acknowledged writes: see the README on appendfsync).
+    log_event(LogLevel::Error, "shared_state_went_back",
+              LogFields().add("session", id_.value).add("held_version", shared_version_)
+                  .add("stored_version", *stored));
+  }
+  return reload_shared_locked();
+}
+
+bool Session::apply_shared_locked(const SharedLogEntry& logged) {
+  const int nv = static_cast<int>(rest_.V.rows());
+  const Positions& V = *logged.result->positions;
+  std::shared_ptr<const Positions> previous;
+  {
+    std::lock_guard lock(state_mutex_);
+    if (V.rows() != nv || logged.targets.rows() != targets_.rows() ||
+        logged.revision != revision_ + 1) {
+      return false;
+    }
+    previous = history_.back()->positions;
+  }
+  auto result = std::make_shared<DeformResult>(*logged.result);
+  result->changed.clear();
+  for (int v = 0; v < nv; ++v) {
+    if (V.row(v) != previous->row(v)) result->changed.push_back(v);
+  }
+  result->changed_positions.resize(static_cast<Eigen::Index>(result->changed.size()), 3);
+  for (std::size_t j = 0; j < result->changed.size(); ++j)
+    result->changed_positions.row(static_cast<Eigen::Index>(j)) = V.row(result->changed[j]);
+  std::vector<std::shared_ptr<Watcher>> watchers;
+  {
+    std::lock_guard lock(state_mutex_);
+    revision_ = logged.revision;
+    history_.push_back(result);
+    while (static_cast<int>(history_.size()) > options_.kept_revisions) history_.pop_front();
+    targets_ = logged.targets;
+    last_method_ = result->method;
+    watchers = watchers_;
+  }
+  shared_version_ = logged.version;
+  for (const std::shared_ptr<Watcher>& watcher : watchers) watcher->publish(result);
+  return true;
+}
+
+Status Session::reload_shared_locked() {
+  Result<SharedState> loaded = shared_->load(id_);
+  if (!loaded.ok()) {
+    if (loaded.status().code() == ErrorCode::NotFound) close();
+    return loaded.status();
+  }
+  PersistedSession& state = loaded->state;
+  const int nv = static_cast<int>(rest_.V.rows());
+  if (state.rest.V.rows() != rest_.V.rows() || state.rest.F.rows() != rest_.F.rows() ||
+      state.positions.rows() != nv) {
+    return Error(ErrorCode::Internal, "stored state of session " + id_.value.substr(0, 8) +
+                                          "... does not match its mesh");
+  }
+  std::vector<int> group_of(static_cast<std::size_t>(nv), -1);
+  std::vector<int> constrained;
+  for (std::size_t g = 0; g < state.groups.size(); ++g) {
+    for (int v : state.groups[g].vertices) {
+      if (v < 0 || v >= nv || group_of[static_cast<std::size_t>(v)] >= 0) {
+        return Error(ErrorCode::Internal, "stored handle groups of session " +
+                                              id_.value.substr(0, 8) + "... are invalid");
+      }
+      group_of[static_cast<std::size_t>(v)] = static_cast<int>(g);
+      constrained.push_back(v);
+    }
+  }
+  std::sort(constrained.begin(), constrained.end());
+  if (state.anchors.rows() != static_cast<Eigen::Index>(constrained.size()) ||
+      state.targets.rows() != state.anchors.rows()) {
+    return Error(ErrorCode::Internal, "stored handles of session " + id_.value.substr(0, 8) +
+                                          "... do not match its groups");
+  }
+  auto current = std::make_shared<DeformResult>();
+  current->revision = state.revision;
+  current->positions = std::make_shared<const Positions>(std::move(state.positions));
+  current->changed_positions.resize(0, 3);
+  if (state.last_method) current->method = *state.last_method;
+  std::vector<std::shared_ptr<Watcher>> watchers;
+  bool new_revision = false;
+  {
+    std::lock_guard lock(state_mutex_);
+    groups_ = std::move(state.groups);
+    constrained_ = std::move(constrained);
+    anchors_ = std::move(state.anchors);
+    targets_ = std::move(state.targets);
+    vertex_group_ = std::move(group_of);
+    last_method_ = state.last_method;
+    if (state.revision != revision_ || *current->positions != *history_.back()->positions) {
+      new_revision = state.revision > revision_;
+      if (state.revision <= revision_) history_.clear();  // went back: older copies are void
+      revision_ = state.revision;
+      history_.push_back(current);
+      while (static_cast<int>(history_.size()) > options_.kept_revisions) history_.pop_front();
+    }
+    watchers = watchers_;
+  }
+  shared_version_ = loaded->version;
+  // The revisions in between are gone from the log: watchers get the newest as a snapshot.
+  if (new_revision) {
+    for (const std::shared_ptr<Watcher>& watcher : watchers) watcher->publish_snapshot(current);
+  }
+  return Status::success();
 }
 
 }  // namespace meshdeform::service

@@ -19,6 +19,7 @@
 #include "core/topology.h"
 #include "server/service/metrics.h"
 #include "server/service/persistence.h"
+#include "server/service/shared_store.h"
 #include "server/service/types.h"
 #include "server/service/watcher.h"
 #include "server/service/worker_pool.h"
@@ -66,6 +67,25 @@ class Session : public std::enable_shared_from_this<Session> {
   /// Writes the current state now (creation). Errors are logged and counted, not returned:
   /// the edit stands in memory either way.
   void persist();
+  /// The state as a state file or the shared store holds it; without `with_rest` the rest mesh
+  /// is left empty (what a shared-store commit writes).
+  PersistedSession persisted_state(bool with_rest = true) const;
+
+  /// Shares the session through `store` (issue 16) from now on: every edit first takes the
+  /// session's lease and catches this copy up with the store, and every committed revision and
+  /// handle change is a compare-and-set on the stored version, acknowledged only once the store
+  /// accepted it (an edit the store refuses fails and changes nothing here). `version` is the
+  /// stored version this copy holds. Call before the session is shared; nullptr stops.
+  void set_shared_store(SharedStateStore* store, std::uint64_t version);
+  /// Shared store only: brings this copy up to the stored state, replaying the store's log (each
+  /// revision published to the watchers, in order) or, past a gap or a handle change, loading the
+  /// whole state (published as a snapshot). Any thread.
+  /// @return success (also without a shared store); NotFound, after closing this copy, when the
+  ///         session is no longer stored (closed elsewhere or expired); Internal when the store
+  ///         fails.
+  [[nodiscard]] Status sync_shared();
+  /// Shared store only: gives the session's lease back (call once no edit is queued).
+  void end_shared_edit();
   /// The version of the state file this copy last wrote or was restored from (nullopt before
   /// the first write, or without a state directory).
   std::optional<FileStamp> persisted_stamp() const;
@@ -192,10 +212,19 @@ class Session : public std::enable_shared_from_this<Session> {
   void update_estimate();
   /// Turns a solver report into the next revision, publishes it and updates the deformer entry.
   /// Strand only.
-  DeformResult commit(core::SolveReport report, core::Method method, double rigidity,
-                      const Positions& targets,
-                      const std::shared_ptr<const Positions>& base_positions, bool built,
-                      const std::string& editor, bool refinement, CachedDeformer* entry);
+  /// @return the revision; with a shared store, the store's refusal (Aborted naming the current
+  ///         revision, NotFound, Internal), and then nothing is committed.
+  Result<DeformResult> commit(core::SolveReport report, core::Method method, double rigidity,
+                              const Positions& targets, std::uint64_t base_revision,
+                              const std::shared_ptr<const Positions>& base_positions, bool built,
+                              const std::string& editor, bool refinement, CachedDeformer* entry);
+  /// Shared store: takes the lease (waiting at most `wait`) and catches up (sync_shared).
+  Status begin_shared_edit(std::chrono::milliseconds wait, std::stop_token stop);
+  Status sync_shared_locked();
+  /// Loads the whole stored state into this copy. @return as sync_shared.
+  Status reload_shared_locked();
+  /// Applies one logged revision. @return false when it does not fit this copy (reload then).
+  bool apply_shared_locked(const SharedLogEntry& entry);
 
   /// What background refinement continues (strand only).
   struct RefineState {
@@ -240,6 +269,10 @@ class Session : public std::enable_shared_from_this<Session> {
   std::chrono::steady_clock::time_point last_used_{};
 
   const StateDirectory* state_dir_ = nullptr;
+  SharedStateStore* shared_ = nullptr;
+  /// Serialises catching up and committing with a shared store (taken before state_mutex_).
+  std::mutex shared_mutex_;
+  std::uint64_t shared_version_ = 0;  ///< the stored version this copy holds; shared_mutex_
   std::atomic<std::chrono::steady_clock::rep> last_move_ticks_{0};
   mutable std::mutex stamp_mutex_;
   std::optional<FileStamp> stamp_;  ///< guarded by stamp_mutex_

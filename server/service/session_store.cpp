@@ -169,6 +169,15 @@ void SessionStore::close_all_watchers() {
   for (const auto& session : sessions) session->close_watchers();
 }
 
+std::vector<std::shared_ptr<Session>> SessionStore::watched() const {
+  std::vector<std::shared_ptr<Session>> sessions;
+  std::lock_guard lock(mutex_);
+  for (const auto& [id, session] : sessions_) {
+    if (session->watcher_count() > 0) sessions.push_back(session);
+  }
+  return sessions;
+}
+
 int SessionStore::watcher_count() const {
   std::lock_guard lock(mutex_);
   int count = 0;

@@ -7,6 +7,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <vector>
 
 #include "server/service/session.h"
 #include "server/service/types.h"
@@ -40,6 +41,8 @@ class SessionStore {
   std::size_t total_bytes() const;
   /// Open Watch subscriptions over all sessions.
   int watcher_count() const;
+  /// The sessions with at least one watcher.
+  std::vector<std::shared_ptr<Session>> watched() const;
   /// Ends every session's watches (Session::close_watchers).
   void close_all_watchers();
   std::uint64_t evicted_lru() const;

@@ -231,6 +231,9 @@ struct ServiceOptions {
   /// file is younger than idle_ttl are restored on their first request after a restart (or on
   /// another replica sharing the directory).
   std::string state_dir;
+  /// With a shared store (issue 16): how often the sessions watched here are caught up with the
+  /// revisions other replicas commit.
+  std::chrono::milliseconds shared_poll{10};
   /// Per-client limits (a client is what the front end names it: its network address). The
   /// defaults stop a runaway script without touching interactive use or a 16-session load test:
   /// 2 sessions per second (bursts of 30) and 200 moves per second (bursts of 400).
