@@ -30,8 +30,11 @@
 #include "server/service/redis_store.h"
 #include "server/transport/deform_service_impl.h"
 #include "server/transport/grpc_web_gateway.h"
+#include "server/transport/http_router.h"
 #include "server/transport/http_server.h"
+#include "server/transport/ops_endpoints.h"
 #include "server/transport/server_setup.h"
+#include "server/transport/static_files.h"
 
 namespace {
 

@@ -47,10 +47,6 @@
 #include <vector>
 
 #include "server/transport/http_message.h"
-// Not used here: server/main.cpp reaches the router and the static files through this header.
-// New code includes them itself.
-#include "server/transport/http_router.h"
-#include "server/transport/static_files.h"
 
 namespace grpc {
 class Server;

@@ -25,9 +25,6 @@
 #include "core/status.h"
 #include "server/transport/http_message.h"
 #include "server/transport/tls_config.h"
-// Not used here: server/main.cpp reaches handle_ops_request through this header. New code
-// includes it itself.
-#include "server/transport/ops_endpoints.h"
 
 namespace meshdeform::transport {
 
