@@ -1,13 +1,19 @@
 #!/usr/bin/env bash
-# Scale-out benchmark of issue 6: the same load (meshdeform-loadtest, 8 sessions x cylinder
-# (4,802 vertices) x 4 Hz x 1 outer iteration x 1 watcher) against
-#   1. one meshdeform-server, directly (with --state-dir, so both runs persist every revision);
+# Scale-out benchmark of issues 6 and 16: the same load (meshdeform-loadtest, 8 sessions x
+# cylinder (4,802 vertices) x 4 Hz x 1 outer iteration x 1 watcher) against
+#   1. one meshdeform-server, directly (with --state-dir, so every run persists every revision);
 #   2. nginx (docker/nginx.conf.template rendered for loopback, as tests/scaleout does) in front
-#      of 1 replica (the proxy's own cost) and of 3 replicas sharing one --state-dir,
-# and writes bench/results/scaleout_{single,nginx1,nginx3}.{md,json} (the load tester's own reports) and
-# the comparison bench/results/scaleout.{md,json}. Everything runs on 127.0.0.1.
+#      of 1 replica (the proxy's own cost) and of 3 replicas sharing one --state-dir;
+#   3. nginx in front of 3 replicas on one redis-server (--redis, appendonly yes, appendfsync
+#      always: every revision on disk before it is acknowledged, as with --state-dir), with the
+#      template's session hash (affinity as a cache) and with round robin (the hash lines taken
+#      out: every call may land on another replica);
+# and writes bench/results/scaleout_{single,nginx1,nginx3,redis3_hash,redis3_rr}.{md,json} (the
+# load tester's own reports) and the comparison bench/results/scaleout.{md,json}. Everything
+# runs on 127.0.0.1.
 # Usage: bench/run_scaleout.sh [BUILD_DIR] [DURATION_S] (defaults ./build, 30).
-# Needs nginx (/usr/sbin/nginx, or $NGINX) and python3. Takes about 3 x DURATION_S + 15 s.
+# Needs nginx (/usr/sbin/nginx, or $NGINX), redis-server (or $REDIS_SERVER) and python3. Takes
+# about 5 x DURATION_S + 30 s.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 build="${1:-build}"
@@ -15,9 +21,10 @@ duration="${2:-30}"
 server="$build/server/transport/meshdeform-server"
 loadtest="$build/client_cpp/loadtest/meshdeform-loadtest"
 nginx="${NGINX:-/usr/sbin/nginx}"
+redis="${REDIS_SERVER:-/usr/bin/redis-server}"
 out=bench/results
-for binary in "$server" "$loadtest" "$nginx"; do
-  [[ -x "$binary" ]] || { echo "missing $binary (build with ./scripts/build.sh; apt-get install nginx)" >&2; exit 2; }
+for binary in "$server" "$loadtest" "$nginx" "$redis"; do
+  [[ -x "$binary" ]] || { echo "missing $binary (build with ./scripts/build.sh; apt-get install nginx redis-server)" >&2; exit 2; }
 done
 mkdir -p "$out"
 load=(--sessions 8 --sample cylinder --rate 4 --iterations 1 --watchers 1 --duration "$duration")
@@ -26,7 +33,9 @@ work=$(mktemp -d /tmp/meshdeform-scaleout-bench-XXXXXX)
 chmod 0755 "$work"  # nginx's workers run unprivileged when this runs as root
 pids=()
 nginx_pid=""
+redis_pid=""
 cleanup() {
+  if [[ -n "$redis_pid" ]]; then kill -TERM "$redis_pid" 2>/dev/null || true; wait "$redis_pid" 2>/dev/null || true; fi
   if [[ -n "$nginx_pid" ]]; then
     kill -TERM "$nginx_pid" 2>/dev/null || true
     for _ in $(seq 1 50); do kill -0 "$nginx_pid" 2>/dev/null || break; sleep 0.1; done
@@ -67,11 +76,16 @@ echo "== single server on 127.0.0.1:$port"
 stop_servers
 
 # ---- 2. nginx in front of N replicas on one state directory (N = 1: the proxy's own cost)
-run_nginx() {  # run_nginx N NAME
-  local replicas=$1 name=$2 grpc_servers="" http_servers="" i
+# run_nginx N NAME [hash|rr] [STATE FLAGS...]: replicas started with STATE FLAGS (default: one
+# shared --state-dir); rr takes the template's two hash lines out (round robin).
+run_nginx() {
+  local replicas=$1 name=$2 balance=${3:-hash} grpc_servers="" http_servers="" i
+  shift 3 || shift $#
+  local state=("$@")
   rm -rf "$work/state-shared" "$work/nginx-temp" "$work/access.log"
+  [[ ${#state[@]} -gt 0 ]] || state=(--state-dir "$work/state-shared")
   for i in $(seq 1 "$replicas"); do
-    start_server "replica$i" --state-dir "$work/state-shared"
+    start_server "replica$i" "${state[@]}"
     grpc_servers+="server 127.0.0.1:$port; "
     http_servers+="server 127.0.0.1:$http_port; "
   done
@@ -80,11 +94,15 @@ run_nginx() {  # run_nginx N NAME
   MESHDEFORM_GRPC_SERVERS="$grpc_servers" MESHDEFORM_HTTP_SERVERS="$http_servers" \
   NGINX_GRPC_LISTEN="127.0.0.1:$nginx_grpc" NGINX_HTTP_LISTEN="127.0.0.1:$nginx_http" \
   NGINX_TEMP_DIR="$work/nginx-temp" NGINX_ACCESS_LOG="$work/access.log" NGINX_ERROR_LOG="$work/error.log" \
-  python3 - docker/nginx.conf.template "$work/nginx.conf" <<'PY'
+  BALANCE="$balance" python3 - docker/nginx.conf.template "$work/nginx.conf" <<'PY'
 import os, sys
 names = ["MESHDEFORM_GRPC_SERVERS", "MESHDEFORM_HTTP_SERVERS", "NGINX_GRPC_LISTEN",
          "NGINX_HTTP_LISTEN", "NGINX_TEMP_DIR", "NGINX_ACCESS_LOG", "NGINX_ERROR_LOG"]
 text = open(sys.argv[1]).read()
+if os.environ["BALANCE"] == "rr":
+    hash_line = "    hash $meshdeform_affinity;\n"
+    assert text.count(hash_line) == 2, "the template's upstream blocks changed"
+    text = text.replace(hash_line, "")
 for name in names:
     assert "${" + name + "}" in text, name
     text = text.replace("${" + name + "}", os.environ[name])
@@ -108,13 +126,36 @@ PY
 }
 run_nginx 1 nginx1
 run_nginx 3 nginx3
+
+# ---- 3. nginx in front of 3 replicas on one redis-server (no shared directory)
+run_redis() {  # run_redis NAME hash|rr
+  local redis_port
+  redis_port=$(free_port)
+  rm -rf "$work/redis-$1"; mkdir -p "$work/redis-$1"
+  "$redis" --bind 127.0.0.1 --port "$redis_port" --dir "$work/redis-$1" --save "" \
+    --appendonly yes --appendfsync always --daemonize no >"$work/redis-$1.log" 2>&1 &
+  redis_pid=$!
+  for _ in $(seq 1 100); do
+    (exec 3<>"/dev/tcp/127.0.0.1/$redis_port") 2>/dev/null && break
+    sleep 0.1
+  done
+  run_nginx 3 "$1" "$2" --redis "redis://127.0.0.1:$redis_port"
+  kill -TERM "$redis_pid"; wait "$redis_pid" 2>/dev/null || true; redis_pid=""
+}
+run_redis redis3_hash hash
+run_redis redis3_rr rr
 routing=$(cat "$work/routing_nginx3.txt")
+routing_redis=$(cat "$work/routing_redis3_rr.txt")
 
 # ---- the comparison
-ROUTING="$routing" NGINX_VERSION="$("$nginx" -v 2>&1 | sed 's/.*\///')" python3 - "$out" <<'EOF'
+ROUTING="$routing" ROUTING_REDIS="$routing_redis" NGINX_VERSION="$("$nginx" -v 2>&1 | sed 's/.*\///')" \
+REDIS_VERSION="$("$redis" --version | grep -o 'v=[0-9.]*' | cut -c3-)" python3 - "$out" <<'EOF'
 import json, os, sys
 out = sys.argv[1]
-runs = {"single": "one server, direct", "nginx1": "nginx + 1 replica", "nginx3": "nginx + 3 replicas, shared state dir"}
+runs = {"single": "one server, direct", "nginx1": "nginx + 1 replica",
+        "nginx3": "nginx + 3 replicas, shared state dir",
+        "redis3_hash": "nginx (hash) + 3 replicas on Redis",
+        "redis3_rr": "nginx (round robin) + 3 replicas on Redis"}
 data = {k: json.load(open(f"{out}/scaleout_{k}.json")) for k in runs}
 def row(d):
     m, w = d["moves"], d["watchers"]
@@ -126,54 +167,72 @@ def row(d):
             "watcher_end_status": w["end_status"],
             "setup_ms_p50": d["setup"]["setup_ms"]["p50"]}
 rows = {k: row(d) for k, d in data.items()}
-s, p, n = rows["single"], rows["nginx1"], rows["nginx3"]
-ratio = {"moves_per_second": n["moves_per_second"] / s["moves_per_second"],
-         **{f"latency_{q}": n["latency_ms"][q] / s["latency_ms"][q] for q in ("p50", "p95", "p99")}}
+s = rows["single"]
+def ratios(k):
+    n = rows[k]
+    return {"moves_per_second": n["moves_per_second"] / s["moves_per_second"],
+            **{f"latency_{q}": n["latency_ms"][q] / s["latency_ms"][q] for q in ("p50", "p95", "p99")}}
 machine = data["nginx3"]["machine"]
 summary = {"tool": "bench/run_scaleout.sh", "config": data["single"]["config"],
            "machine": {"single": data["single"]["machine"], "nginx3": machine,
-                       "nginx": os.environ["NGINX_VERSION"]},
-           "runs": rows, "ratio_nginx3_over_single": ratio,
-           "ratio_nginx1_over_single": {"moves_per_second": p["moves_per_second"] / s["moves_per_second"],
-               **{f"latency_{q}": p["latency_ms"][q] / s["latency_ms"][q] for q in ("p50", "p95", "p99")}},
-           "nginx_upstream_calls": os.environ["ROUTING"]}
+                       "nginx": os.environ["NGINX_VERSION"], "redis": os.environ["REDIS_VERSION"]},
+           "runs": rows,
+           "ratio_nginx3_over_single": ratios("nginx3"),
+           "ratio_nginx1_over_single": ratios("nginx1"),
+           "ratio_redis3_hash_over_single": ratios("redis3_hash"),
+           "ratio_redis3_rr_over_single": ratios("redis3_rr"),
+           "nginx_upstream_calls": os.environ["ROUTING"],
+           "nginx_upstream_calls_redis3_rr": os.environ["ROUTING_REDIS"]}
 summary["config"].pop("server", None)
 json.dump(summary, open(f"{out}/scaleout.json", "w"), indent=2)
 c = data["single"]["config"]
-r1 = summary["ratio_nginx1_over_single"]
 load = "; ".join(f"{k} {data[k]['machine']['load_average_start']} -> {data[k]['machine']['load_average_end']}"
                  for k in runs)
+keys = list(runs)
 lines = [
-    f"# Scale-out: one server vs nginx + 1 / 3 replicas ({c['sessions']} sessions x {c['mesh']}, "
+    f"# Scale-out: one server vs nginx + 1 / 3 replicas, on a shared directory or on Redis "
+    f"({c['sessions']} sessions x {c['mesh']}, "
     f"{c['rate_hz']:g} Hz, {c['max_iterations']} iteration, {c['watchers_per_session']} watcher/session, "
     f"{c['duration_seconds']:g} s)", "",
     f"- date: {machine['date_utc']}; machine: nproc {machine['hardware_threads']}, CPU {machine['cpu_model']}",
     f"- load average (1/5/15 min) at start -> end of each run: {load}",
     f"- everything on this one machine over loopback: load tester, nginx {os.environ['NGINX_VERSION']} "
-    "(docker/nginx.conf.template rendered for 127.0.0.1), the servers; every run with --state-dir "
-    "(every revision fsync'ed before it is acknowledged), default --workers and --refine-budget",
+    "(docker/nginx.conf.template rendered for 127.0.0.1), the servers, redis-server "
+    f"{os.environ['REDIS_VERSION']}; every revision is on disk before it is acknowledged (--state-dir "
+    "fsyncs it; Redis runs appendonly yes, appendfsync always); default --workers and --refine-budget",
     "- nginx + 1 replica isolates the proxy's cost; with 3 replicas the replicas share the same "
     "cores (3 solver pools and 3 background refiners on 2 cores): this measures overhead, "
     "not added capacity (that needs replicas on separate hosts)",
-    f"- calls per upstream in the 3-replica run (nginx access log): {os.environ['ROUTING']}", "",
-    "| | one server, direct | nginx + 1 replica | nginx + 3 replicas | ratio 1 replica / direct | ratio 3 replicas / direct |",
-    "|---|---:|---:|---:|---:|---:|",
-    f"| moves OK / failed | {s['moves_ok']} / {s['moves_failed']} | {p['moves_ok']} / {p['moves_failed']} | "
-    f"{n['moves_ok']} / {n['moves_failed']} | | |",
-    f"| moves/s | {s['moves_per_second']:.2f} | {p['moves_per_second']:.2f} | {n['moves_per_second']:.2f} | "
-    f"{r1['moves_per_second']:.3f} | {ratio['moves_per_second']:.3f} |",
+    "- Redis runs: no shared directory; hash = the template's session affinity (a cache: any "
+    "replica may serve any session); round robin = the template's hash lines taken out, so "
+    "consecutive calls of one session land on different replicas, each catching up from Redis",
+    f"- calls per upstream, 3 replicas on a shared directory (hash): {os.environ['ROUTING']}",
+    f"- calls per upstream, 3 replicas on Redis, round robin: {os.environ['ROUTING_REDIS']}", "",
+    "| | " + " | ".join(runs[k] for k in keys) + " | " +
+    " | ".join(f"ratio {k} / direct" for k in keys[1:]) + " |",
+    "|---|" + "---:|" * (2 * len(keys) - 1),
 ]
+def cells(f):
+    return " | ".join(f(rows[k]) for k in keys)
+def ratio_cells(name, fmt):
+    return " | ".join(fmt.format(ratios(k)[name]) for k in keys[1:])
+blank = " | ".join("" for _ in keys[1:])
+lines.append("| moves OK / failed | " + cells(lambda r: f"{r['moves_ok']} / {r['moves_failed']}") +
+             " | " + blank + " |")
+lines.append("| moves/s | " + cells(lambda r: f"{r['moves_per_second']:.2f}") + " | " +
+             ratio_cells("moves_per_second", "{:.3f}") + " |")
 for q in ("p50", "p95", "p99"):
-    lines.append(f"| move latency {q} (ms) | {s['latency_ms'][q]:.1f} | {p['latency_ms'][q]:.1f} | "
-                 f"{n['latency_ms'][q]:.1f} | {r1['latency_' + q]:.2f} | {ratio['latency_' + q]:.2f} |")
+    lines.append(f"| move latency {q} (ms) | " + cells(lambda r: f"{r['latency_ms'][q]:.1f}") +
+                 " | " + ratio_cells("latency_" + q, "{:.2f}") + " |")
 lines += [
-    f"| move latency max (ms) | {s['latency_ms']['max']:.1f} | {p['latency_ms']['max']:.1f} | {n['latency_ms']['max']:.1f} | | |",
-    f"| server solve p50 (ms) | {s['server_solve_ms_p50']:.1f} | {p['server_solve_ms_p50']:.1f} | {n['server_solve_ms_p50']:.1f} | | |",
-    f"| watcher receipt after send p50 (ms) | {s['watcher_delay_after_send_ms_p50']:.1f} | "
-    f"{p['watcher_delay_after_send_ms_p50']:.1f} | {n['watcher_delay_after_send_ms_p50']:.1f} | | |",
-    f"| setup (create + set handles) p50 (ms) | {s['setup_ms_p50']:.0f} | {p['setup_ms_p50']:.0f} | {n['setup_ms_p50']:.0f} | | |",
-    f"| watcher streams ended | {s['watcher_end_status']} | {p['watcher_end_status']} | {n['watcher_end_status']} | | |",
-    "", "Full reports: scaleout_single, scaleout_nginx1, scaleout_nginx3 (.md / .json).", ""]
+    "| move latency max (ms) | " + cells(lambda r: f"{r['latency_ms']['max']:.1f}") + " | " + blank + " |",
+    "| server solve p50 (ms) | " + cells(lambda r: f"{r['server_solve_ms_p50']:.1f}") + " | " + blank + " |",
+    "| watcher receipt after send p50 (ms) | " +
+    cells(lambda r: f"{r['watcher_delay_after_send_ms_p50']:.1f}") + " | " + blank + " |",
+    "| setup (create + set handles) p50 (ms) | " + cells(lambda r: f"{r['setup_ms_p50']:.0f}") +
+    " | " + blank + " |",
+    "| watcher streams ended | " + cells(lambda r: str(r["watcher_end_status"])) + " | " + blank + " |",
+    "", "Full reports: " + ", ".join(f"scaleout_{k}" for k in keys) + " (.md / .json).", ""]
 open(f"{out}/scaleout.md", "w").write("\n".join(lines))
 print("\n".join(lines))
 EOF
