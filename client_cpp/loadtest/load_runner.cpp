@@ -89,18 +89,6 @@ void set_deadline(grpc::ClientContext& context, Clock::time_point deadline) {
                        std::chrono::duration_cast<std::chrono::system_clock::duration>(remaining));
 }
 
-v1::Method to_proto(Method method) {
-  switch (method) {
-    case Method::ScaleAware:
-      return v1::METHOD_SCALE_AWARE;
-    case Method::Arap:
-      return v1::METHOD_ARAP;
-    case Method::Laplacian:
-      return v1::METHOD_LAPLACIAN;
-  }
-  return v1::METHOD_UNSPECIFIED;
-}
-
 std::string read_first_line(const char* path, const std::string& prefix) {
   std::ifstream in(path);
   std::string line;
@@ -305,7 +293,7 @@ bool LoadRun::set_up(SessionState& session) {
   v1::SetHandlesRequest set_handles;
   set_handles.set_session_id(session.session_id);
   set_handles.set_token(session.edit_token);
-  set_handles.set_prepare(to_proto(options_.method));
+  set_handles.set_prepare(wire::method_to_proto(options_.method));
   if (created.suggested_groups_size() > 0) {
     *set_handles.mutable_groups() = created.suggested_groups();
   } else if (!pick_groups_from_snapshot(session, set_handles)) {
@@ -471,7 +459,7 @@ void LoadRun::send_move(SessionState& session, const ScriptedDrag& drag, double 
   v1::MoveHandlesRequest request;
   request.set_session_id(session.session_id);
   request.set_token(session.edit_token);
-  request.set_method(to_proto(options_.method));
+  request.set_method(wire::method_to_proto(options_.method));
   request.set_max_iterations(static_cast<std::uint32_t>(options_.iterations));
   request.set_editor("loadtest-" + std::to_string(result.index));
   v1::GroupMove* move = request.add_moves();

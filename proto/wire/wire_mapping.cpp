@@ -48,18 +48,6 @@ std::string grpc_code_label(int code) {
   return name ? std::string(*name) : "CODE_" + std::to_string(code);
 }
 
-v1::Method method_to_proto(core::Method method) {
-  switch (method) {
-    case core::Method::ScaleAware:
-      return v1::METHOD_SCALE_AWARE;
-    case core::Method::Arap:
-      return v1::METHOD_ARAP;
-    case core::Method::Laplacian:
-      return v1::METHOD_LAPLACIAN;
-  }
-  return v1::METHOD_UNSPECIFIED;
-}
-
 Result<std::optional<core::Method>> method_from_proto(v1::Method method) {
   switch (method) {
     case v1::METHOD_UNSPECIFIED:

@@ -1,8 +1,9 @@
 #pragma once
 /// @file wire_mapping.h
 /// The one mapping between meshdeform.v1 wire values and C++ values, shared by the server's
-/// transport and the C++ client (and the load tester's code names): gRPC status code names,
-/// Method, MeshFormat, HandleRole, Vec3, Quaternion, GroupMove, index lists and position rows.
+/// transport and the C++ client (and the load tester's code names and methods): gRPC status code
+/// names, Method, MeshFormat, HandleRole, Vec3, Quaternion, GroupMove, index lists and position
+/// rows.
 ///
 /// The mapping is shared; the error texts are not: a failed mapping returns nullopt (or, for the
 /// enums, InvalidArgument "unknown <enum> <n>") and each side words the error for its reader (the
@@ -40,7 +41,19 @@ std::string grpc_code_label(int code);
 
 // --------------------------------------------------------------------------------------- enums
 
-v1::Method method_to_proto(core::Method method);
+/// core::Method, or an enum naming the same methods (the load tester's Method) -> v1::Method.
+template <typename M>
+v1::Method method_to_proto(M method) {
+  switch (method) {
+    case M::ScaleAware:
+      return v1::METHOD_SCALE_AWARE;
+    case M::Arap:
+      return v1::METHOD_ARAP;
+    case M::Laplacian:
+      return v1::METHOD_LAPLACIAN;
+  }
+  return v1::METHOD_UNSPECIFIED;
+}
 /// @return the method; nullopt for METHOD_UNSPECIFIED (whose meaning is the caller's);
 ///         InvalidArgument "unknown method <n>" for a value outside the enum (proto3 enums are
 ///         open: any int32 can arrive).

@@ -93,7 +93,7 @@ void expect_round_trips(const std::vector<Cpp>& values, const google::protobuf::
 TEST(WireMappingTest, EveryMethodRoundTrips) {
   expect_round_trips<core::Method, v1::Method>(
       {core::Method::ScaleAware, core::Method::Arap, core::Method::Laplacian},
-      v1::Method_descriptor(), method_to_proto, method_from_proto);
+      v1::Method_descriptor(), method_to_proto<core::Method>, method_from_proto);
 }
 
 TEST(WireMappingTest, UnknownMethodIsRejected) {
