@@ -30,6 +30,7 @@
 
 #include "client_cpp/loadtest/scripted_drag.h"
 #include "meshdeform/v1/deformation.grpc.pb.h"
+#include "proto/wire/wire_mapping.h"
 
 namespace meshdeform::loadtest {
 namespace {
@@ -68,46 +69,9 @@ double seconds_between(Clock::time_point from, Clock::time_point to) {
   return std::chrono::duration<double>(to - from).count();
 }
 
+/// "DEADLINE_EXCEEDED"; "CODE_<n>" for a value without a name (the wire mapping's table).
 std::string code_name(grpc::StatusCode code) {
-  switch (code) {
-    case grpc::StatusCode::OK:
-      return "OK";
-    case grpc::StatusCode::CANCELLED:
-      return "CANCELLED";
-    case grpc::StatusCode::UNKNOWN:
-      return "UNKNOWN";
-    case grpc::StatusCode::INVALID_ARGUMENT:
-      return "INVALID_ARGUMENT";
-    case grpc::StatusCode::DEADLINE_EXCEEDED:
-      return "DEADLINE_EXCEEDED";
-    case grpc::StatusCode::NOT_FOUND:
-      return "NOT_FOUND";
-    case grpc::StatusCode::ALREADY_EXISTS:
-      return "ALREADY_EXISTS";
-    case grpc::StatusCode::PERMISSION_DENIED:
-      return "PERMISSION_DENIED";
-    case grpc::StatusCode::UNAUTHENTICATED:
-      return "UNAUTHENTICATED";
-    case grpc::StatusCode::RESOURCE_EXHAUSTED:
-      return "RESOURCE_EXHAUSTED";
-    case grpc::StatusCode::FAILED_PRECONDITION:
-      return "FAILED_PRECONDITION";
-    case grpc::StatusCode::ABORTED:
-      return "ABORTED";
-    case grpc::StatusCode::OUT_OF_RANGE:
-      return "OUT_OF_RANGE";
-    case grpc::StatusCode::UNIMPLEMENTED:
-      return "UNIMPLEMENTED";
-    case grpc::StatusCode::INTERNAL:
-      return "INTERNAL";
-    case grpc::StatusCode::UNAVAILABLE:
-      return "UNAVAILABLE";
-    case grpc::StatusCode::DATA_LOSS:
-      return "DATA_LOSS";
-    case grpc::StatusCode::DO_NOT_USE:
-      break;
-  }
-  return "CODE_" + std::to_string(static_cast<int>(code));
+  return wire::grpc_code_label(static_cast<int>(code));
 }
 
 std::string truncated(std::string text) {
@@ -123,18 +87,6 @@ void set_deadline(grpc::ClientContext& context, Clock::time_point deadline) {
   const auto remaining = std::max(Clock::duration::zero(), deadline - Clock::now());
   context.set_deadline(std::chrono::system_clock::now() +
                        std::chrono::duration_cast<std::chrono::system_clock::duration>(remaining));
-}
-
-v1::Method to_proto(Method method) {
-  switch (method) {
-    case Method::ScaleAware:
-      return v1::METHOD_SCALE_AWARE;
-    case Method::Arap:
-      return v1::METHOD_ARAP;
-    case Method::Laplacian:
-      return v1::METHOD_LAPLACIAN;
-  }
-  return v1::METHOD_UNSPECIFIED;
 }
 
 std::string read_first_line(const char* path, const std::string& prefix) {
@@ -341,7 +293,7 @@ bool LoadRun::set_up(SessionState& session) {
   v1::SetHandlesRequest set_handles;
   set_handles.set_session_id(session.session_id);
   set_handles.set_token(session.edit_token);
-  set_handles.set_prepare(to_proto(options_.method));
+  set_handles.set_prepare(wire::method_to_proto(options_.method));
   if (created.suggested_groups_size() > 0) {
     *set_handles.mutable_groups() = created.suggested_groups();
   } else if (!pick_groups_from_snapshot(session, set_handles)) {
@@ -507,7 +459,7 @@ void LoadRun::send_move(SessionState& session, const ScriptedDrag& drag, double 
   v1::MoveHandlesRequest request;
   request.set_session_id(session.session_id);
   request.set_token(session.edit_token);
-  request.set_method(to_proto(options_.method));
+  request.set_method(wire::method_to_proto(options_.method));
   request.set_max_iterations(static_cast<std::uint32_t>(options_.iterations));
   request.set_editor("loadtest-" + std::to_string(result.index));
   v1::GroupMove* move = request.add_moves();

@@ -9,6 +9,7 @@
 #include <string_view>
 #include <utility>
 
+#include "proto/wire/wire_mapping.h"
 #include "server/service/log.h"
 #include "server/transport/proto_convert.h"
 #include "server/transport/status_mapping.h"
@@ -363,7 +364,7 @@ grpc::ServerUnaryReactor* DeformServiceImpl::GetMesh(grpc::CallbackServerContext
         revision, reactor->stop_token(),
         finish_with<std::string>(reactor, call, [response, format](std::string bytes) {
           response->set_mesh_bytes(std::move(bytes));
-          response->set_format(format_to_proto(format));
+          response->set_format(wire::format_to_proto(format));
         }));
     return Status::success();
   });

@@ -4,11 +4,12 @@
 
 #include <algorithm>
 #include <bit>
-#include <climits>
 #include <cmath>
 #include <cstring>
 #include <string>
 #include <vector>
+
+#include "proto/wire/wire_mapping.h"
 
 namespace meshdeform::transport {
 namespace {
@@ -17,132 +18,56 @@ Status invalid(std::string message) {
   return Error(ErrorCode::InvalidArgument, std::move(message));
 }
 
-bool finite(const v1::Vec3& v) {
-  return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
-}
-
-Result<Eigen::Vector3d> vec_from_proto(const v1::Vec3& v, const std::string& field) {
-  if (!finite(v)) {
+/// InvalidArgument naming `field` when `v` has a non-finite component.
+Status check_finite(const Eigen::Vector3d& v, const std::string& field) {
+  if (!v.allFinite()) {
     return invalid(field + " has a non-finite component (" + std::to_string(v.x()) + ", " +
                    std::to_string(v.y()) + ", " + std::to_string(v.z()) + ")");
   }
-  return Eigen::Vector3d(v.x(), v.y(), v.z());
-}
-
-void vec_to_proto(const Eigen::Vector3d& v, v1::Vec3* out) {
-  out->set_x(v.x());
-  out->set_y(v.y());
-  out->set_z(v.z());
+  return Status::success();
 }
 
 Result<int> index_from_proto(std::uint32_t value, const std::string& field) {
-  if (value > static_cast<std::uint32_t>(INT_MAX)) {
-    return invalid(field + " = " + std::to_string(value) + " is out of range");
-  }
-  return static_cast<int>(value);
+  const std::optional<int> index = wire::index_from_proto(value);
+  if (!index) return invalid(field + " = " + std::to_string(value) + " is out of range");
+  return *index;
 }
 
 /// `where`.vertices as ints; InvalidArgument naming the first index > INT_MAX.
 Result<std::vector<int>> indices_from_proto(const google::protobuf::RepeatedField<std::uint32_t>& in,
                                             const std::string& where) {
-  std::vector<int> out;
-  out.reserve(static_cast<std::size_t>(in.size()));
-  for (int i = 0; i < in.size(); ++i) {
-    MD_ASSIGN_OR_RETURN(int v,
-                        index_from_proto(in.Get(i), where + ".vertices[" + std::to_string(i) + "]"));
-    out.push_back(v);
+  int bad = 0;
+  std::optional<std::vector<int>> out = wire::indices_from_proto(in, &bad);
+  if (!out) {
+    return invalid(where + ".vertices[" + std::to_string(bad) + "] = " +
+                   std::to_string(in.Get(bad)) + " is out of range");
   }
-  return out;
+  return *std::move(out);
+}
+
+/// METHOD_UNSPECIFIED is scale-aware. @return InvalidArgument for an unknown value.
+Result<core::Method> method_from_proto(v1::Method method) {
+  MD_ASSIGN_OR_RETURN(const std::optional<core::Method> known, wire::method_from_proto(method));
+  return known.value_or(core::Method::ScaleAware);
 }
 
 void groups_to_proto(const std::vector<service::HandleGroup>& groups,
                      google::protobuf::RepeatedPtrField<v1::HandleGroup>* out) {
   for (const service::HandleGroup& group : groups) {
     v1::HandleGroup* g = out->Add();
-    g->set_role(group.role == service::HandleRole::Fixed ? v1::HANDLE_ROLE_FIXED
-                                                         : v1::HANDLE_ROLE_HANDLE);
-    g->mutable_vertices()->Reserve(static_cast<int>(group.vertices.size()));
-    for (int v : group.vertices) g->add_vertices(static_cast<std::uint32_t>(v));
-  }
-}
-
-void rows_to_proto(const Positions& P, google::protobuf::RepeatedField<double>* out) {
-  out->Resize(static_cast<int>(P.rows() * 3), 0.0);
-  double* data = out->mutable_data();
-  for (Eigen::Index r = 0; r < P.rows(); ++r) {
-    data[3 * r + 0] = P(r, 0);
-    data[3 * r + 1] = P(r, 1);
-    data[3 * r + 2] = P(r, 2);
+    g->set_role(wire::role_to_proto(group.role));
+    // The service's indices are >= 0: all of them are written.
+    (void)wire::indices_to_proto(group.vertices, g->mutable_vertices());
   }
 }
 
 }  // namespace
 
 Result<io::MeshFormat> format_from_proto(v1::MeshFormat format, bool allow_unspecified) {
-  // Proto3 enums are open (any int32 can arrive), hence the default.
-  switch (format) {
-    case v1::MESH_FORMAT_UNSPECIFIED:
-      if (allow_unspecified) return io::MeshFormat::Glb;
-      return invalid("format is MESH_FORMAT_UNSPECIFIED; name the format of mesh_bytes");
-    case v1::MESH_FORMAT_OBJ:
-      return io::MeshFormat::Obj;
-    case v1::MESH_FORMAT_OFF:
-      return io::MeshFormat::Off;
-    case v1::MESH_FORMAT_PLY:
-      return io::MeshFormat::Ply;
-    case v1::MESH_FORMAT_STL:
-      return io::MeshFormat::Stl;
-    case v1::MESH_FORMAT_GLB:
-      return io::MeshFormat::Glb;
-    case v1::MESH_FORMAT_GLTF:
-      return io::MeshFormat::Gltf;
-    default:
-      return invalid("unknown format " + std::to_string(static_cast<int>(format)));
-  }
-}
-
-v1::MeshFormat format_to_proto(io::MeshFormat format) {
-  switch (format) {
-    case io::MeshFormat::Obj:
-      return v1::MESH_FORMAT_OBJ;
-    case io::MeshFormat::Off:
-      return v1::MESH_FORMAT_OFF;
-    case io::MeshFormat::Ply:
-      return v1::MESH_FORMAT_PLY;
-    case io::MeshFormat::Stl:
-      return v1::MESH_FORMAT_STL;
-    case io::MeshFormat::Glb:
-      return v1::MESH_FORMAT_GLB;
-    case io::MeshFormat::Gltf:
-      return v1::MESH_FORMAT_GLTF;
-  }
-  return v1::MESH_FORMAT_UNSPECIFIED;
-}
-
-Result<core::Method> method_from_proto(v1::Method method) {
-  switch (method) {
-    case v1::METHOD_UNSPECIFIED:
-    case v1::METHOD_SCALE_AWARE:
-      return core::Method::ScaleAware;
-    case v1::METHOD_ARAP:
-      return core::Method::Arap;
-    case v1::METHOD_LAPLACIAN:
-      return core::Method::Laplacian;
-    default:
-      return invalid("unknown method " + std::to_string(static_cast<int>(method)));
-  }
-}
-
-v1::Method method_to_proto(core::Method method) {
-  switch (method) {
-    case core::Method::ScaleAware:
-      return v1::METHOD_SCALE_AWARE;
-    case core::Method::Arap:
-      return v1::METHOD_ARAP;
-    case core::Method::Laplacian:
-      return v1::METHOD_LAPLACIAN;
-  }
-  return v1::METHOD_UNSPECIFIED;
+  MD_ASSIGN_OR_RETURN(const std::optional<io::MeshFormat> known, wire::format_from_proto(format));
+  if (known) return *known;
+  if (allow_unspecified) return io::MeshFormat::Glb;
+  return invalid("format is MESH_FORMAT_UNSPECIFIED; name the format of mesh_bytes");
 }
 
 Result<service::CreateSessionRequest> create_request_from_proto(
@@ -183,17 +108,13 @@ Result<service::SetHandlesRequest> set_handles_from_proto(const v1::SetHandlesRe
     const v1::HandleGroup& group = request.groups(g);
     const std::string where = "groups[" + std::to_string(g) + "]";
     service::HandleGroup converted;
-    switch (group.role()) {
-      case v1::HANDLE_ROLE_FIXED:
-        converted.role = service::HandleRole::Fixed;
-        break;
-      case v1::HANDLE_ROLE_HANDLE:
-        converted.role = service::HandleRole::Handle;
-        break;
-      default:
-        return invalid(where + ".role " + std::to_string(static_cast<int>(group.role())) +
-                       " is not FIXED or HANDLE");
+    const std::optional<service::HandleRole> role =
+        wire::role_from_proto<service::HandleRole>(group.role());
+    if (!role) {
+      return invalid(where + ".role " + std::to_string(static_cast<int>(group.role())) +
+                     " is not FIXED or HANDLE");
     }
+    converted.role = *role;
     MD_ASSIGN_OR_RETURN(converted.vertices, indices_from_proto(group.vertices(), where));
     out.groups.push_back(std::move(converted));
   }
@@ -205,31 +126,15 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
   for (int m = 0; m < request.moves_size(); ++m) {
     const v1::GroupMove& move = request.moves(m);
     const std::string where = "moves[" + std::to_string(m) + "]";
-    service::GroupMove converted;
-    MD_ASSIGN_OR_RETURN(converted.group, index_from_proto(move.group(), where + ".group"));
-    if (move.has_translation()) {
-      MD_ASSIGN_OR_RETURN(converted.translation,
-                          vec_from_proto(move.translation(), where + ".translation"));
-    }
-    if (move.has_rotation()) {
-      const v1::Quaternion& q = move.rotation();
-      if (!std::isfinite(q.w()) || !std::isfinite(q.x()) || !std::isfinite(q.y()) ||
-          !std::isfinite(q.z())) {
-        return invalid(where + ".rotation has a non-finite component");
-      }
-      if (q.w() == 0 && q.x() == 0 && q.y() == 0 && q.z() == 0) {
-        return invalid(where + ".rotation is the zero quaternion");
-      }
-      converted.rotation = Eigen::Quaterniond(q.w(), q.x(), q.y(), q.z());
-    }
-    if (move.has_scale()) {
-      if (!std::isfinite(move.scale())) return invalid(where + ".scale is non-finite");
-      converted.scale = move.scale();
-    }
-    if (move.has_pivot()) {
-      MD_ASSIGN_OR_RETURN(Eigen::Vector3d pivot, vec_from_proto(move.pivot(), where + ".pivot"));
-      converted.pivot = pivot;
-    }
+    MD_RETURN_IF_ERROR(index_from_proto(move.group(), where + ".group").status());
+    // Absent fields are the defaults (zero, identity, 1, none): finite and non-zero.
+    auto converted = wire::group_move_from_proto<service::GroupMove>(move);
+    MD_RETURN_IF_ERROR(check_finite(converted.translation, where + ".translation"));
+    const Eigen::Vector4d q = converted.rotation.coeffs();
+    if (!q.allFinite()) return invalid(where + ".rotation has a non-finite component");
+    if ((q.array() == 0.0).all()) return invalid(where + ".rotation is the zero quaternion");
+    if (!std::isfinite(converted.scale)) return invalid(where + ".scale is non-finite");
+    if (converted.pivot) MD_RETURN_IF_ERROR(check_finite(*converted.pivot, where + ".pivot"));
     out.moves.push_back(std::move(converted));
   }
   const v1::VertexTargets& targets = request.targets();
@@ -326,12 +231,12 @@ void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* ou
   out->set_faces(static_cast<std::uint32_t>(info.faces));
   out->set_boundary_loops(static_cast<std::uint32_t>(info.boundary_loops));
   out->set_components(static_cast<std::uint32_t>(info.components));
-  vec_to_proto(info.bbox_min, out->mutable_bbox_min());
-  vec_to_proto(info.bbox_max, out->mutable_bbox_max());
+  wire::vec_to_proto(info.bbox_min, out->mutable_bbox_min());
+  wire::vec_to_proto(info.bbox_max, out->mutable_bbox_max());
   out->set_revision(info.revision);
   groups_to_proto(info.groups, out->mutable_groups());
   out->set_rigidity(info.rigidity);
-  out->set_last_method(info.last_method ? method_to_proto(*info.last_method)
+  out->set_last_method(info.last_method ? wire::method_to_proto(*info.last_method)
                                         : v1::METHOD_UNSPECIFIED);
   out->set_estimated_bytes(info.estimated_bytes);
   out->set_cached_deformers(static_cast<std::uint32_t>(info.cached_deformers));
@@ -351,7 +256,7 @@ void created_to_proto(const service::CreatedSession& created, v1::CreateSessionR
 namespace {
 void result_metrics_to_proto(const service::DeformResult& result, v1::DeformResult* out) {
   out->set_revision(result.revision);
-  out->set_method(method_to_proto(result.method));
+  out->set_method(wire::method_to_proto(result.method));
   out->set_e_theta(result.e_theta);
   out->set_e_phi(result.e_phi);
   out->set_area_log_rms(result.area_log_rms);
@@ -368,7 +273,7 @@ void result_metrics_to_proto(const service::DeformResult& result, v1::DeformResu
 void positions_to_proto(const Positions& rows, v1::PositionEncoding encoding,
                         google::protobuf::RepeatedField<double>* doubles, std::string* packed) {
   if (encoding == v1::POSITION_ENCODING_UNSPECIFIED) {
-    rows_to_proto(rows, doubles);
+    wire::rows_to_proto(rows, doubles);
   } else {
     pack_positions(rows, encoding, packed);
   }
@@ -389,8 +294,8 @@ void result_to_proto(const service::DeformResult& result, bool full_positions,
     pack_positions(*result.positions, encoding, out->mutable_packed_positions());
     return;
   }
-  out->mutable_changed_indices()->Reserve(static_cast<int>(result.changed.size()));
-  for (int v : result.changed) out->add_changed_indices(static_cast<std::uint32_t>(v));
+  // The service's indices are >= 0: all of them are written.
+  (void)wire::indices_to_proto(result.changed, out->mutable_changed_indices());
   positions_to_proto(result.changed_positions, encoding, out->mutable_changed_positions(),
                      out->mutable_packed_changed_positions());
   if (full_positions && result.positions) {

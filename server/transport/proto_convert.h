@@ -2,7 +2,8 @@
 /// @file proto_convert.h
 /// meshdeform.v1 messages <-> service domain types. Checks the wire shape only (finite numbers,
 /// lengths, indices that fit an int, known enum values); the service checks the meaning (indices
-/// < #V, roles, scale > 0, ...). Every error is InvalidArgument naming the field.
+/// < #V, roles, scale > 0, ...). Every error is InvalidArgument naming the field. The value and
+/// enum maps themselves are meshdeform::wire's (proto/wire/wire_mapping.h), shared with the client.
 
 #include "core/deformer.h"
 #include "core/io/mesh_io.h"
@@ -12,15 +13,11 @@
 
 namespace meshdeform::transport {
 
+/// wire::format_from_proto with the server's reading of MESH_FORMAT_UNSPECIFIED.
 /// @param[in] allow_unspecified  map MESH_FORMAT_UNSPECIFIED to GLB instead of rejecting it.
 /// @return the format; InvalidArgument for UNSPECIFIED (unless allowed) or an unknown value.
 [[nodiscard]] Result<io::MeshFormat> format_from_proto(v1::MeshFormat format,
                                                        bool allow_unspecified);
-v1::MeshFormat format_to_proto(io::MeshFormat format);
-
-/// METHOD_UNSPECIFIED is scale-aware. @return InvalidArgument for an unknown value.
-[[nodiscard]] Result<core::Method> method_from_proto(v1::Method method);
-v1::Method method_to_proto(core::Method method);
 
 /// @return the request; InvalidArgument for neither bytes nor sample, a missing/unknown format
 ///         with bytes, or a non-finite / non-positive lambda.

@@ -21,7 +21,8 @@ inline constexpr std::size_t kMaxClientMessageBytes = 1024;
 /// The gRPC code of an error code (Ok -> OK).
 grpc::StatusCode to_grpc_code(ErrorCode code);
 
-/// The canonical upper-case name of a gRPC code ("OK", "NOT_FOUND", ...), for metrics and logs.
+/// The canonical upper-case name of a gRPC code ("OK", "NOT_FOUND", ...), for metrics and logs
+/// (wire::grpc_code_name); "UNKNOWN" for DO_NOT_USE or a value outside gRPC's codes.
 std::string_view grpc_code_name(grpc::StatusCode code);
 
 /// `message` cut to at most kMaxClientMessageBytes bytes (ending in "..." when cut, never splitting

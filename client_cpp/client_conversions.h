@@ -1,0 +1,47 @@
+#pragma once
+/// @file client_conversions.h
+/// Internal to meshdeform::client (not installed, not included by client.h): meshdeform.v1
+/// messages <-> the client's types, and gRPC statuses -> Status. The value and enum maps are
+/// meshdeform::wire's (proto/wire/wire_mapping.h, shared with the server); this file words the
+/// client's errors: a bad request names what the caller gave, a bad response reads
+/// "<Rpc>: malformed response: ...".
+
+#include <grpcpp/support/status.h>
+
+#include <string>
+#include <vector>
+
+#include "client_cpp/client.h"
+#include "core/status.h"
+#include "meshdeform/v1/deformation.pb.h"
+
+namespace meshdeform::client::detail {
+
+namespace v1 = ::meshdeform::v1;
+
+/// InvalidArgument with `message`.
+Status invalid(std::string message);
+
+/// A response the server should never send (a protocol mismatch): InvalidArgument
+/// "<rpc>: malformed response: <what>".
+Status malformed(const char* rpc, const std::string& what);
+
+/// success for OK; otherwise to_error_code's code and "<rpc>: <GRPC_CODE>: <server message>".
+Status from_grpc(const char* rpc, const grpc::Status& status);
+
+/// @return success; InvalidArgument naming the group of a negative vertex index.
+Status groups_to_proto(const std::vector<HandleGroup>& groups,
+                       google::protobuf::RepeatedPtrField<v1::HandleGroup>* out);
+
+/// @return success; InvalidArgument for a negative group or vertex index or max_iterations.
+Status move_to_proto(const MoveSpec& spec, v1::MoveHandlesRequest* out);
+
+/// The responses of `rpc`; malformed() for an unknown enum value, an index above INT_MAX or
+/// position lists that do not match.
+Result<SessionInfo> info_from_proto(const v1::SessionInfo& in, const char* rpc);
+Result<Session> session_from_proto(const v1::CreateSessionResponse& in);
+Result<DeformResult> result_from_proto(const v1::DeformResult& in, const char* rpc);
+Result<WatchUpdate> update_from_proto(const v1::DeformUpdate& in);
+ServerStats stats_from_proto(const v1::GetServerStatsResponse& in);
+
+}  // namespace meshdeform::client::detail
