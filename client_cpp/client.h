@@ -302,7 +302,7 @@ class Client {
   /// The deadline is call.timeout or ClientOptions::watch_timeout. View or edit token.
   /// @param[in] on_update  returns whether to keep watching.
   /// @return how it ended; PermissionDenied, NotFound, DeadlineExceeded, the transport errors
-  ///         (e.g. Internal "UNAVAILABLE" when the server goes away), InvalidArgument for a
+  ///         (e.g. Unavailable when the server goes away), InvalidArgument for a
   ///         malformed update.
   [[nodiscard]] Result<WatchEnd> watch(const SessionRef& session,
                                        const std::function<bool(const WatchUpdate&)>& on_update,
@@ -399,9 +399,10 @@ class SessionMirror {
 
 /// The ErrorCode of a gRPC status code (given as its integer value, grpc::StatusCode). Codes
 /// without an equivalent map to the nearest: UNAUTHENTICATED -> PermissionDenied;
-/// OUT_OF_RANGE -> InvalidArgument; ALREADY_EXISTS, ABORTED, UNIMPLEMENTED ->
-/// FailedPrecondition; UNKNOWN, UNAVAILABLE, DATA_LOSS -> Internal. Messages keep the gRPC code
-/// name ("UNAVAILABLE"), see grpc_code_name().
+/// OUT_OF_RANGE -> InvalidArgument; ALREADY_EXISTS, UNIMPLEMENTED -> FailedPrecondition;
+/// ABORTED -> Aborted and UNAVAILABLE -> Unavailable (retrying may succeed); UNKNOWN,
+/// DATA_LOSS -> Internal. Messages keep the gRPC code name ("UNAVAILABLE"), see
+/// grpc_code_name().
 ErrorCode to_error_code(int grpc_code);
 
 /// The gRPC name of a status code ("DEADLINE_EXCEEDED"); "CODE_<n>" for an unknown value.

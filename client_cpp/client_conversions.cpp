@@ -233,11 +233,12 @@ ErrorCode to_error_code(int grpc_code) {
     // A concurrent change won (another replica edited the session): retrying may succeed.
     case grpc::StatusCode::ABORTED:
       return ErrorCode::Aborted;
-    // Transport failures and server faults: not the caller's input. The message keeps the gRPC
-    // name (e.g. "UNAVAILABLE") for callers that retry.
+    // The server, or a store it needs, cannot be reached now: retrying later may succeed.
+    case grpc::StatusCode::UNAVAILABLE:
+      return ErrorCode::Unavailable;
+    // Server faults: not the caller's input. The message keeps the gRPC name.
     case grpc::StatusCode::UNKNOWN:
     case grpc::StatusCode::INTERNAL:
-    case grpc::StatusCode::UNAVAILABLE:
     case grpc::StatusCode::DATA_LOSS:
     case grpc::StatusCode::DO_NOT_USE:
       return ErrorCode::Internal;

@@ -18,6 +18,7 @@ const char* error_code_name(ErrorCode code) {
     case ErrorCode::NumericalFailure: return "NumericalFailure";
     case ErrorCode::Internal: return "Internal";
     case ErrorCode::Aborted: return "Aborted";
+    case ErrorCode::Unavailable: return "Unavailable";
   }
   return "Unknown";
 }

@@ -26,6 +26,9 @@ enum class ErrorCode {
   Internal,
   /// A concurrent change won (e.g. another replica edited the session): retrying may succeed.
   Aborted,
+  /// Something the request needs cannot be reached now (e.g. the shared session store): not the
+  /// caller's input and not a fault of this code; retrying later may succeed.
+  Unavailable,
 };
 
 /// Human-readable name of an error code ("InvalidArgument").

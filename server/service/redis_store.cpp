@@ -338,6 +338,12 @@ Status store_error(std::string_view what) {
   return Error(ErrorCode::Internal, "state store (redis): " + std::string(what));
 }
 
+// Redis cannot be reached or talked to now (connection refused, reset, timeout, refused
+// login): UNAVAILABLE to the client, which may retry, instead of an internal fault.
+Status store_unavailable(std::string_view what) {
+  return Error(ErrorCode::Unavailable, "state store (redis): " + std::string(what));
+}
+
 }  // namespace
 
 Result<RedisConfig> parse_redis_url(std::string_view url) {
@@ -450,11 +456,11 @@ Result<redisContext*> RedisStateStore::take() {
   timeout.tv_sec = static_cast<decltype(timeout.tv_sec)>(config_.io_timeout.count() / 1000);
   timeout.tv_usec = static_cast<decltype(timeout.tv_usec)>((config_.io_timeout.count() % 1000) * 1000);
   redisContext* context = redisConnectWithTimeout(config_.host.c_str(), config_.port, timeout);
-  if (context == nullptr) return Error(ErrorCode::InvalidArgument, where + ": out of memory");
+  if (context == nullptr) return Error(ErrorCode::Unavailable, where + ": out of memory");
   if (context->err != 0) {
     std::string message = where + " is unreachable: " + context->errstr;
     redisFree(context);
-    return Error(ErrorCode::InvalidArgument, std::move(message));
+    return Error(ErrorCode::Unavailable, std::move(message));
   }
   redisSetTimeout(context, timeout);
   auto command = [&](const std::vector<std::string>& args) -> Result<Reply> {
@@ -467,13 +473,13 @@ Result<redisContext*> RedisStateStore::take() {
     auto* reply = static_cast<redisReply*>(redisCommandArgv(
         context, static_cast<int>(argv.size()), argv.data(), lengths.data()));
     if (reply == nullptr) {
-      return Error(ErrorCode::InvalidArgument, where + ": " + context->errstr);
+      return Error(ErrorCode::Unavailable, where + ": " + context->errstr);
     }
     return Reply(reply);
   };
   auto fail = [&](std::string message) -> Status {
     redisFree(context);
-    return Error(ErrorCode::InvalidArgument, std::move(message));
+    return Error(ErrorCode::Unavailable, std::move(message));
   };
   if (!config_.password.empty()) {
     std::vector<std::string> auth = {"AUTH"};
@@ -526,7 +532,7 @@ Result<Reply> RedisStateStore::run(const std::vector<std::string>& args, bool id
   // that is not (a commit) is not: whether it was applied is unknown, the caller is told so.
   for (int attempt = 0;; ++attempt) {
     Result<redisContext*> taken = take();
-    if (!taken.ok()) return store_error(taken.status().message());
+    if (!taken.ok()) return store_unavailable(taken.status().message());
     redisContext* context = *taken;
     auto* reply = static_cast<redisReply*>(
         redisCommandArgv(context, static_cast<int>(argv.size()), argv.data(), lengths.data()));
@@ -535,7 +541,7 @@ Result<Reply> RedisStateStore::run(const std::vector<std::string>& args, bool id
       return Reply(reply);
     }
     // The connection is in an unknown state (timeout mid-reply, reset): never reuse it.
-    Status error = store_error(std::string(args.empty() ? "" : args[0]) + ": " + context->errstr +
+    Status error = store_unavailable(std::string(args.empty() ? "" : args[0]) + ": " + context->errstr +
                                (idempotent ? "" : " (the write may or may not have been applied)"));
     redisFree(context);
     if (!idempotent || attempt > 0) return error;

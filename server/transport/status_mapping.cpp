@@ -30,6 +30,8 @@ grpc::StatusCode to_grpc_code(ErrorCode code) {
       return grpc::StatusCode::INTERNAL;
     case ErrorCode::Aborted:
       return grpc::StatusCode::ABORTED;
+    case ErrorCode::Unavailable:
+      return grpc::StatusCode::UNAVAILABLE;
   }
   return grpc::StatusCode::UNKNOWN;  // an out-of-range enum value
 }

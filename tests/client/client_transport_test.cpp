@@ -173,7 +173,7 @@ TEST_F(ClientTransportTest, EveryGrpcCodeMapsToAnErrorCodeAndKeepsItsName) {
       {grpc::StatusCode::OUT_OF_RANGE, ErrorCode::InvalidArgument},
       {grpc::StatusCode::UNIMPLEMENTED, ErrorCode::FailedPrecondition},
       {grpc::StatusCode::INTERNAL, ErrorCode::Internal},
-      {grpc::StatusCode::UNAVAILABLE, ErrorCode::Internal},
+      {grpc::StatusCode::UNAVAILABLE, ErrorCode::Unavailable},
       {grpc::StatusCode::DATA_LOSS, ErrorCode::Internal},
       {grpc::StatusCode::UNAUTHENTICATED, ErrorCode::PermissionDenied},
   };
@@ -282,7 +282,7 @@ TEST_F(ClientTransportTest, ConnectValidatesOptions) {
   EXPECT_EQ(Client::connect(options).status().code(), ErrorCode::InvalidArgument);
 }
 
-TEST_F(ClientTransportTest, UnreachableServerIsInternalNamingUnavailable) {
+TEST_F(ClientTransportTest, UnreachableServerIsUnavailableByName) {
   const std::string target = "127.0.0.1:" + std::to_string(port_);
   server_->Shutdown(std::chrono::system_clock::now() + seconds(5));
   server_.reset();
@@ -292,7 +292,7 @@ TEST_F(ClientTransportTest, UnreachableServerIsInternalNamingUnavailable) {
   Result<Client> client = Client::connect(options);
   ASSERT_TRUE(client.ok());
   const Status status = client->session_info({"s1", "t"}).status();
-  EXPECT_EQ(status.code(), ErrorCode::Internal) << status.to_string();
+  EXPECT_EQ(status.code(), ErrorCode::Unavailable) << status.to_string();
   EXPECT_NE(status.message().find("UNAVAILABLE"), std::string::npos) << status.message();
 }
 
