@@ -1,5 +1,7 @@
 #include "server/service/persistence.h"
 
+#include "server/service/binary_codec.h"
+
 #include <dirent.h>
 #include <fcntl.h>
 #include <sys/stat.h>
@@ -16,7 +18,6 @@ namespace meshdeform::service {
 namespace {
 
 constexpr std::string_view kMagic = "MDSTATE1";
-constexpr std::uint32_t kMaxCount = 100'000'000;  // vertices, faces, group sizes
 
 std::uint32_t crc32(std::string_view data) {
   static const std::array<std::uint32_t, 256> table = [] {
@@ -33,73 +34,6 @@ std::uint32_t crc32(std::string_view data) {
   return crc ^ 0xFFFFFFFFu;
 }
 
-class Writer {
- public:
-  template <typename T>
-  void pod(T value) {
-    char bytes[sizeof(T)];
-    std::memcpy(bytes, &value, sizeof(T));  // little-endian hosts only (x86-64, arm64)
-    out_.append(bytes, sizeof(T));
-  }
-  void str(std::string_view s) {
-    pod(static_cast<std::uint32_t>(s.size()));
-    out_.append(s);
-  }
-  void matrix(const Positions& P) {
-    pod(static_cast<std::uint32_t>(P.rows()));
-    for (Eigen::Index r = 0; r < P.rows(); ++r)
-      for (int c = 0; c < 3; ++c) pod(P(r, c));
-  }
-  std::string& bytes() { return out_; }
-
- private:
-  std::string out_;
-};
-
-class Reader {
- public:
-  explicit Reader(std::string_view in) : in_(in) {}
-  template <typename T>
-  Status pod(T& value, const char* what) {
-    if (in_.size() - at_ < sizeof(T)) return truncated(what);
-    std::memcpy(&value, in_.data() + at_, sizeof(T));
-    at_ += sizeof(T);
-    return Status::success();
-  }
-  Status str(std::string& s, const char* what, std::size_t max) {
-    std::uint32_t n = 0;
-    MD_RETURN_IF_ERROR(pod(n, what));
-    if (n > max || in_.size() - at_ < n) return truncated(what);
-    s.assign(in_.data() + at_, n);
-    at_ += n;
-    return Status::success();
-  }
-  Status count(std::uint32_t& n, const char* what, std::size_t bytes_each) {
-    MD_RETURN_IF_ERROR(pod(n, what));
-    if (n > kMaxCount || (in_.size() - at_) / bytes_each < n) return truncated(what);
-    return Status::success();
-  }
-  Status matrix(Positions& P, const char* what) {
-    std::uint32_t rows = 0;
-    MD_RETURN_IF_ERROR(count(rows, what, 24));
-    P.resize(rows, 3);
-    for (Eigen::Index r = 0; r < P.rows(); ++r)
-      for (int c = 0; c < 3; ++c) MD_RETURN_IF_ERROR(pod(P(r, c), what));
-    if (!P.allFinite()) return Error(ErrorCode::InvalidArgument, std::string(what) + " is not finite");
-    return Status::success();
-  }
-  bool done() const { return at_ == in_.size(); }
-
- private:
-  Status truncated(const char* what) const {
-    return Error(ErrorCode::InvalidArgument,
-                 std::string("state file truncated or corrupt at ") + what + " (byte " +
-                     std::to_string(at_) + ")");
-  }
-  std::string_view in_;
-  std::size_t at_ = 0;
-};
-
 Status os_error(const std::string& what, const std::string& path) {
   return Error(ErrorCode::Internal, what + " " + path + ": " + std::strerror(errno));
 }
@@ -110,16 +44,7 @@ bool is_valid_session_id(std::string_view id) {
   return id.size() == 32 && id.find_first_not_of("0123456789abcdef") == std::string_view::npos;
 }
 
-std::string encode_session(const PersistedSession& s) {
-  Writer w;
-  w.str(s.id.value);
-  w.str(s.edit_token.value);
-  w.str(s.view_token.value);
-  w.pod(s.lambda);
-  w.matrix(s.rest.V);
-  w.pod(static_cast<std::uint32_t>(s.rest.F.rows()));
-  for (Eigen::Index f = 0; f < s.rest.F.rows(); ++f)
-    for (int k = 0; k < 3; ++k) w.pod(static_cast<std::int32_t>(s.rest.F(f, k)));
+void write_session_state(BinaryWriter& w, const PersistedSession& s) {
   w.pod(static_cast<std::uint32_t>(s.groups.size()));
   for (const HandleGroup& g : s.groups) {
     w.pod(static_cast<std::uint8_t>(g.role == HandleRole::Fixed ? 0 : 1));
@@ -131,14 +56,70 @@ std::string encode_session(const PersistedSession& s) {
   w.matrix(s.positions);
   w.pod(s.revision);
   w.pod(static_cast<std::int32_t>(s.last_method ? static_cast<int>(*s.last_method) : -1));
+}
+
+Status read_session_state(BinaryReader& r, PersistedSession& s) {
+  const auto nv = static_cast<std::int32_t>(s.rest.V.rows());
+  std::uint32_t groups = 0;
+  MD_RETURN_IF_ERROR(r.count(groups, "groups", 5));
+  s.groups.clear();
+  for (std::uint32_t g = 0; g < groups; ++g) {
+    HandleGroup group;
+    std::uint8_t role = 0;
+    MD_RETURN_IF_ERROR(r.pod(role, "group role"));
+    group.role = role == 0 ? HandleRole::Fixed : HandleRole::Handle;
+    std::uint32_t size = 0;
+    MD_RETURN_IF_ERROR(r.count(size, "group vertices", 4));
+    for (std::uint32_t i = 0; i < size; ++i) {
+      std::int32_t v = 0;
+      MD_RETURN_IF_ERROR(r.pod(v, "group vertices"));
+      if (v < 0 || v >= nv) {
+        return r.corrupt("group " + std::to_string(g) + " vertex " + std::to_string(v) +
+                         " out of range");
+      }
+      group.vertices.push_back(v);
+    }
+    s.groups.push_back(std::move(group));
+  }
+  MD_RETURN_IF_ERROR(r.matrix(s.anchors, "anchors"));
+  MD_RETURN_IF_ERROR(r.matrix(s.targets, "targets"));
+  MD_RETURN_IF_ERROR(r.matrix(s.positions, "positions"));
+  MD_RETURN_IF_ERROR(r.pod(s.revision, "revision"));
+  std::int32_t method = -1;
+  MD_RETURN_IF_ERROR(r.pod(method, "method"));
+  if (method < -1 || method > static_cast<std::int32_t>(core::Method::Laplacian)) {
+    return r.corrupt("unknown method " + std::to_string(method));
+  }
+  s.last_method.reset();
+  if (method >= 0) s.last_method = static_cast<core::Method>(method);
+  std::size_t constrained = 0;
+  for (const HandleGroup& g : s.groups) constrained += g.vertices.size();
+  if (s.positions.rows() != nv || static_cast<std::size_t>(s.anchors.rows()) != constrained ||
+      s.targets.rows() != s.anchors.rows()) {
+    return r.corrupt("inconsistent sizes or values");
+  }
+  return Status::success();
+}
+
+std::string encode_session(const PersistedSession& s) {
+  BinaryWriter w;
+  w.str(s.id.value);
+  w.str(s.edit_token.value);
+  w.str(s.view_token.value);
+  w.pod(s.lambda);
+  w.matrix(s.rest.V);
+  w.pod(static_cast<std::uint32_t>(s.rest.F.rows()));
+  for (Eigen::Index f = 0; f < s.rest.F.rows(); ++f)
+    for (int k = 0; k < 3; ++k) w.pod(static_cast<std::int32_t>(s.rest.F(f, k)));
+  write_session_state(w, s);
 
   std::string file(kMagic);
   const std::string& payload = w.bytes();
-  Writer header;
+  BinaryWriter header;
   header.pod(static_cast<std::uint64_t>(payload.size()));
   file += header.bytes();
   file += payload;
-  Writer trailer;
+  BinaryWriter trailer;
   trailer.pod(crc32(payload));
   file += trailer.bytes();
   return file;
@@ -164,7 +145,7 @@ Result<PersistedSession> decode_session(std::string_view bytes) {
   }
 
   PersistedSession s;
-  Reader r(payload);
+  BinaryReader r(payload, "state file");
   MD_RETURN_IF_ERROR(r.str(s.id.value, "session id", 64));
   MD_RETURN_IF_ERROR(r.str(s.edit_token.value, "edit token", 256));
   MD_RETURN_IF_ERROR(r.str(s.view_token.value, "view token", 256));
@@ -179,47 +160,14 @@ Result<PersistedSession> decode_session(std::string_view bytes) {
       std::int32_t v = 0;
       MD_RETURN_IF_ERROR(r.pod(v, "faces"));
       if (v < 0 || v >= nv) {
-        return Error(ErrorCode::InvalidArgument, "state file: face " + std::to_string(f) +
-                                                     " references vertex " + std::to_string(v));
+        return r.corrupt("face " + std::to_string(f) + " references vertex " + std::to_string(v));
       }
       s.rest.F(f, k) = v;
     }
   }
-  std::uint32_t groups = 0;
-  MD_RETURN_IF_ERROR(r.count(groups, "groups", 5));
-  for (std::uint32_t g = 0; g < groups; ++g) {
-    HandleGroup group;
-    std::uint8_t role = 0;
-    MD_RETURN_IF_ERROR(r.pod(role, "group role"));
-    group.role = role == 0 ? HandleRole::Fixed : HandleRole::Handle;
-    std::uint32_t size = 0;
-    MD_RETURN_IF_ERROR(r.count(size, "group vertices", 4));
-    for (std::uint32_t i = 0; i < size; ++i) {
-      std::int32_t v = 0;
-      MD_RETURN_IF_ERROR(r.pod(v, "group vertices"));
-      if (v < 0 || v >= nv) {
-        return Error(ErrorCode::InvalidArgument,
-                     "state file: group " + std::to_string(g) + " vertex " + std::to_string(v) +
-                         " out of range");
-      }
-      group.vertices.push_back(v);
-    }
-    s.groups.push_back(std::move(group));
-  }
-  MD_RETURN_IF_ERROR(r.matrix(s.anchors, "anchors"));
-  MD_RETURN_IF_ERROR(r.matrix(s.targets, "targets"));
-  MD_RETURN_IF_ERROR(r.matrix(s.positions, "positions"));
-  MD_RETURN_IF_ERROR(r.pod(s.revision, "revision"));
-  std::int32_t method = -1;
-  MD_RETURN_IF_ERROR(r.pod(method, "method"));
-  if (method >= 0) s.last_method = static_cast<core::Method>(method);
+  MD_RETURN_IF_ERROR(read_session_state(r, s));
   if (!r.done()) return Error(ErrorCode::InvalidArgument, "state file has trailing bytes");
-  std::size_t constrained = 0;
-  for (const HandleGroup& g : s.groups) constrained += g.vertices.size();
-  if (s.positions.rows() != s.rest.V.rows() ||
-      static_cast<std::size_t>(s.anchors.rows()) != constrained ||
-      s.targets.rows() != s.anchors.rows() || !is_valid_session_id(s.id.value) ||
-      !(s.lambda > 0) || (method > 2)) {
+  if (!is_valid_session_id(s.id.value) || !(s.lambda > 0)) {
     return Error(ErrorCode::InvalidArgument, "state file: inconsistent sizes or values");
   }
   return s;

@@ -39,6 +39,19 @@ struct PersistedSession {
   std::optional<core::Method> last_method;
 };
 
+class BinaryWriter;
+class BinaryReader;
+
+/// The part of a session's state that edits change (groups with their vertices, anchors,
+/// targets, positions, revision, last method): written the same way into the state file and
+/// into the Redis store's state key. Format: u32 group count, per group u8 role (0 fixed) and
+/// u32 size and i32 vertices; matrices anchors, targets, positions; u64 revision; i32 method
+/// (-1 none).
+void write_session_state(BinaryWriter& out, const PersistedSession& state);
+/// Reads that part into `state`, whose rest mesh must already be set (vertex indices and sizes
+/// are checked against it). @return InvalidArgument naming the field when corrupt.
+[[nodiscard]] Status read_session_state(BinaryReader& in, PersistedSession& state);
+
 /// Serialises a session state (the file's bytes, header and checksum included).
 std::string encode_session(const PersistedSession& state);
 /// Parses and checks a file's bytes.

@@ -1,5 +1,7 @@
 #include "server/service/redis_store.h"
 
+#include "server/service/binary_codec.h"
+
 #include <hiredis/hiredis.h>
 #include <poll.h>
 
@@ -162,65 +164,9 @@ constexpr int kScriptCount = 7;
 // area_log_rms, solve_seconds, i32 iterations, pcg_iterations, str editor, matrix positions,
 // matrix targets. Little-endian hosts only, as persistence.cpp.
 
-class Bytes {
- public:
-  template <typename T>
-  void pod(T value) {
-    char raw[sizeof(T)];
-    std::memcpy(raw, &value, sizeof(T));
-    out_.append(raw, sizeof(T));
-  }
-  void str(std::string_view s) {
-    pod(static_cast<std::uint32_t>(s.size()));
-    out_.append(s);
-  }
-  void matrix(const Positions& P) {
-    pod(static_cast<std::uint32_t>(P.rows()));
-    for (Eigen::Index r = 0; r < P.rows(); ++r)
-      for (int c = 0; c < 3; ++c) pod(P(r, c));
-  }
-  std::string take() { return std::move(out_); }
-
- private:
-  std::string out_;
-};
-
-class Parse {
- public:
-  explicit Parse(std::string_view in) : in_(in) {}
-  template <typename T>
-  bool pod(T& value) {
-    if (in_.size() - at_ < sizeof(T)) return false;
-    std::memcpy(&value, in_.data() + at_, sizeof(T));
-    at_ += sizeof(T);
-    return true;
-  }
-  bool str(std::string& s) {
-    std::uint32_t n = 0;
-    if (!pod(n) || in_.size() - at_ < n) return false;
-    s.assign(in_.data() + at_, n);
-    at_ += n;
-    return true;
-  }
-  bool matrix(Positions& P) {
-    std::uint32_t rows = 0;
-    if (!pod(rows) || (in_.size() - at_) / 24 < rows) return false;
-    P.resize(rows, 3);
-    for (Eigen::Index r = 0; r < P.rows(); ++r)
-      for (int c = 0; c < 3; ++c)
-        if (!pod(P(r, c))) return false;
-    return true;
-  }
-  bool done() const { return at_ == in_.size(); }
-
- private:
-  std::string_view in_;
-  std::size_t at_ = 0;
-};
-
 std::string encode_entry(const SharedLogEntry& entry) {
   const DeformResult& r = *entry.result;
-  Bytes out;
+  BinaryWriter out;
   out.pod<std::uint8_t>(1);
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(r.method));
   out.pod<std::uint8_t>(static_cast<std::uint8_t>((r.converged ? 1 : 0) | (r.refinement ? 2 : 0) |
@@ -239,18 +185,29 @@ std::string encode_entry(const SharedLogEntry& entry) {
 }
 
 Result<SharedLogEntry> decode_entry(std::string_view bytes) {
-  Parse in(bytes);
+  BinaryReader in(bytes, "redis log entry");
   std::uint8_t format = 0, method = 0, flags = 0;
   auto result = std::make_shared<DeformResult>();
   std::int32_t iterations = 0, pcg = 0;
   Positions positions, targets;
-  const bool ok = in.pod(format) && format == 1 && in.pod(method) && in.pod(flags) &&
-                  in.pod(result->rigidity) && in.pod(result->e_theta) && in.pod(result->e_phi) &&
-                  in.pod(result->area_log_rms) && in.pod(result->solve_seconds) &&
-                  in.pod(iterations) && in.pod(pcg) && in.str(result->editor) &&
-                  in.matrix(positions) && in.matrix(targets) && in.done() &&
-                  method <= static_cast<std::uint8_t>(core::Method::Laplacian);
-  if (!ok) return Error(ErrorCode::InvalidArgument, "redis: corrupt log entry");
+  MD_RETURN_IF_ERROR(in.pod(format, "format"));
+  if (format != 1) return in.corrupt("unknown format " + std::to_string(format));
+  MD_RETURN_IF_ERROR(in.pod(method, "method"));
+  MD_RETURN_IF_ERROR(in.pod(flags, "flags"));
+  MD_RETURN_IF_ERROR(in.pod(result->rigidity, "rigidity"));
+  MD_RETURN_IF_ERROR(in.pod(result->e_theta, "e_theta"));
+  MD_RETURN_IF_ERROR(in.pod(result->e_phi, "e_phi"));
+  MD_RETURN_IF_ERROR(in.pod(result->area_log_rms, "area"));
+  MD_RETURN_IF_ERROR(in.pod(result->solve_seconds, "solve seconds"));
+  MD_RETURN_IF_ERROR(in.pod(iterations, "iterations"));
+  MD_RETURN_IF_ERROR(in.pod(pcg, "pcg iterations"));
+  MD_RETURN_IF_ERROR(in.str(result->editor, "editor", 256));
+  MD_RETURN_IF_ERROR(in.matrix(positions, "positions"));
+  MD_RETURN_IF_ERROR(in.matrix(targets, "targets"));
+  if (!in.done()) return in.corrupt("trailing bytes");
+  if (method > static_cast<std::uint8_t>(core::Method::Laplacian)) {
+    return in.corrupt("unknown method " + std::to_string(method));
+  }
   result->method = static_cast<core::Method>(method);
   result->converged = (flags & 1) != 0;
   result->refinement = (flags & 2) != 0;
@@ -267,70 +224,26 @@ Result<SharedLogEntry> decode_entry(std::string_view bytes) {
 
 // --- The changing part of a session's state (md:{id}:state) -------------------------------------
 // The rest mesh, the tokens and lambda never change: they are stored once (md:{id}:mesh, the
-// persistence.h file format) and a commit writes only this. "MDDYN1", u32 group count, per group
-// u8 role (0 fixed), u32 size, i32 vertices; matrix anchors, targets, positions; u64 revision;
-// i32 last method (-1 none).
+// persistence.h file format) and a commit writes only this: "MDDYN1", then the fields of
+// write_session_state (persistence.h), the same bytes the state file holds for them.
 
 constexpr std::string_view kDynamicMagic = "MDDYN1";
 
 std::string encode_dynamic(const PersistedSession& state) {
-  Bytes out;
-  std::string bytes(kDynamicMagic);
-  out.pod(static_cast<std::uint32_t>(state.groups.size()));
-  for (const HandleGroup& g : state.groups) {
-    out.pod(static_cast<std::uint8_t>(g.role == HandleRole::Fixed ? 0 : 1));
-    out.pod(static_cast<std::uint32_t>(g.vertices.size()));
-    for (int v : g.vertices) out.pod(static_cast<std::int32_t>(v));
-  }
-  out.matrix(state.anchors);
-  out.matrix(state.targets);
-  out.matrix(state.positions);
-  out.pod(state.revision);
-  out.pod(static_cast<std::int32_t>(state.last_method ? static_cast<int>(*state.last_method) : -1));
-  bytes += out.take();
-  return bytes;
+  BinaryWriter out;
+  write_session_state(out, state);
+  return std::string(kDynamicMagic) + out.take();
 }
 
 /// Overlays the changing part onto `state` (decoded from the mesh key) and checks the sizes.
 Status decode_dynamic(std::string_view bytes, PersistedSession& state) {
-  const auto corrupt = [&state](const char* what) {
-    return Error(ErrorCode::InvalidArgument,
-                 "stored state of session " + state.id.value + " is corrupt (" + what + ")");
-  };
-  if (!bytes.starts_with(kDynamicMagic)) return corrupt("magic");
-  Parse in(bytes.substr(kDynamicMagic.size()));
-  const auto nv = static_cast<std::int32_t>(state.rest.V.rows());
-  std::uint32_t groups = 0;
-  if (!in.pod(groups) || groups > static_cast<std::uint32_t>(nv)) return corrupt("groups");
-  state.groups.clear();
-  std::size_t constrained = 0;
-  for (std::uint32_t g = 0; g < groups; ++g) {
-    HandleGroup group;
-    std::uint8_t role = 0;
-    std::uint32_t size = 0;
-    if (!in.pod(role) || !in.pod(size) || size > static_cast<std::uint32_t>(nv)) {
-      return corrupt("group");
-    }
-    group.role = role == 0 ? HandleRole::Fixed : HandleRole::Handle;
-    for (std::uint32_t i = 0; i < size; ++i) {
-      std::int32_t v = 0;
-      if (!in.pod(v) || v < 0 || v >= nv) return corrupt("group vertex");
-      group.vertices.push_back(v);
-    }
-    constrained += size;
-    state.groups.push_back(std::move(group));
+  const std::string source = "stored state of session " + state.id.value;
+  if (!bytes.starts_with(kDynamicMagic)) {
+    return Error(ErrorCode::InvalidArgument, source + " is corrupt (magic)");
   }
-  std::int32_t method = -1;
-  if (!in.matrix(state.anchors) || !in.matrix(state.targets) || !in.matrix(state.positions) ||
-      !in.pod(state.revision) || !in.pod(method) || !in.done()) {
-    return corrupt("truncated");
-  }
-  if (state.positions.rows() != nv || static_cast<std::size_t>(state.anchors.rows()) != constrained ||
-      state.targets.rows() != state.anchors.rows() || method < -1 || method > 2) {
-    return corrupt("sizes");
-  }
-  state.last_method.reset();
-  if (method >= 0) state.last_method = static_cast<core::Method>(method);
+  BinaryReader in(bytes.substr(kDynamicMagic.size()), source);
+  MD_RETURN_IF_ERROR(read_session_state(in, state));
+  if (!in.done()) return in.corrupt("trailing bytes");
   return Status::success();
 }
 
