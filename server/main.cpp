@@ -55,6 +55,7 @@ struct Flags {
   std::string state_dir;
   std::string redis_url;            // --redis: sessions on Redis (issue 16)
   std::string redis_password_file;  // the password never comes from the command line
+  std::string redis_ca_file;        // rediss://: CA the server's certificate chains to
   int redis_lease_ms = 5000;
   int redis_log_length = 32;
   std::string tls_cert;       // PEM files; both or neither
@@ -103,7 +104,10 @@ constexpr const char* kUsage =
     "                              take a per-session lease, commit by compare-and-set and are\n"
     "                              acknowledged only once Redis accepted them; watchers see the\n"
     "                              edits of every replica (default: off; not with --state-dir;\n"
-    "                              rediss:// is refused: Debian's hiredis 0.14 has no TLS)\n"
+    "                              rediss://... for TLS: the server's certificate and host name\n"
+    "                              are verified)\n"
+    "  --redis-ca-file FILE        rediss://: PEM CA certificate(s) the Redis server's\n"
+    "                              certificate must chain to (default: the system's CAs)\n"
     "  --redis-password-file FILE  the Redis password (first line of FILE; else the environment\n"
     "                              variable MESHDEFORM_REDIS_PASSWORD; never on the command line)\n"
     "  --redis-lease-ms N          how long a replica's edit lease on a session lasts unrenewed:\n"
@@ -213,6 +217,9 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
       ok = !value.empty();
     } else if (arg == "--redis-password-file") {
       flags.redis_password_file = std::string(value);
+      ok = !value.empty();
+    } else if (arg == "--redis-ca-file") {
+      flags.redis_ca_file = std::string(value);
       ok = !value.empty();
     } else if (arg == "--redis-lease-ms") {
       ok = parse_number(value, 100, 600'000, flags.redis_lease_ms);
@@ -326,6 +333,10 @@ int main(int argc, char** argv) {
     } else if (const char* env = std::getenv("MESHDEFORM_REDIS_PASSWORD"); env != nullptr) {
       config->password = env;
     }
+    if (!flags.redis_ca_file.empty()) {
+      if (!config->tls) return redis_error("--redis-ca-file needs a rediss:// (TLS) --redis URL");
+      config->tls_ca_file = flags.redis_ca_file;
+    }
     config->lease = std::chrono::milliseconds(flags.redis_lease_ms);
     config->log_length = flags.redis_log_length;
     config->idle_ttl = std::chrono::seconds(flags.idle_ttl_seconds);
@@ -334,9 +345,11 @@ int main(int argc, char** argv) {
     shared = std::move(connected).value();
     log_event(LogLevel::Info, "redis",
               LogFields().add("url", flags.redis_url).add("lease_ms", flags.redis_lease_ms));
-  } else if (!flags.redis_password_file.empty()) {
+  } else if (!flags.redis_password_file.empty() || !flags.redis_ca_file.empty()) {
     log_event(LogLevel::Error, "redis_unusable",
-              LogFields().add("message", "--redis-password-file needs --redis"));
+              LogFields().add("message", !flags.redis_password_file.empty()
+                                             ? "--redis-password-file needs --redis"
+                                             : "--redis-ca-file needs --redis"));
     return 2;
   }
   // TLS files are checked before anything listens, so that a typo stops the server with a

@@ -16,9 +16,15 @@
 /// compare-and-set of a commit checks the lease and the version and writes the state, the
 /// version, the revision and the log entry in one atomic step.
 ///
-/// TLS (rediss://) is refused: Debian 12's hiredis 0.14 has no TLS support.
+/// TLS (rediss://): Debian 12's hiredis 0.14 has no TLS support, so each pooled connection to a
+/// rediss:// server is a TCP connection wrapped in OpenSSL here (peer and host name verified, the
+/// handshake done before the connection is pooled, so its errors are connect()'s), bridged to
+/// hiredis through a socketpair (redisConnectFd) by a relay thread that the store owns: the relay
+/// ends when hiredis closes its end (redisFree) and at the latest when the store is destroyed.
 
+#include <atomic>
 #include <chrono>
+#include <list>
 #include <memory>
 #include <mutex>
 #include <set>
@@ -29,6 +35,7 @@
 #include "server/service/shared_store.h"
 
 struct redisContext;
+struct ssl_ctx_st;  // OpenSSL's SSL_CTX
 
 namespace meshdeform::service {
 
@@ -46,19 +53,25 @@ struct RedisConfig {
   /// this bounds Redis memory per session; a replica or watcher further behind than this reloads
   /// the whole state (watchers then get a snapshot).
   int log_length = 32;
+  /// rediss://: TLS to Redis (the server's certificate and host name are verified).
+  bool tls = false;
+  /// PEM CA certificates the server's certificate must chain to (empty: the system's CAs).
+  std::string tls_ca_file;
 };
 
-/// Parses `redis://[user@]host[:port][/db]`.
+/// Parses `redis://[user@]host[:port][/db]` and `rediss://...` (TLS; `tls` set).
 /// @return the config (other fields default); InvalidArgument naming what is wrong, including a
 ///         password in the URL (it would be visible in the process list: use a file or the
-///         environment) and rediss:// (no TLS in Debian's hiredis 0.14).
+///         environment).
 [[nodiscard]] Result<RedisConfig> parse_redis_url(std::string_view url);
 
 class RedisStateStore final : public SharedStateStore {
  public:
   /// Connects, authenticates, selects the database, checks it answers PING and loads the scripts.
-  /// @return the store; InvalidArgument naming the host for an unreachable server, a refused
-  ///         password or a bad database (the server's own message included).
+  /// @return the store; Unavailable naming the host for an unreachable server, a failed TLS
+  ///         handshake (OpenSSL's reason, e.g. certificate verify failed), a refused password or
+  ///         a bad database (the server's own message included); InvalidArgument for an
+  ///         unreadable tls_ca_file.
   [[nodiscard]] static Result<std::unique_ptr<RedisStateStore>> connect(RedisConfig config);
   ~RedisStateStore() override;
 
@@ -95,6 +108,15 @@ class RedisStateStore final : public SharedStateStore {
                        const std::vector<std::string>& args);
   /// Renews the held leases every lease/3 until stopped.
   void renew_loop(std::stop_token stop);
+  /// rediss://: a TCP connection to the server, TLS handshake (verified), and a relay thread
+  /// between it and one end of a socketpair. @return the other end (for redisConnectFd);
+  ///         Unavailable naming host, port and OpenSSL's reason.
+  Result<int> connect_tls();
+
+  struct Relay {
+    std::jthread thread;
+    std::shared_ptr<std::atomic<bool>> done;
+  };
 
   RedisConfig config_;
   std::string owner_;
@@ -103,6 +125,9 @@ class RedisStateStore final : public SharedStateStore {
   std::vector<redisContext*> idle_;
   std::mutex leases_mutex_;
   std::set<std::string> held_;  ///< ids whose lease this replica holds (renewed)
+  ssl_ctx_st* tls_context_ = nullptr;  ///< rediss:// only (freed after the relays end)
+  std::mutex relays_mutex_;
+  std::list<Relay> relays_;  ///< rediss:// relay threads (joined in the destructor)
   std::jthread renewer_;        // last: stopped and joined first
 };
 

@@ -52,6 +52,21 @@ std::string read_file(const std::string& path) {
   return out.str();
 }
 
+/// A TLS redis-server cannot be PINGed without a TLS client: it is ready once its log says so
+/// and its port accepts a TCP connection.
+bool tls_ready(int port, const std::string& log_path) {
+  if (read_file(log_path).find("Ready to accept connections") == std::string::npos) return false;
+  const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  if (fd < 0) return false;
+  sockaddr_in address{};
+  address.sin_family = AF_INET;
+  address.sin_port = htons(static_cast<std::uint16_t>(port));
+  address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  const bool ok = ::connect(fd, reinterpret_cast<sockaddr*>(&address), sizeof address) == 0;
+  ::close(fd);
+  return ok;
+}
+
 }  // namespace
 
 int free_loopback_port() {
@@ -99,8 +114,9 @@ std::unique_ptr<RedisProcess> RedisProcess::start(const RedisOptions& options, s
   // A port free a moment ago may be taken by the time redis binds it: a few attempts.
   for (int attempt = 0; attempt < 5; ++attempt) {
     const int port = options.port != 0 ? options.port : free_loopback_port();
+    const bool tls = !options.tls_cert_file.empty();
     std::vector<std::string> args = {server,
-                                     "--port", std::to_string(port),
+                                     "--port", tls ? "0" : std::to_string(port),
                                      "--bind", "127.0.0.1",
                                      "--dir", redis->dir_,
                                      "--save", "",
@@ -112,6 +128,14 @@ std::unique_ptr<RedisProcess> RedisProcess::start(const RedisOptions& options, s
       args.push_back("--requirepass");
       args.push_back(options.password);
     }
+    if (tls) {
+      args.insert(args.end(), {"--tls-port", std::to_string(port), "--tls-cert-file",
+                               options.tls_cert_file, "--tls-key-file", options.tls_key_file,
+                               "--tls-ca-cert-file",
+                               options.tls_ca_file.empty() ? options.tls_cert_file
+                                                           : options.tls_ca_file,
+                               "--tls-auth-clients", "no"});
+    }
     ChildStreams streams;
     streams.stdout_path = redis->dir_ + "/redis.log";
     std::string spawn_error;
@@ -121,9 +145,11 @@ std::unique_ptr<RedisProcess> RedisProcess::start(const RedisOptions& options, s
       return nullptr;
     }
     for (int i = 0; i < 500; ++i) {  // at most ~10 s
-      if (answers_ping(port, std::chrono::milliseconds(200))) {
+      if (tls ? tls_ready(port, streams.stdout_path)
+              : answers_ping(port, std::chrono::milliseconds(200))) {
         redis->child_ = std::move(child);
         redis->port_ = port;
+        redis->tls_ = tls;
         return redis;
       }
       if (child->wait(std::chrono::milliseconds(20))) break;  // exited (port taken?)
@@ -144,7 +170,9 @@ RedisProcess::~RedisProcess() {
   }
 }
 
-std::string RedisProcess::url() const { return "redis://127.0.0.1:" + std::to_string(port_); }
+std::string RedisProcess::url() const {
+  return (tls_ ? "rediss://127.0.0.1:" : "redis://127.0.0.1:") + std::to_string(port_);
+}
 
 bool RedisProcess::stop(int signal, std::chrono::milliseconds timeout) {
   if (!child_) return true;

@@ -3,7 +3,8 @@
 /// A real redis-server for tests (issue 16): on 127.0.0.1 at a free port, with its own temporary
 /// directory, started as a ChildProcess (so it dies with the test however that ends) and stopped
 /// when destroyed. Every wait is bounded. POSIX only; no Redis client library here (readiness is
-/// a raw PING over a socket).
+/// a raw PING over a socket; for a TLS server, its
+/// "Ready to accept connections" log line and an accepted TCP connection).
 
 #include <chrono>
 #include <memory>
@@ -19,6 +20,11 @@ struct RedisOptions {
   bool appendonly = true;      ///< AOF with appendfsync always
   std::string dir;             ///< data directory (empty: a new temporary one, removed at the end)
   int port = 0;                ///< 0: a free port
+  /// TLS only (--tls-port, plain port closed) when set: PEM certificate and key of the server,
+  /// and the CA file redis-server insists on (clients are not asked for certificates).
+  std::string tls_cert_file;
+  std::string tls_key_file;
+  std::string tls_ca_file;
 };
 
 class RedisProcess {
@@ -34,7 +40,7 @@ class RedisProcess {
 
   int port() const { return port_; }
   const std::string& dir() const { return dir_; }
-  /// "redis://127.0.0.1:PORT".
+  /// "redis://127.0.0.1:PORT" ("rediss://" for a TLS server).
   std::string url() const;
   /// Stops it with `signal` (SIGKILL: a crash) and waits at most `timeout`. @return whether it
   /// exited.
@@ -46,6 +52,7 @@ class RedisProcess {
   RedisProcess() = default;
   std::optional<ChildProcess> child_;
   int port_ = 0;
+  bool tls_ = false;
   std::string dir_;
   bool own_dir_ = false;
 };
