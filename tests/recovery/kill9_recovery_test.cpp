@@ -15,6 +15,7 @@
 
 #include "core/io/mesh_io.h"
 #include "meshdeform/v1/deformation.grpc.pb.h"
+#include "tests/support/grpc_calls.h"
 #include "tests/support/server_process.h"
 
 namespace meshdeform {
@@ -22,16 +23,13 @@ namespace {
 
 namespace fs = std::filesystem;
 using std::chrono::seconds;
+using test::bound;
 
 std::unique_ptr<v1::DeformationService::Stub> connect(const test::ServerProcess& server) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(64 << 20);
   return v1::DeformationService::NewStub(
       grpc::CreateCustomChannel(server.address(), grpc::InsecureChannelCredentials(), args));
-}
-
-void bound(grpc::ClientContext& context, seconds timeout = seconds(30)) {
-  context.set_deadline(std::chrono::system_clock::now() + timeout);
 }
 
 TEST(Kill9RecoveryTest, NoAcknowledgedRevisionIsLost) {
@@ -70,14 +68,8 @@ TEST(Kill9RecoveryTest, NoAcknowledgedRevisionIsLost) {
   std::atomic<int> acked_moves{0};
   std::jthread editor([&] {  // bounded loop; joined on every path
     for (int i = 1; i <= 400; ++i) {
-      v1::MoveHandlesRequest move;
-      move.set_session_id(created.session_id());
-      move.set_token(created.edit_token());
-      move.set_full_positions(true);
-      move.set_max_iterations(1);
-      v1::GroupMove* g = move.add_moves();
-      g->set_group(1);
-      g->mutable_translation()->set_z(0.002 * i);
+      const v1::MoveHandlesRequest move =
+          test::lift_move(created.session_id(), created.edit_token(), i);
       v1::MoveHandlesResponse response;
       grpc::ClientContext context;
       bound(context, seconds(10));

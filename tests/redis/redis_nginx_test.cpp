@@ -17,6 +17,7 @@
 
 #include "core/io/mesh_io.h"
 #include "meshdeform/v1/deformation.grpc.pb.h"
+#include "tests/support/grpc_calls.h"
 #include "tests/support/nginx_process.h"
 #include "tests/support/redis_process.h"
 #include "tests/support/server_process.h"
@@ -26,10 +27,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using std::chrono::seconds;
-
-void bound(grpc::ClientContext& context, seconds timeout = seconds(30)) {
-  context.set_deadline(std::chrono::system_clock::now() + timeout);
-}
+using test::bound;
 
 std::string read_text(const fs::path& path) {
   std::ifstream in(path, std::ios::binary);
@@ -151,14 +149,8 @@ TEST(RedisNginxTest, RoundRobinThroughNginxKeepsEverySessionCorrect) {
   constexpr int kMoves = 45;
   std::vector<double> last_positions;
   for (int i = 1; i <= kMoves; ++i) {
-    v1::MoveHandlesRequest move;
-    move.set_session_id(created.session_id());
-    move.set_token(created.edit_token());
-    move.set_full_positions(true);
-    move.set_max_iterations(1);
-    v1::GroupMove* g = move.add_moves();
-    g->set_group(1);
-    g->mutable_translation()->set_z(0.002 * i);
+    const v1::MoveHandlesRequest move =
+        test::lift_move(created.session_id(), created.edit_token(), i);
     v1::MoveHandlesResponse response;
     grpc::ClientContext context;
     bound(context, seconds(60));

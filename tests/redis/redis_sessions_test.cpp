@@ -24,6 +24,7 @@
 #include "meshdeform/v1/deformation.grpc.pb.h"
 #include "server/service/deformation_service.h"
 #include "server/service/redis_store.h"
+#include "tests/support/grpc_calls.h"
 #include "tests/support/child_process.h"
 #include "tests/support/redis_process.h"
 #include "tests/support/server_process.h"
@@ -36,6 +37,7 @@ using service::DeformationService;
 using service::RedisStateStore;
 using std::chrono::milliseconds;
 using std::chrono::seconds;
+using test::bound;
 
 #define MD_REQUIRE_REDIS()                                                                   \
   do {                                                                                       \
@@ -516,10 +518,6 @@ std::unique_ptr<v1::DeformationService::Stub> connect(const test::ServerProcess&
       grpc::CreateCustomChannel(server.address(), grpc::InsecureChannelCredentials(), args));
 }
 
-void bound(grpc::ClientContext& context, seconds timeout = seconds(30)) {
-  context.set_deadline(std::chrono::system_clock::now() + timeout);
-}
-
 /// Runs the server with `flags` (and `env`) expecting it to stop at startup.
 /// @return its exit status and its stderr.
 std::pair<std::optional<int>, std::string> failed_start(const std::vector<std::string>& flags,
@@ -648,14 +646,8 @@ TEST(RedisServerTest, Kill9OfTheOwningReplicaMovesTheSessionWithEveryAcknowledge
   std::atomic<int> acked_moves{0};
   std::jthread editor([&] {
     for (int i = 1; i <= 400; ++i) {
-      v1::MoveHandlesRequest move;
-      move.set_session_id(created.session_id());
-      move.set_token(created.edit_token());
-      move.set_full_positions(true);
-      move.set_max_iterations(1);
-      v1::GroupMove* g = move.add_moves();
-      g->set_group(1);
-      g->mutable_translation()->set_z(0.002 * i);
+      const v1::MoveHandlesRequest move =
+          test::lift_move(created.session_id(), created.edit_token(), i);
       v1::MoveHandlesResponse response;
       grpc::ClientContext context;
       bound(context, seconds(10));
