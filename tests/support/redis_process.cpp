@@ -1,5 +1,7 @@
 #include "tests/support/redis_process.h"
 
+#include "tests/support/nginx_process.h"  // accepts_connections
+
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <poll.h>
@@ -55,16 +57,8 @@ std::string read_file(const std::string& path) {
 /// A TLS redis-server cannot be PINGed without a TLS client: it is ready once its log says so
 /// and its port accepts a TCP connection.
 bool tls_ready(int port, const std::string& log_path) {
-  if (read_file(log_path).find("Ready to accept connections") == std::string::npos) return false;
-  const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
-  if (fd < 0) return false;
-  sockaddr_in address{};
-  address.sin_family = AF_INET;
-  address.sin_port = htons(static_cast<std::uint16_t>(port));
-  address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  const bool ok = ::connect(fd, reinterpret_cast<sockaddr*>(&address), sizeof address) == 0;
-  ::close(fd);
-  return ok;
+  return read_file(log_path).find("Ready to accept connections") != std::string::npos &&
+         accepts_connections(port);
 }
 
 }  // namespace
