@@ -25,6 +25,7 @@
 #include "server/service/deformation_service.h"
 #include "server/service/redis_store.h"
 #include "tests/support/grpc_calls.h"
+#include "tests/redis/failed_start.h"
 #include "tests/support/child_process.h"
 #include "tests/support/redis_process.h"
 #include "tests/support/server_process.h"
@@ -518,31 +519,7 @@ std::unique_ptr<v1::DeformationService::Stub> connect(const test::ServerProcess&
       grpc::CreateCustomChannel(server.address(), grpc::InsecureChannelCredentials(), args));
 }
 
-/// Runs the server with `flags` (and `env`) expecting it to stop at startup.
-/// @return its exit status and its stderr.
-std::pair<std::optional<int>, std::string> failed_start(const std::vector<std::string>& flags,
-                                                        const std::vector<std::string>& env = {}) {
-  std::random_device random;
-  const std::string log =
-      (fs::temp_directory_path() / ("meshdeform-redis-start-" + std::to_string(random()))).string();
-  std::vector<std::string> args = {MESHDEFORM_SERVER_PATH, "--listen", "127.0.0.1:0"};
-  args.insert(args.end(), flags.begin(), flags.end());
-  test::ChildStreams streams;
-  streams.stderr_path = log;
-  streams.env = env;
-  streams.unset_env = {"MESHDEFORM_REDIS_PASSWORD"};
-  std::string error;
-  std::optional<test::ChildProcess> child = test::ChildProcess::spawn(args, streams, error);
-  EXPECT_TRUE(child.has_value()) << error;
-  if (!child) return {std::nullopt, error};
-  std::optional<int> status = child->wait(milliseconds(60'000));
-  std::ifstream in(log);
-  std::stringstream text;
-  text << in.rdbuf();
-  std::error_code ignored;
-  fs::remove(log, ignored);
-  return {status, text.str()};
-}
+using test::failed_start;
 
 void expect_startup_error(const std::pair<std::optional<int>, std::string>& run,
                           const std::string& fragment) {

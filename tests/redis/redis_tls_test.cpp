@@ -20,6 +20,7 @@
 #include "core/io/mesh_io.h"
 #include "server/service/deformation_service.h"
 #include "server/service/redis_store.h"
+#include "tests/redis/failed_start.h"
 #include "tests/support/child_process.h"
 #include "tests/support/redis_process.h"
 #include "tests/support/server_process.h"
@@ -272,29 +273,7 @@ TEST_F(TlsRedisTest, AWrongCaOrHostFailsAtConnectWithUnavailable) {
   EXPECT_EQ(no_file.status().code(), ErrorCode::InvalidArgument);
 }
 
-/// Runs the server binary expecting it to stop at startup; returns its exit status and stderr.
-std::pair<std::optional<int>, std::string> failed_start(const std::vector<std::string>& flags) {
-  std::random_device random;
-  const std::string log =
-      (fs::temp_directory_path() / ("meshdeform-redis-tls-start-" + std::to_string(random())))
-          .string();
-  std::vector<std::string> args = {MESHDEFORM_SERVER_PATH, "--listen", "127.0.0.1:0"};
-  args.insert(args.end(), flags.begin(), flags.end());
-  test::ChildStreams streams;
-  streams.stderr_path = log;
-  streams.unset_env = {"MESHDEFORM_REDIS_PASSWORD"};
-  std::string error;
-  std::optional<test::ChildProcess> child = test::ChildProcess::spawn(args, streams, error);
-  EXPECT_TRUE(child.has_value()) << error;
-  if (!child) return {std::nullopt, error};
-  std::optional<int> status = child->wait(milliseconds(60'000));
-  std::ifstream in(log);
-  std::stringstream text;
-  text << in.rdbuf();
-  std::error_code ignored;
-  fs::remove(log, ignored);
-  return {status, text.str()};
-}
+using test::failed_start;
 
 TEST_F(TlsRedisTest, TheServerStopsAtStartupOnABadCaAndStartsWithTheRightOne) {
   auto redis = start_tls_redis("server");
