@@ -124,8 +124,8 @@ struct ScaleAwareSolver::Impl {
   double energy(const Eigen::VectorXd& pos, const Eigen::VectorXd& target_vec) const;
   Eigen::VectorXd rhs(const Positions& targets) const;
   void multiply(const Eigen::VectorXd& in, Eigen::VectorXd& out) const;
-  void multiply_free(const double* in, double* out, const double* scale, double* coupling,
-                     double rigidity) const;
+  void multiply_free(const double* in, double* out, const double* scale,
+                     double* coupling) const;
   void multiply_joint(const Eigen::VectorXd& in, Eigen::VectorXd& out, double rigidity) const;
   Eigen::VectorXd precondition_joint(const Eigen::VectorXd& r, double rigidity) const;
   PcgOutcome pcg_joint(const Eigen::VectorXd& b, Eigen::VectorXd& sol, double rigidity,
@@ -517,7 +517,7 @@ double ScaleAwareSolver::Impl::energy(const Eigen::VectorXd& pos,
 }
 
 void ScaleAwareSolver::Impl::multiply_free(const double* in, double* out, const double* scale,
-                                           double* coupling, double rigidity) const {
+                                           double* coupling) const {
   // Per face, the corner residuals r = M (v_a - v_b) + v_d - v_a of Eq. 12 (a, b, d the corner's
   // vertex and the next two) and G^T r, i.e. M^T r - r to a, -M^T r to b and r to d (the case
   // table of assemble()); plus rho times the face's cotangent block; with `scale`, the joint
@@ -552,7 +552,7 @@ void ScaleAwareSolver::Impl::multiply_free(const double* in, double* out, const 
       }
     }
     if (scale != nullptr) {
-      coupling[f] = scale_control->face_coupling(f, v, -rigidity * scale[f], sum);
+      coupling[f] = scale_control->face_coupling(f, v, -rho * scale[f], sum);
     }
     double* slot_of_f = products + 9 * static_cast<size_t>(f);
     for (int p = 0; p < 3; ++p) {
@@ -579,7 +579,7 @@ void ScaleAwareSolver::Impl::multiply_free(const double* in, double* out, const 
 void ScaleAwareSolver::Impl::multiply(const Eigen::VectorXd& in, Eigen::VectorXd& out) const {
   if (!assembled) {
     out.resize(in.size());
-    multiply_free(in.data(), out.data(), nullptr, nullptr, 0.0);
+    multiply_free(in.data(), out.data(), nullptr, nullptr);
     return;
   }
   // A is stored in full, so A x = A^T x: each output entry gathers one column.
@@ -658,7 +658,7 @@ void ScaleAwareSolver::Impl::multiply_joint(const Eigen::VectorXd& in, Eigen::Ve
     // One pass over the faces for the x block and both coupling products.
     out.resize(in.size());
     Eigen::VectorXd cx = Eigen::VectorXd::Zero(m);  // (C x); 0 for a free reference scale
-    multiply_free(in.data(), out.data(), in.data() + n3, cx.data(), rigidity);
+    multiply_free(in.data(), out.data(), in.data() + n3, cx.data());
     Eigen::VectorXd hs;
     scale_control->multiply_scale_matrix(in.tail(m), hs);
     out.tail(m) = rigidity * (hs - cx);
