@@ -1,6 +1,7 @@
 #include "server/service/persistence.h"
 
 #include "server/service/binary_codec.h"
+#include "server/service/edit_history.h"
 
 #include <dirent.h>
 #include <fcntl.h>
@@ -18,6 +19,8 @@ namespace meshdeform::service {
 namespace {
 
 constexpr std::string_view kMagic = "MDSTATE1";
+/// Tags the edit state after the fields of the first format (which files may end without).
+constexpr std::uint32_t kEditTag = 0x31544445;  // "EDT1" little-endian
 
 std::uint32_t crc32(std::string_view data) {
   static const std::array<std::uint32_t, 256> table = [] {
@@ -56,6 +59,8 @@ void write_session_state(BinaryWriter& w, const PersistedSession& s) {
   w.matrix(s.positions);
   w.pod(s.revision);
   w.pod(static_cast<std::int32_t>(s.last_method ? static_cast<int>(*s.last_method) : -1));
+  w.pod(kEditTag);
+  write_edit_state(w, s.edit);
 }
 
 Status read_session_state(BinaryReader& r, PersistedSession& s) {
@@ -98,7 +103,12 @@ Status read_session_state(BinaryReader& r, PersistedSession& s) {
       s.targets.rows() != s.anchors.rows()) {
     return r.corrupt("inconsistent sizes or values");
   }
-  return Status::success();
+  s.edit = EditState{};
+  if (r.done()) return Status::success();  // written before the edit state existed
+  std::uint32_t tag = 0;
+  MD_RETURN_IF_ERROR(r.pod(tag, "edit state tag"));
+  if (tag != kEditTag) return r.corrupt("unknown section after the method");
+  return read_edit_state(r, s.edit, nv, static_cast<int>(s.groups.size()));
 }
 
 std::string encode_session(const PersistedSession& s) {

@@ -37,16 +37,18 @@ struct PersistedSession {
   Positions positions;  ///< #V x 3 at `revision`
   std::uint64_t revision = 0;
   std::optional<core::Method> last_method;
+  EditState edit;  ///< settings and undo history (issue 17)
 };
 
 class BinaryWriter;
 class BinaryReader;
 
 /// The part of a session's state that edits change (groups with their vertices, anchors,
-/// targets, positions, revision, last method): written the same way into the state file and
-/// into the Redis store's state key. Format: u32 group count, per group u8 role (0 fixed) and
-/// u32 size and i32 vertices; matrices anchors, targets, positions; u64 revision; i32 method
-/// (-1 none).
+/// targets, positions, revision, last method, edit settings and history): written the same way
+/// into the state file and into the Redis store's state key. Format: u32 group count, per group
+/// u8 role (0 fixed) and u32 size and i32 vertices; matrices anchors, targets, positions; u64
+/// revision; i32 method (-1 none); then the tag "EDT1" and the edit state (edit_history.h). Bytes
+/// written before the edit state existed end after the method and read as an empty history.
 void write_session_state(BinaryWriter& out, const PersistedSession& state);
 /// Reads that part into `state`, whose rest mesh must already be set (vertex indices and sizes
 /// are checked against it). @return InvalidArgument naming the field when corrupt.

@@ -21,10 +21,12 @@
 #include <condition_variable>
 #include <cstring>
 #include <future>
+#include <limits>
 #include <thread>
 #include <utility>
 
 #include "server/service/binary_codec.h"
+#include "server/service/edit_history.h"
 #include "server/service/log.h"
 #include "server/service/tokens.h"
 
@@ -181,7 +183,8 @@ constexpr int kScriptCount = 7;
 std::string encode_entry(const SharedLogEntry& entry) {
   const DeformResult& r = *entry.result;
   BinaryWriter out;
-  out.pod<std::uint8_t>(1);
+  // Format 2 adds the edit state (format 1, without it, is still read).
+  out.pod<std::uint8_t>(2);
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(r.method));
   out.pod<std::uint8_t>(static_cast<std::uint8_t>((r.converged ? 1 : 0) | (r.refinement ? 2 : 0) |
                                                   (r.built_deformer ? 4 : 0)));
@@ -195,6 +198,8 @@ std::string encode_entry(const SharedLogEntry& entry) {
   out.str(r.editor);
   out.matrix(*r.positions);
   out.matrix(entry.targets);
+  out.pod<std::uint8_t>(entry.edit ? 1 : 0);
+  if (entry.edit) write_edit_state(out, *entry.edit);
   return out.take();
 }
 
@@ -205,7 +210,7 @@ Result<SharedLogEntry> decode_entry(std::string_view bytes) {
   std::int32_t iterations = 0, pcg = 0;
   Positions positions, targets;
   MD_RETURN_IF_ERROR(in.pod(format, "format"));
-  if (format != 1) return in.corrupt("unknown format " + std::to_string(format));
+  if (format != 1 && format != 2) return in.corrupt("unknown format " + std::to_string(format));
   MD_RETURN_IF_ERROR(in.pod(method, "method"));
   MD_RETURN_IF_ERROR(in.pod(flags, "flags"));
   MD_RETURN_IF_ERROR(in.pod(result->rigidity, "rigidity"));
@@ -218,6 +223,17 @@ Result<SharedLogEntry> decode_entry(std::string_view bytes) {
   MD_RETURN_IF_ERROR(in.str(result->editor, "editor", 256));
   MD_RETURN_IF_ERROR(in.matrix(positions, "positions"));
   MD_RETURN_IF_ERROR(in.matrix(targets, "targets"));
+  std::optional<EditState> edit;
+  if (format == 2) {
+    std::uint8_t has_edit = 0;
+    MD_RETURN_IF_ERROR(in.pod(has_edit, "edit state"));
+    if (has_edit != 0) {
+      // Group indices are checked by the reader against its groups (Session applies the entry).
+      edit.emplace();
+      MD_RETURN_IF_ERROR(read_edit_state(in, *edit, static_cast<int>(positions.rows()),
+                                         std::numeric_limits<int>::max()));
+    }
+  }
   if (!in.done()) return in.corrupt("trailing bytes");
   if (method > static_cast<std::uint8_t>(core::Method::Laplacian)) {
     return in.corrupt("unknown method " + std::to_string(method));
@@ -233,6 +249,7 @@ Result<SharedLogEntry> decode_entry(std::string_view bytes) {
   SharedLogEntry entry;
   entry.result = std::move(result);
   entry.targets = std::move(targets);
+  entry.edit = std::move(edit);
   return entry;
 }
 

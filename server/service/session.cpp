@@ -10,6 +10,7 @@
 
 #include "core/ora.h"
 #include "core/validate.h"
+#include "server/service/edit_history.h"
 #include "server/service/log.h"
 #include "server/service/tokens.h"
 
@@ -118,6 +119,7 @@ Result<std::shared_ptr<Session>> Session::restore(PersistedSession state,
     session->vertex_group_ = std::move(group_of);
     session->revision_ = state.revision;
     session->last_method_ = state.last_method;
+    session->edit_ = std::move(state.edit);
     session->history_.clear();
     session->history_.push_back(std::move(current));
   }
@@ -139,6 +141,7 @@ PersistedSession Session::persisted_state(bool with_rest) const {
     state.positions = *history_.back()->positions;
     state.revision = revision_;
     state.last_method = last_method_;
+    state.edit = edit_;
   }
   if (state.anchors.rows() == 0) state.anchors.resize(0, 3);
   if (state.targets.rows() == 0) state.targets.resize(0, 3);
@@ -322,6 +325,8 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
       for (std::size_t j = 0; j < constrained.size(); ++j)
         state.anchors.row(static_cast<Eigen::Index>(j)) = state.positions.row(constrained[j]);
       state.targets = state.anchors;
+      state.edit.steps.assign(1, EditStep{});
+      state.edit.position = 0;
       MD_RETURN_IF_ERROR(shared_->commit(state, shared_version_, SharedLogEntry{}));
       ++shared_version_;
     }
@@ -335,6 +340,9 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
     anchors_ = anchors;
     targets_ = std::move(anchors);
     vertex_group_ = std::move(group_of);
+    // New anchors: older steps meant other targets. The settings stay.
+    edit_.steps.assign(1, EditStep{});
+    edit_.position = 0;
   }
   persist();
   return info();
@@ -358,6 +366,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   std::vector<int> vertex_group;
   std::uint64_t base_revision = 0;
   std::shared_ptr<const Positions> base_positions;
+  EditState edit;
   {
     std::lock_guard lock(state_mutex_);
     groups = groups_;
@@ -367,6 +376,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     vertex_group = vertex_group_;
     base_revision = revision_;
     base_positions = history_.back()->positions;
+    edit = edit_;
   }
   if (groups.empty()) {
     return Error(ErrorCode::FailedPrecondition,
@@ -383,13 +393,29 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   }
   MD_RETURN_IF_ERROR(check_rigidity(request.rigidity));
   const double rigidity = request.rigidity.value_or(default_rigidity_);
+  // Undo / redo: the step's moves and targets, applied to the anchors (a step is a whole state).
+  const std::vector<GroupMove>* moves = &request.moves;
+  const std::vector<VertexTarget>* vertex_targets = &request.targets;
+  EditStep step;
+  if (request.history != HistoryAction::Record) {
+    if (!request.moves.empty() || !request.targets.empty()) {
+      return Error(ErrorCode::InvalidArgument,
+                   std::string(request.history == HistoryAction::Undo ? "undo" : "redo") +
+                       " applies a step of the history: send no moves or targets with it");
+    }
+    MD_ASSIGN_OR_RETURN(edit.position, history_target(edit, request.history));
+    step = edit.steps[static_cast<std::size_t>(edit.position)];
+    moves = &step.moves;
+    vertex_targets = &step.targets;
+    targets = anchors;
+  }
   // Row of each constrained vertex in anchors/targets.
   auto row_of = [&constrained](int v) {
     return static_cast<Eigen::Index>(std::lower_bound(constrained.begin(), constrained.end(), v) -
                                      constrained.begin());
   };
-  for (std::size_t m = 0; m < request.moves.size(); ++m) {
-    const GroupMove& move = request.moves[m];
+  for (std::size_t m = 0; m < moves->size(); ++m) {
+    const GroupMove& move = (*moves)[m];
     const std::string where = "move " + std::to_string(m) + ": ";
     if (move.group < 0 || move.group >= static_cast<int>(groups.size())) {
       return Error(ErrorCode::InvalidArgument, where + "group " + std::to_string(move.group) +
@@ -429,8 +455,8 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     }
   }
   const int nv = static_cast<int>(rest_.V.rows());
-  for (std::size_t t = 0; t < request.targets.size(); ++t) {
-    const VertexTarget& target = request.targets[t];
+  for (std::size_t t = 0; t < vertex_targets->size(); ++t) {
+    const VertexTarget& target = (*vertex_targets)[t];
     const std::string where = "target " + std::to_string(t) + ": ";
     if (target.vertex < 0 || target.vertex >= nv) {
       return Error(ErrorCode::InvalidArgument, where + "vertex " + std::to_string(target.vertex) +
@@ -455,6 +481,15 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   }
   MD_RETURN_IF_ERROR(check_pinnable(request.method, constrained));
   MD_ASSIGN_OR_RETURN(Eigen::VectorXd face_scale, magnify_scales(request));
+  if (request.history == HistoryAction::Record) {
+    // Explicit targets kept over all steps: bounded by a multiple of the constrained set.
+    const std::size_t max_targets = std::max<std::size_t>(16 * constrained.size(), 1024);
+    record_step(edit,
+                merge_step(edit.steps[static_cast<std::size_t>(edit.position)], request.moves,
+                           request.targets, vertex_group, request.gesture),
+                max_targets);
+  }
+  if (!request.keep_settings) edit.settings = settings_of(request, rigidity);
 
   // One stop source for the client's token and the deadline: the solver sees a single token.
   std::stop_source local;
@@ -503,7 +538,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
 
   Result<DeformResult> committed =
       commit(std::move(report).value(), request.method, rigidity, targets, base_revision,
-             base_positions, built, request.editor, /*refinement=*/false, entry);
+             base_positions, built, request.editor, /*refinement=*/false, entry, &edit);
   if (!committed.ok()) return committed.status();
   DeformResult result = std::move(committed).value();
   counters_->moves_committed.fetch_add(1);
@@ -522,7 +557,7 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
                                      std::uint64_t base_revision,
                                      const std::shared_ptr<const Positions>& base_positions,
                                      bool built, const std::string& editor, bool refinement,
-                                     CachedDeformer* entry) {
+                                     CachedDeformer* entry, const EditState* edit) {
   const int nv = static_cast<int>(rest_.V.rows());
   auto result = std::make_shared<DeformResult>();
   result->method = method;
@@ -568,9 +603,11 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
     state.positions = *result->positions;
     state.targets = targets;
     state.last_method = method;
+    if (edit != nullptr) state.edit = *edit;
     SharedLogEntry logged;
     logged.result = result;
     logged.targets = targets;
+    if (edit != nullptr) logged.edit = *edit;
     if (const Status stored = shared_->commit(state, shared_version_, std::move(logged));
         !stored.ok()) {
       entry->state_revision = ~std::uint64_t{0};
@@ -590,6 +627,7 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
     while (static_cast<int>(history_.size()) > options_.kept_revisions) history_.pop_front();
     targets_ = targets;
     last_method_ = method;
+    if (edit != nullptr) edit_ = *edit;
     watchers = watchers_;
   }
   entry->state_revision = result->revision;
@@ -676,7 +714,8 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
   const int iterations = report->iterations;
   Result<DeformResult> committed =
       commit(std::move(report).value(), state.method, state.rigidity, targets, base_revision,
-             base_positions, /*built=*/false, "refinement", /*refinement=*/true, entry);
+             base_positions, /*built=*/false, "refinement", /*refinement=*/true, entry,
+             /*edit=*/nullptr);
   if (!committed.ok()) {
     refine_.reset();
     return committed.status();
@@ -712,6 +751,18 @@ SessionInfo Session::info() const {
   info.revision = revision_;
   info.groups = groups_;
   info.last_method = last_method_;
+  info.edit = edit_;
+  // anchors_ rows follow the ascending constrained set; the info lists them group by group.
+  std::size_t constrained = 0;
+  for (const HandleGroup& g : groups_) constrained += g.vertices.size();
+  info.group_anchors.resize(static_cast<Eigen::Index>(constrained), 3);
+  Eigen::Index row = 0;
+  for (const HandleGroup& g : groups_) {
+    for (int v : g.vertices) {
+      const auto at = std::lower_bound(constrained_.begin(), constrained_.end(), v);
+      info.group_anchors.row(row++) = anchors_.row(at - constrained_.begin());
+    }
+  }
   info.rigidity = default_rigidity_;
   info.watchers = static_cast<int>(watchers_.size());
   info.cached_deformers = cached_deformers_.load();
@@ -886,6 +937,13 @@ bool Session::apply_shared_locked(const SharedLogEntry& logged) {
         logged.revision != revision_ + 1) {
       return false;
     }
+    if (logged.edit) {
+      for (const EditStep& step : logged.edit->steps) {
+        for (const GroupMove& m : step.moves) {
+          if (m.group >= static_cast<int>(groups_.size())) return false;
+        }
+      }
+    }
     previous = history_.back()->positions;
   }
   auto result = std::make_shared<DeformResult>(*logged.result);
@@ -904,6 +962,7 @@ bool Session::apply_shared_locked(const SharedLogEntry& logged) {
     while (static_cast<int>(history_.size()) > options_.kept_revisions) history_.pop_front();
     targets_ = logged.targets;
     last_method_ = result->method;
+    if (logged.edit) edit_ = *logged.edit;
     watchers = watchers_;
   }
   shared_version_ = logged.version;
@@ -957,6 +1016,7 @@ Status Session::reload_shared_locked() {
     targets_ = std::move(state.targets);
     vertex_group_ = std::move(group_of);
     last_method_ = state.last_method;
+    edit_ = std::move(state.edit);
     if (state.revision != revision_ || *current->positions != *history_.back()->positions) {
       new_revision = state.revision > revision_;
       if (state.revision <= revision_) history_.clear();  // went back: older copies are void

@@ -214,10 +214,12 @@ class Session : public std::enable_shared_from_this<Session> {
   /// Strand only.
   /// @return the revision; with a shared store, the store's refusal (Aborted naming the current
   ///         revision, NotFound, Internal), and then nothing is committed.
+  /// @param edit  the session's edit state after this revision (null: unchanged, refinement).
   Result<DeformResult> commit(core::SolveReport report, core::Method method, double rigidity,
                               const Positions& targets, std::uint64_t base_revision,
                               const std::shared_ptr<const Positions>& base_positions, bool built,
-                              const std::string& editor, bool refinement, CachedDeformer* entry);
+                              const std::string& editor, bool refinement, CachedDeformer* entry,
+                              const EditState* edit);
   /// Shared store: takes the lease (waiting at most `wait`) and catches up (sync_shared).
   Status begin_shared_edit(std::chrono::milliseconds wait, std::stop_token stop);
   Status sync_shared_locked();
@@ -265,6 +267,7 @@ class Session : public std::enable_shared_from_this<Session> {
   Positions targets_;             ///< #C x 3, current targets
   std::vector<int> vertex_group_; ///< #V group of each vertex or -1
   std::optional<core::Method> last_method_;
+  EditState edit_;                ///< settings and undo history (edit_history.h)
   std::vector<std::shared_ptr<Watcher>> watchers_;
   std::chrono::steady_clock::time_point last_used_{};
 

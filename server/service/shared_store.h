@@ -33,6 +33,9 @@ struct SharedLogEntry {
   /// reader replays by loading the whole state.
   std::shared_ptr<const DeformResult> result;
   Positions targets;  ///< #C x 3 handle targets after the write (with `result` only)
+  /// The edit settings and history after the write (with `result` only); unset: unchanged
+  /// (background refinement).
+  std::optional<EditState> edit;
 };
 
 /// A session's stored state and its version.

@@ -83,6 +83,41 @@ struct MagnifyRegion {
   double scale = 1.0;  ///< > 0 and finite
 };
 
+/// How a move changes the session's undo history (edit_history.h).
+enum class HistoryAction {
+  Record,  ///< the move's state becomes the newest step (or replaces it: same gesture)
+  Undo,    ///< apply the previous step instead of the request's moves and targets
+  Redo,    ///< apply the next step likewise
+};
+
+/// One state of a session's undo history: handle-group moves and explicit vertex targets that,
+/// applied to the anchors (groups without a move stay at their anchors), give the targets.
+struct EditStep {
+  std::vector<GroupMove> moves;  ///< at most one per group, ascending group
+  std::vector<VertexTarget> targets;  ///< at most one per vertex, ascending vertex
+  /// The gesture of the moves recorded here (MoveRequest::gesture; 0 none).
+  std::uint64_t gesture = 0;
+};
+
+/// What a move solved with: kept with the session so that any client opening it later (a
+/// reload, a shared link, another replica) continues with the same settings (issue 17).
+struct EditSettings {
+  core::Method method = core::Method::ScaleAware;
+  bool ora = false;
+  double rigidity = 0;  ///< the scale control the move used (resolved: never unset)
+  std::vector<MagnifyRegion> magnify;
+  int max_iterations = 2;
+  double tolerance = 1e-4;
+};
+
+/// A session's edit state: its settings and its undo history since the last set_handles.
+/// Invariant: steps[position] applied to the anchors gives the current targets.
+struct EditState {
+  std::optional<EditSettings> settings;  ///< of the last committed move; unset before any
+  std::vector<EditStep> steps{EditStep{}};  ///< oldest first; never empty
+  int position = 0;                         ///< the current step
+};
+
 /// One edit: new handle targets (vertices not mentioned keep their previous targets) and how to
 /// solve for them.
 struct MoveRequest {
@@ -98,6 +133,14 @@ struct MoveRequest {
   std::vector<MagnifyRegion> magnify;
   int max_iterations = 2;  ///< outer-iteration budget; small for interactive drags, 1..1000
   double tolerance = 1e-4; ///< relative energy change that stops the solve early, >= 0
+  /// Undo history: Record (the default) records the move's state as a step; Undo / Redo apply
+  /// the previous / next step instead of `moves` and `targets` (which must then be empty).
+  HistoryAction history = HistoryAction::Record;
+  /// Moves of one gesture (a drag) record one step: a Record move whose gesture equals the
+  /// current step's (and is not 0) replaces that step instead of adding one.
+  std::uint64_t gesture = 0;
+  /// A one-off solve: the session's stored EditSettings stay as they are.
+  bool keep_settings = false;
   /// Stop the solve (DeadlineExceeded) once steady_clock passes this point.
   std::optional<std::chrono::steady_clock::time_point> deadline;
   std::string editor;  ///< free-form label forwarded to watchers ("who edited")
@@ -148,6 +191,10 @@ struct SessionInfo {
   std::vector<HandleGroup> groups;
   std::optional<core::Method> last_method;  ///< method of the last committed move
   double rigidity = 0;                      ///< scale control of moves that do not set one
+  EditState edit;                           ///< settings and undo history (issue 17)
+  /// The Handle and Fixed groups' anchors (positions when the handles were set), #C x 3: the
+  /// groups in order, each group's vertices in its order.
+  Positions group_anchors;
   std::size_t estimated_bytes = 0;          ///< what the memory budget charges this session
   int cached_deformers = 0;
   int watchers = 0;

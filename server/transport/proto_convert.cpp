@@ -183,6 +183,21 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
     MD_ASSIGN_OR_RETURN(converted.vertices, indices_from_proto(region.vertices(), where));
     out.magnify.push_back(std::move(converted));
   }
+  switch (request.history()) {
+    case v1::HISTORY_ACTION_UNSPECIFIED:
+      out.history = service::HistoryAction::Record;
+      break;
+    case v1::HISTORY_ACTION_UNDO:
+      out.history = service::HistoryAction::Undo;
+      break;
+    case v1::HISTORY_ACTION_REDO:
+      out.history = service::HistoryAction::Redo;
+      break;
+    default:
+      return invalid("unknown history action " + std::to_string(static_cast<int>(request.history())));
+  }
+  out.gesture = request.gesture();
+  out.keep_settings = request.keep_settings();
   out.editor = request.editor().substr(0, 256);
   return out;
 }
@@ -225,6 +240,35 @@ void pack_positions(const Positions& rows, v1::PositionEncoding encoding, std::s
   std::memcpy(out->data() + offset, floats.data(), floats.size() * sizeof(float));
 }
 
+namespace {
+void edit_state_to_proto(const service::EditState& edit, v1::EditState* out) {
+  if (edit.settings) {
+    const service::EditSettings& s = *edit.settings;
+    v1::EditSettings* settings = out->mutable_settings();
+    settings->set_method(wire::method_to_proto(s.method));
+    settings->set_ora(s.ora);
+    settings->set_max_iterations(static_cast<std::uint32_t>(s.max_iterations));
+    settings->set_tolerance(s.tolerance);
+    settings->set_rigidity(s.rigidity);
+    for (const service::MagnifyRegion& region : s.magnify) {
+      v1::MagnifyRegion* r = settings->add_magnify();
+      (void)wire::indices_to_proto(region.vertices, r->mutable_vertices());
+      r->set_scale(region.scale);
+    }
+  }
+  for (const service::EditStep& step : edit.steps) {
+    v1::EditStep* st = out->add_steps();
+    for (const service::GroupMove& move : step.moves) wire::group_move_to_proto(move, st->add_moves());
+    for (const service::VertexTarget& t : step.targets) {
+      st->mutable_targets()->add_vertices(static_cast<std::uint32_t>(t.vertex));
+      for (int c = 0; c < 3; ++c) st->mutable_targets()->add_positions(t.position[c]);
+    }
+    st->set_gesture(step.gesture);
+  }
+  out->set_position(static_cast<std::uint32_t>(edit.position));
+}
+}  // namespace
+
 void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* out) {
   out->set_session_id(info.id.value);
   out->set_vertices(static_cast<std::uint32_t>(info.vertices));
@@ -241,6 +285,8 @@ void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* ou
   out->set_estimated_bytes(info.estimated_bytes);
   out->set_cached_deformers(static_cast<std::uint32_t>(info.cached_deformers));
   out->set_watchers(static_cast<std::uint32_t>(info.watchers));
+  edit_state_to_proto(info.edit, out->mutable_edit());
+  wire::rows_to_proto(info.group_anchors, out->mutable_group_anchors());
 }
 
 void created_to_proto(const service::CreatedSession& created, v1::CreateSessionResponse* out) {

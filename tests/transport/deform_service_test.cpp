@@ -1084,3 +1084,70 @@ TEST_F(DeformServiceTest, SessionInfoTellsWhatTheTokenAllows) {
 
 }  // namespace
 }  // namespace meshdeform::transport
+
+namespace meshdeform::transport {
+namespace {
+
+// Issue 17: the settings and undo history travel in SessionInfo.edit, undo and redo are moves.
+TEST_F(DeformServiceTest, UndoRedoAndTheEditStateOverTheWire) {
+  const v1::CreateSessionResponse created = create_with_handles("cylinder_small");
+  v1::MoveHandlesRequest first = bend_request(created, 20);
+  first.set_method(v1::METHOD_LAPLACIAN);
+  first.set_max_iterations(1);
+  first.set_full_positions(true);
+  v1::MoveHandlesResponse bent, second, undone, response;
+  ASSERT_TRUE(move(first, &bent).ok());
+  v1::MoveHandlesRequest next = bend_request(created, 40);
+  next.set_method(v1::METHOD_LAPLACIAN);
+  next.set_max_iterations(1);
+  next.set_gesture(12);
+  ASSERT_TRUE(move(next, &second).ok());
+
+  v1::SessionInfo info_now;
+  ASSERT_TRUE(info(created.session_id(), created.view_token(), &info_now).ok());
+  ASSERT_EQ(info_now.edit().steps_size(), 3);
+  EXPECT_EQ(info_now.edit().position(), 2u);
+  EXPECT_EQ(info_now.edit().steps(2).gesture(), 12u);
+  ASSERT_EQ(info_now.edit().steps(2).moves_size(), 1);
+  EXPECT_EQ(info_now.edit().steps(2).moves(0).group(), 1u);
+  EXPECT_EQ(info_now.edit().settings().method(), v1::METHOD_LAPLACIAN);
+  EXPECT_EQ(info_now.edit().settings().max_iterations(), 1u);
+  int constrained = 0;
+  for (const v1::HandleGroup& g : info_now.groups()) constrained += g.vertices_size();
+  EXPECT_EQ(info_now.group_anchors_size(), 3 * constrained);
+
+  v1::MoveHandlesRequest undo;
+  undo.set_session_id(created.session_id());
+  undo.set_token(created.edit_token());
+  undo.set_method(v1::METHOD_LAPLACIAN);
+  undo.set_max_iterations(1);
+  undo.set_history(v1::HISTORY_ACTION_UNDO);
+  undo.set_full_positions(true);
+  ASSERT_TRUE(move(undo, &undone).ok());
+  ASSERT_EQ(undone.result().positions_size(), bent.result().positions_size());
+  for (int i = 0; i < bent.result().positions_size(); ++i) {
+    ASSERT_EQ(undone.result().positions(i), bent.result().positions(i)) << "coordinate " << i;
+  }
+  ASSERT_TRUE(info(created.session_id(), created.view_token(), &info_now).ok());
+  EXPECT_EQ(info_now.edit().position(), 1u);
+
+  // Undo with moves, and an unknown action, are INVALID_ARGUMENT; past the start, FAILED_PRECONDITION.
+  v1::MoveHandlesRequest with_moves = undo;
+  *with_moves.add_moves() = bend(5);
+  EXPECT_EQ(move(with_moves, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  v1::MoveHandlesRequest unknown = undo;
+  unknown.set_history(static_cast<v1::HistoryAction>(9));
+  EXPECT_EQ(move(unknown, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  ASSERT_TRUE(move(undo, &response).ok());
+  const grpc::Status nothing = move(undo, &response);
+  EXPECT_EQ(nothing.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << describe(nothing);
+  EXPECT_NE(nothing.error_message().find("nothing to undo"), std::string::npos);
+  v1::MoveHandlesRequest redo = undo;
+  redo.set_history(v1::HISTORY_ACTION_REDO);
+  ASSERT_TRUE(move(redo, &response).ok());
+  ASSERT_TRUE(info(created.session_id(), created.view_token(), &info_now).ok());
+  EXPECT_EQ(info_now.edit().position(), 1u);
+}
+
+}  // namespace
+}  // namespace meshdeform::transport
