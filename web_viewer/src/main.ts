@@ -3,7 +3,7 @@ import * as THREE from "three";
 import { create, toBinary } from "@bufbuild/protobuf";
 import { Code, ConnectError, createContextValues } from "@connectrpc/connect";
 import {
-  DeformUpdateSchema, HandleGroupSchema, HandleRole, MagnifyRegionSchema, MeshFormat, Method, VertexTargetsSchema,
+  DeformUpdateSchema, HandleGroupSchema, HandleRole, HistoryAction, MagnifyRegionSchema, MeshFormat, Method, VertexTargetsSchema,
   type DeformUpdate, type HandleGroup, type MoveHandlesResponse, type SessionInfo,
 } from "./gen/meshdeform/v1/deformation_pb";
 import { kSessionId, makeClient } from "./client";
@@ -13,6 +13,7 @@ import { cornerAngles, faceAreas2, ramp, rampCss, scaleMax, vertexAreaLog, verte
 import { errorCode, type Action } from "./errors";
 import { GroupSet, groupColor, type GroupSpec } from "./groups";
 import { parseGlb } from "./glb";
+import { historyFromEdit, newGesture, settingsView } from "./edit_state";
 import { UndoStack } from "./history";
 import { Interaction, type HandleGroupView, type Tool } from "./interaction";
 import { DEFAULT_ITERATIONS, parseIterations } from "./iterations";
@@ -22,6 +23,7 @@ import {
   type GroupStates, type Vec3,
 } from "./moves";
 import { Viewer3D } from "./scene";
+import { loadPrefs, savePrefs } from "./prefs";
 import { SelectionState, type PaintMode } from "./selection";
 import { formatHash, parseLink, shareLink, type Credentials } from "./share";
 import { Banner, $, $btn, $in, $sel } from "./ui/dom";
@@ -55,6 +57,8 @@ interface Hooks {
   restPositions(): number[];
   metrics(): { dragToFrameMs: number[]; updateBytes: number[]; updateEncodings: string[]; updatesRendered: number; frameWorkMs: number[] };
   resetMetrics(): void;
+  /** Every applied group's move as the page holds it (translation, rotation w x y z, scale). */
+  moveStates(): { translation: number[]; rotation: number[]; scale: number }[];
   /** The session's handle groups as applied (role 'fixed' | 'handle'), for tests. */
   groups(): { role: "fixed" | "handle"; vertices: number[] }[];
 }
@@ -65,6 +69,10 @@ interface MoveTarget {
   opts: string;
   /** Reset to rest: identity moves solved with the Laplacian method (see planReset). */
   reset: boolean;
+  /** UNSPECIFIED records `states` in the server's history; UNDO / REDO apply its steps. */
+  history: HistoryAction;
+  /** The drag this move belongs to (its moves make one undo step); 0n: a step of its own. */
+  gesture: bigint;
 }
 
 /** Per applied group: where its vertices were when the handles were set (the server's anchors, as
@@ -75,6 +83,23 @@ interface Anchor {
 }
 
 const query = new URLSearchParams(location.search);
+/** localStorage, or null where the browser refuses it (privacy settings, sandboxed frames). */
+function storage(): Storage | null {
+  try {
+    return window.localStorage;
+  } catch {
+    return null;
+  }
+}
+
+/** The centroid of 3-per-vertex rows, or null for none. */
+function centroidOfRows(a: Float32Array): THREE.Vector3 | null {
+  const n = a.length / 3;
+  if (n === 0) return null;
+  const c = new THREE.Vector3();
+  for (let k = 0; k < n; k++) c.add(new THREE.Vector3(a[k * 3], a[k * 3 + 1], a[k * 3 + 2]));
+  return c.divideScalar(n);
+}
 const ENCODING = parseEncoding(query.get("encoding"));
 const client = makeClient(location.origin);
 // ?lambda= soft handle weight for new sessions (server default 100 lets fixed vertices drift ~1e-4).
@@ -138,7 +163,7 @@ class App {
   readonly metrics = { dragToFrameMs: [] as number[], updateBytes: [] as number[], updateEncodings: [] as string[], updatesRendered: 0 };
 
   readonly coalescer = new MoveCoalescer<MoveTarget, MoveHandlesResponse>({
-    key: (t) => statesKey(t.states) + "|" + t.opts + (t.reset ? "|reset" : ""),
+    key: (t) => statesKey(t.states) + "|" + t.opts + (t.reset ? "|reset" : "") + "|" + t.history,
     send: (t) => this.sendMove(t),
     onResult: (r, t) => this.onMoveResult(r, t),
     onError: (e, t) => {
@@ -262,14 +287,9 @@ class App {
     const r = await client.getSessionInfo({ sessionId: creds.sessionId, token: creds.token });
     const info = r.info!;
     const role: Role = r.canEdit ? "edit" : "view";
+    // The server hands out the groups' anchors, settings and undo history: the page continues
+    // exactly where the last one left off, without setting the handles again.
     await this.load(creds, role, info, r.canEdit ? r.viewToken : creds.token, r.canEdit ? creds.token : null);
-    const s = this.session!;
-    if (role === "edit" && s.groups.some((g) => g.role === HandleRole.HANDLE) && Number(info.revision) > 0) {
-      // Anchors are the positions at the last SetHandles, which we cannot know; setting the same
-      // groups again makes the current shape the anchors so the first drag does not jump.
-      await s.gotSnapshot;
-      await this.setHandles(info.groups);
-    }
   }
 
   /** Loads faces + rest positions, switches the screen to this session, opens Watch. */
@@ -290,8 +310,19 @@ class App {
     this.closeCurrent();
     hideLinkProblem();
     hooks.gone = false;
-    // The slider starts at the session's scale control (what its moves use unless told).
-    $in("rigidity").value = String(rigidityStep(info.rigidity));
+    // The controls take the session's settings (those of its last move) so that a reload or a
+    // shared link continues with them; a session without moves keeps the user's current choices
+    // except the scale control, which starts at the session's (what its moves use unless told).
+    const settings = info.edit?.settings ? settingsView(info.edit.settings) : null;
+    $in("rigidity").value = String(rigidityStep(settings?.rigidity ?? info.rigidity));
+    if (settings) {
+      $sel("method").value = String(settings.method);
+      $in("ora").checked = settings.ora;
+      $in("iterations").value = String(settings.iterations);
+      this.iterationsValue = settings.iterations;
+      $in("magnify").value = String(settings.magnifyScale);
+      $("magnify-val").textContent = settings.magnifyScale.toFixed(2);
+    }
     let resolveSnapshot!: () => void;
     const gotSnapshot = new Promise<void>((r) => (resolveSnapshot = r));
     const state = new PositionState(n);
@@ -313,15 +344,26 @@ class App {
     this.setRole(role);
     this.showRigidity();
     showCounts(info.vertices, info.faces);
-    this.adoptGroups(info.groups);
+    if (settings) {
+      s.selection.clear();
+      s.selection.paint(settings.magnifyVertices.filter((v) => v < n), "magnify");
+    }
+    this.adoptGroups(info.groups, info.groupAnchors);
     this.resetMoves();
+    // The session's undo history and the groups' current moves, as the server keeps them.
+    const restored = historyFromEdit(info.edit, s.anchors.map((a) => (a.centroid ? (a.centroid.toArray() as Vec3) : null)));
+    this.history.restore(restored.states, restored.index);
+    this.states = cloneStates(this.history.current);
+    this.moved = restored.index > 0 || restored.states.length > 1;
+    this.updateUndoButtons();
+    this.updateMethodAvailability();
     this.recolor();
     this.setStatus(`Session ${creds.sessionId.slice(0, 8)}… · ${info.vertices.toLocaleString("en")} vertices`);
     void this.watchLoop(s, s.watchGen);
     await gotSnapshot;
     // Opened at revision 0 (the normal case for a new session): the groups' anchors are the rest pose.
     s.shapeAtRest = restKnown && s.state.revision === 0;
-    s.anchorsAtRest = s.shapeAtRest;
+    s.anchorsAtRest = s.shapeAtRest || (restKnown && this.anchorsAreRest(s));
     this.updateReady();
   }
 
@@ -399,21 +441,38 @@ class App {
     return this.isHandle(i) ? i : -1;
   }
 
-  private adoptGroups(groups: HandleGroup[]): void {
+  /** Adopts the applied groups; their anchors are `anchors` (the server's, 3 per vertex in group
+   * order) when given, else the positions on screen (right after SetHandles they are the same). */
+  private adoptGroups(groups: HandleGroup[], anchors?: number[]): void {
     const s = this.session!;
     const prevSelected = s.draft.selected;
     s.groups = groups.map((g) => create(HandleGroupSchema, { role: g.role, vertices: [...g.vertices] }));
     s.draft = new GroupSet(s.state.vertexCount, this.appliedSpecs());
     s.draft.select(prevSelected >= 0 && prevSelected < s.groups.length ? prevSelected : this.handleIndices()[0] ?? -1);
-    // Anchors are the positions at this call: the ones on screen now.
+    const total = s.groups.reduce((n, g) => n + g.vertices.length, 0);
+    const fromServer = anchors && anchors.length === 3 * total ? anchors : null;
     const p = s.state.positions;
+    let row = 0;
     s.anchors = s.groups.map((g) => {
       const a = new Float32Array(g.vertices.length * 3);
-      g.vertices.forEach((v, k) => a.set(p.subarray(v * 3, v * 3 + 3), k * 3));
-      return { centroid: this.centroidOf(g.vertices), positions: a };
+      if (fromServer) {
+        a.set(fromServer.slice(row * 3, (row + g.vertices.length) * 3));
+        row += g.vertices.length;
+      } else {
+        g.vertices.forEach((v, k) => a.set(p.subarray(v * 3, v * 3 + 3), k * 3));
+      }
+      return { centroid: centroidOfRows(a), positions: a };
     });
     this.dirty = false;
     this.renderGroups();
+  }
+
+  /** True when every group's anchor is its rest position (to float precision): identity moves
+   * then give the rest pose, and Reset can use them. */
+  private anchorsAreRest(s: Session): boolean {
+    const tol = 1e-6 * Math.max(this.meshScale(), 1e-12);
+    return s.groups.every((g, i) => g.vertices.every((v, k) =>
+      [0, 1, 2].every((c) => Math.abs(s.anchors[i].positions[k * 3 + c] - s.rest[v * 3 + c]) <= tol)));
   }
 
   private appliedSpecs(): GroupSpec[] {
@@ -572,13 +631,16 @@ class App {
     if (!scaleAware && $sel("paint-mode").value === "magnify") $sel("paint-mode").value = "handle";
   }
 
-  private submitMove(states: GroupStates, t0: number, force = false, reset = false): void {
+  private submitMove(states: GroupStates, t0: number, force = false, reset = false,
+    history: HistoryAction = HistoryAction.UNSPECIFIED, gesture = 0n): void {
     const s = this.session;
     if (!s || s.gone || this.handleIndices().length === 0 || s.role !== "edit") return;
     this.states = cloneStates(states);
     this.moved = true;
     s.shapeAtRest = reset;
-    this.coalescer.submit({ states: cloneStates(states), t0, opts: this.optsKey(), reset }, force);
+    // Undo and redo must each reach the server (its history moves one step per call).
+    const barrier = history !== HistoryAction.UNSPECIFIED;
+    this.coalescer.submit({ states: cloneStates(states), t0, opts: this.optsKey(), reset, history, gesture }, force, barrier);
     this.scheduleTargetGhost();
   }
 
@@ -586,7 +648,8 @@ class App {
     const s = this.session!;
     const mag = t.reset ? [] : s.selection.magnifyIndices();
     // Every handle group, every time: moves are absolute, so the others keep their targets.
-    const moves = this.handleIndices().map((i) => {
+    // Undo / redo send none: the server applies its history's step.
+    const moves = t.history !== HistoryAction.UNSPECIFIED ? [] : this.handleIndices().map((i) => {
       const c = s.anchors[i]?.centroid ?? new THREE.Vector3();
       return toGroupMove(i, t.states[i], [c.x, c.y, c.z]);
     });
@@ -603,6 +666,10 @@ class App {
         maxIterations: t.reset ? 1 : this.iterationsValue,
         encoding: ENCODING,
         editor: t.reset ? "web-viewer reset" : "web-viewer",
+        history: t.history,
+        gesture: t.gesture,
+        // The reset's Laplacian solve is a means, not the user's choice of method.
+        keepSettings: t.reset,
         magnify: mag.length ? [create(MagnifyRegionSchema, { vertices: mag, scale: Number($in("magnify").value) })] : [],
       },
       { timeoutMs: 60_000 },
@@ -624,9 +691,12 @@ class App {
 
   private dragBase: GroupStates = [];
   private dragGroup = -1;
+  private dragGesture = 0n;
+  private gizmoGesture = 0n;
   private dragStart(group: number): void {
     this.dragBase = cloneStates(this.states);
     this.dragGroup = group;
+    this.dragGesture = newGesture();
     dismissFirstHint();
   }
   private dragMove(delta: THREE.Vector3, t0: number): void {
@@ -635,7 +705,7 @@ class App {
     const st = cloneStates(this.dragBase);
     const b = this.dragBase[i].translation;
     st[i].translation = [b[0] + delta.x, b[1] + delta.y, b[2] + delta.z];
-    this.submitMove(st, t0);
+    this.submitMove(st, t0, false, false, HistoryAction.UNSPECIFIED, this.dragGesture);
     this.placeGizmo();
   }
   private dragEnd(): void {
@@ -678,7 +748,7 @@ class App {
         const opts = { sessionId: s.creds.sessionId, token: s.creds.token };
         await client.setHandles({ ...opts, groups: [create(HandleGroupSchema, { role: HandleRole.HANDLE, vertices: all })], prepare: Method.LAPLACIAN });
         await client.moveHandles({
-          ...opts, method: Method.LAPLACIAN, maxIterations: 1, encoding: ENCODING, editor: "web-viewer reset",
+          ...opts, method: Method.LAPLACIAN, maxIterations: 1, encoding: ENCODING, editor: "web-viewer reset", keepSettings: true,
           targets: create(VertexTargetsSchema, { vertices: all, positions }),
         }, { timeoutMs: 60_000 });
         s.shapeAtRest = true;
@@ -775,12 +845,18 @@ class App {
       const q = o.quaternion;
       const st = cloneStates(this.states);
       st[i] = { translation: [o.position.x - c.x, o.position.y - c.y, o.position.z - c.z], rotation: [q.w, q.x, q.y, q.z], scale: sc };
-      this.submitMove(st, performance.now());
+      // One gizmo drag is one undo step on the server too.
+      this.submitMove(st, performance.now(), false, false, HistoryAction.UNSPECIFIED, this.gizmoGesture);
       this.placeMarkers();
     });
     g.addEventListener("dragging-changed", (e: any) => {
-      if (e.value) dismissFirstHint();
-      else this.dragEnd();
+      if (e.value) {
+        this.gizmoGesture = newGesture();
+        dismissFirstHint();
+      } else {
+        this.gizmoGesture = 0n;
+        this.dragEnd();
+      }
     });
   }
 
@@ -1020,8 +1096,10 @@ class App {
     for (const x of ["translate", "rotate", "scale"]) $(`gizmo-${x}`).classList.toggle("on", x === m);
   }
 
+  /** A setting changed: solve again with it (the server also keeps it for the next page that
+   * opens the session; an unchanged state adds no undo step). */
   private resendIfMoved(): void {
-    if (this.moved) this.submitMove(this.states, performance.now(), true);
+    if (this.handleIndices().length > 0) this.submitMove(this.states, performance.now(), true);
   }
 
   private updateUndoButtons(): void {
@@ -1034,7 +1112,7 @@ class App {
     if (this.session?.role !== "edit" || this.session.gone) return;
     const st = redo ? this.history.redo() : this.history.undo();
     if (!st) return;
-    this.submitMove(st, performance.now(), true);
+    this.submitMove(st, performance.now(), true, false, redo ? HistoryAction.REDO : HistoryAction.UNDO);
     this.placeGizmo();
     this.updateUndoButtons();
   }
@@ -1113,6 +1191,18 @@ class App {
       if (this.session && !this.session.selection.hasMagnify) this.banner.message("Paint a “magnify region” first (Brush or Lasso, mode magnify region).");
       this.resendIfMoved();
     });
+    // View preferences are the person's, not the session's: kept in this browser.
+    const prefs = loadPrefs(storage());
+    $in("heatmap").checked = prefs.heatmap;
+    $sel("heatmap-mode").value = prefs.heatmapMode;
+    $in("wireframe").checked = prefs.wireframe;
+    $in("ghost-rest").checked = prefs.ghost;
+    this.viewer.setWireframe(prefs.wireframe);
+    const keepPrefs = () => savePrefs(storage(), {
+      heatmap: $in("heatmap").checked, heatmapMode: $sel("heatmap-mode").value === "area" ? "area" : "angle",
+      wireframe: $in("wireframe").checked, ghost: $in("ghost-rest").checked,
+    });
+    for (const id of ["heatmap", "heatmap-mode", "wireframe", "ghost-rest"]) $(id).addEventListener("change", keepPrefs);
     $in("heatmap").addEventListener("change", () => this.recolor());
     $sel("heatmap-mode").addEventListener("change", () => this.recolor());
     $in("wireframe").addEventListener("change", () => this.viewer.setWireframe($in("wireframe").checked));
@@ -1258,6 +1348,9 @@ const hooks: Hooks = {
   metrics() {
     const m = app.metrics;
     return { dragToFrameMs: [...m.dragToFrameMs], updateBytes: [...m.updateBytes], updateEncodings: [...m.updateEncodings], updatesRendered: m.updatesRendered, frameWorkMs: [...app.viewer.frameWorkMs] };
+  },
+  moveStates() {
+    return app.states.map((m) => ({ translation: [...m.translation], rotation: [...m.rotation], scale: m.scale }));
   },
   groups() {
     return (app.session?.groups ?? []).map((g) => ({ role: g.role === HandleRole.FIXED ? "fixed" as const : "handle" as const, vertices: [...g.vertices] }));

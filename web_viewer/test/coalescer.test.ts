@@ -22,6 +22,35 @@ function setup() {
 const tick = () => new Promise((r) => setTimeout(r, 0));
 
 describe("MoveCoalescer", () => {
+  it("never drops a barrier: it goes after earlier targets and before later ones", async () => {
+    const { c, calls } = setup();
+    c.submit(1);
+    c.submit(2);
+    c.submit(7, false, true); // undo
+    c.submit(3);
+    c.submit(4);
+    c.submit(8, false, true); // redo
+    c.submit(5);
+    const order = async () => {
+      for (let i = 0; i < 10 && c.busy; i++) {
+        calls[calls.length - 1].d.resolve("ok");
+        await tick();
+      }
+    };
+    await order();
+    await c.idle();
+    expect(calls.map((x) => x.target)).toEqual([1, 2, 7, 4, 8, 5]);
+  });
+  it("sends a barrier equal to the last target again", async () => {
+    const { c, calls } = setup();
+    c.submit(1);
+    calls[0].d.resolve("r1");
+    await c.idle();
+    c.submit(1, false, true);
+    expect(calls.map((x) => x.target)).toEqual([1, 1]);
+    calls[1].d.resolve("r");
+    await c.idle();
+  });
   it("keeps one call in flight and sends only the newest target afterwards", async () => {
     const { c, calls, results } = setup();
     c.submit(1);

@@ -37,4 +37,19 @@ describe("UndoStack", () => {
     expect(moveKey(t(1))).toBe(moveKey(t(1 + 1e-12)));
     expect(moveKey(t(1))).not.toBe(moveKey(t(1.001)));
   });
+  it("restores a stored history and keeps at most its limit", () => {
+    const s = new UndoStack<MoveState>(IDENTITY, 3);
+    s.restore([IDENTITY, t(1), t(2)], 1);
+    expect(s.current).toEqual(t(1));
+    expect(s.redo()).toEqual(t(2));
+    s.push(t(3)); // drops the oldest
+    expect(s.undo()).toEqual(t(2));
+    expect(s.undo()).toEqual(t(1));
+    expect(s.undo()).toBeNull();
+    s.restore([IDENTITY, t(1), t(2), t(3), t(4)], 4);
+    expect(s.current).toEqual(t(4));
+    expect(s.undo()).toEqual(t(3));
+    expect(s.undo()).toEqual(t(2));
+    expect(s.canUndo).toBe(false);
+  });
 });

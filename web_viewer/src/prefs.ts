@@ -1,0 +1,39 @@
+// View preferences that belong to the person, not the session (a watcher's heat-map mode is not
+// the editor's): kept in the browser's localStorage and restored on every page load.
+
+export interface ViewPrefs {
+  heatmap: boolean;
+  heatmapMode: "angle" | "area";
+  wireframe: boolean;
+  ghost: boolean;
+}
+
+export const DEFAULT_PREFS: ViewPrefs = { heatmap: false, heatmapMode: "angle", wireframe: false, ghost: false };
+const KEY = "meshdeform.viewPrefs.v1";
+
+/** The stored preferences; defaults for anything missing, malformed or unreadable. */
+export function loadPrefs(storage: Pick<Storage, "getItem"> | null): ViewPrefs {
+  let raw: unknown = null;
+  try {
+    raw = JSON.parse(storage?.getItem(KEY) ?? "null");
+  } catch {
+    raw = null;
+  }
+  const o = (raw && typeof raw === "object" ? raw : {}) as Record<string, unknown>;
+  const bool = (k: keyof ViewPrefs) => (typeof o[k] === "boolean" ? (o[k] as boolean) : (DEFAULT_PREFS[k] as boolean));
+  return {
+    heatmap: bool("heatmap"),
+    heatmapMode: o.heatmapMode === "area" || o.heatmapMode === "angle" ? o.heatmapMode : DEFAULT_PREFS.heatmapMode,
+    wireframe: bool("wireframe"),
+    ghost: bool("ghost"),
+  };
+}
+
+/** Stores the preferences (a full or private-mode storage is ignored: they are a convenience). */
+export function savePrefs(storage: Pick<Storage, "setItem"> | null, prefs: ViewPrefs): void {
+  try {
+    storage?.setItem(KEY, JSON.stringify(prefs));
+  } catch {
+    /* quota or disabled storage */
+  }
+}
