@@ -389,6 +389,52 @@ TEST(RedisReplicasTest, AReplicaBehindTheTrimmedLogLoadsTheWholeState) {
   EXPECT_EQ(log->size(), static_cast<std::size_t>(kLog));
 }
 
+// Issue 17: the settings and the undo history travel with the session between replicas, both
+// through the log (B replays A's commits) and through the whole state (a trimmed log).
+TEST(RedisReplicasTest, SettingsAndUndoHistoryAreSharedByTheReplicas) {
+  MD_REQUIRE_REDIS();
+  auto redis = start_redis();
+  ASSERT_NE(redis, nullptr);
+  Replica a(*redis), b(*redis);
+  const service::CreatedSession created = create_with_handles(a.service);
+  ASSERT_FALSE(created.id.value.empty());
+  const auto& id = created.id;
+  const auto& token = created.edit_token;
+  service::MoveRequest first = lift(0.1);
+  first.max_iterations = 3;
+  first.rigidity = 10;
+  ASSERT_TRUE(a.service.move_handles(id, token, first).ok());
+  ASSERT_TRUE(a.service.move_handles(id, token, lift(0.2)).ok());
+  service::MoveRequest undo;
+  undo.history = service::HistoryAction::Undo;
+  undo.max_iterations = 3;
+  undo.rigidity = 10;
+  ASSERT_TRUE(a.service.move_handles(id, token, undo).ok());
+
+  Result<service::SessionInfo> on_b = b.service.session_info(id, created.view_token);
+  ASSERT_TRUE(on_b.ok()) << on_b.status().to_string();
+  ASSERT_EQ(on_b->edit.steps.size(), 3u);
+  EXPECT_EQ(on_b->edit.position, 1);
+  ASSERT_TRUE(on_b->edit.settings.has_value());
+  EXPECT_EQ(on_b->edit.settings->max_iterations, 3);
+  EXPECT_EQ(on_b->edit.settings->rigidity, 10);
+  // B continues A's history; A sees it through the log.
+  service::MoveRequest redo = undo;
+  redo.history = service::HistoryAction::Redo;
+  ASSERT_TRUE(b.service.move_handles(id, token, redo).ok());
+  Result<service::SessionInfo> on_a = a.service.session_info(id, created.view_token);
+  ASSERT_TRUE(on_a.ok());
+  EXPECT_EQ(on_a->edit.position, 2);
+  EXPECT_EQ(on_a->edit.steps[2].moves[0].translation.z(), 0.2);
+  // A replica that loads the whole state (no log to replay) gets the same.
+  Replica c(*redis);
+  Result<service::SessionInfo> on_c = c.service.session_info(id, created.view_token);
+  ASSERT_TRUE(on_c.ok()) << on_c.status().to_string();
+  EXPECT_EQ(on_c->edit.position, 2);
+  EXPECT_EQ(on_c->edit.steps.size(), 3u);
+  EXPECT_EQ(on_c->edit.settings->rigidity, 10);
+}
+
 TEST(RedisReplicasTest, WatcherOnReplicaBSeesEveryRevisionCommittedThroughA) {
   MD_REQUIRE_REDIS();
   auto redis = start_redis();
