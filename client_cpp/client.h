@@ -115,6 +115,12 @@ struct SessionInfo {
   std::uint64_t estimated_bytes = 0;        ///< what the server's memory budget charges
   int cached_deformers = 0;
   int watchers = 0;
+  /// The session's undo history (SessionInfo.edit): steps kept (at least 1: the handles as set)
+  /// and the current one. MoveSpec::history Undo applies step history_position - 1.
+  int history_steps = 1;
+  int history_position = 0;
+  /// The method of the session's last move as stored with the session (nullopt before any).
+  std::optional<core::Method> settings_method;
 };
 
 /// Which session a call is about, and the token that authorises it (edit or view). Build one
@@ -142,7 +148,7 @@ struct Session {
 struct CreateOptions {
   bool weld = false;             ///< weld coincident vertices (STL always is)
   std::optional<double> lambda;  ///< soft handle weight, > 0 (server default 100)
-  /// Scale control of the session's moves that set none (server default 3; see MoveSpec).
+  /// Scale control of the session's moves that set none (server default 100; see MoveSpec).
   std::optional<double> rigidity;
 };
 
@@ -163,6 +169,13 @@ struct VertexTarget {
   Eigen::Vector3d position = Eigen::Vector3d::Zero();
 };
 
+/// How a move changes the session's undo history (MoveHandlesRequest.history).
+enum class HistoryAction {
+  Record,  ///< the move's state becomes a new step (the default)
+  Undo,    ///< apply the previous step instead of moves and targets (send none)
+  Redo,    ///< apply the next step likewise
+};
+
 /// One MoveHandles request.
 struct MoveSpec {
   std::vector<GroupMove> moves;
@@ -176,6 +189,10 @@ struct MoveSpec {
   std::optional<double> tolerance;  ///< relative energy change that stops early (default 1e-4)
   std::string editor;               ///< free-form label forwarded to watchers
   bool full_positions = false;      ///< also return every vertex position
+  HistoryAction history = HistoryAction::Record;
+  /// Moves of one gesture (a drag) make one undo step: give them the same non-zero id.
+  std::uint64_t gesture = 0;
+  bool keep_settings = false;  ///< a one-off solve: the session's stored settings stay
 };
 
 /// A committed revision (a MoveHandles result or a Watch update's payload).

@@ -1,5 +1,6 @@
 #include "client_cpp/client_conversions.h"
 
+#include <algorithm>
 #include <optional>
 #include <utility>
 
@@ -97,6 +98,11 @@ Result<SessionInfo> info_from_proto(const v1::SessionInfo& in, const char* rpc) 
   info.estimated_bytes = in.estimated_bytes();
   info.cached_deformers = static_cast<int>(in.cached_deformers());
   info.watchers = static_cast<int>(in.watchers());
+  info.history_steps = std::max(1, in.edit().steps_size());
+  info.history_position = static_cast<int>(in.edit().position());
+  if (in.edit().has_settings()) {
+    MD_ASSIGN_OR_RETURN(info.settings_method, method_from_proto(in.edit().settings().method(), rpc));
+  }
   return info;
 }
 
@@ -170,6 +176,19 @@ Status move_to_proto(const MoveSpec& spec, v1::MoveHandlesRequest* out) {
   if (spec.tolerance) out->set_tolerance(*spec.tolerance);
   out->set_editor(spec.editor);
   out->set_full_positions(spec.full_positions);
+  switch (spec.history) {
+    case HistoryAction::Record:
+      out->set_history(v1::HISTORY_ACTION_UNSPECIFIED);
+      break;
+    case HistoryAction::Undo:
+      out->set_history(v1::HISTORY_ACTION_UNDO);
+      break;
+    case HistoryAction::Redo:
+      out->set_history(v1::HISTORY_ACTION_REDO);
+      break;
+  }
+  out->set_gesture(spec.gesture);
+  out->set_keep_settings(spec.keep_settings);
   return Status::success();
 }
 

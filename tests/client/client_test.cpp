@@ -325,6 +325,43 @@ TEST_F(ClientTest, ExplicitTargetsWithArapLandExactly) {
   EXPECT_EQ(result->positions->row(v), Eigen::RowVector3d(0.3, 0.1, 2.2));
 }
 
+// Issue 17: undo and redo through the C++ client; the info reports the history.
+TEST_F(ClientTest, UndoAndRedoApplyTheSessionsHistory) {
+  const Session s = create_with_handles("cylinder_small");
+  MoveSpec spec = bend(20.0);
+  spec.method = core::Method::Laplacian;
+  spec.max_iterations = 1;
+  spec.full_positions = true;
+  Result<DeformResult> first = client().move(s.edit(), spec);
+  ASSERT_TRUE(first.ok()) << message_of(first);
+  MoveSpec second = bend(40.0);
+  second.method = core::Method::Laplacian;
+  second.max_iterations = 1;
+  ASSERT_TRUE(client().move(s.edit(), second).ok());
+  Result<SessionInfo> info = client().session_info(s.view());
+  ASSERT_TRUE(info.ok()) << message_of(info);
+  EXPECT_EQ(info->history_steps, 3);
+  EXPECT_EQ(info->history_position, 2);
+  EXPECT_EQ(info->settings_method, core::Method::Laplacian);
+
+  MoveSpec undo;
+  undo.history = HistoryAction::Undo;
+  undo.method = core::Method::Laplacian;
+  undo.max_iterations = 1;
+  undo.full_positions = true;
+  Result<DeformResult> undone = client().move(s.edit(), undo);
+  ASSERT_TRUE(undone.ok()) << message_of(undone);
+  EXPECT_EQ(*undone->positions, *first->positions);  // one direct solve: the same bits
+  EXPECT_EQ(client().session_info(s.view())->history_position, 1);
+  undo.moves.push_back(bend(5.0).moves[0]);
+  EXPECT_EQ(client().move(s.edit(), undo).status().code(), ErrorCode::InvalidArgument);
+  MoveSpec redo = undo;
+  redo.moves.clear();
+  redo.history = HistoryAction::Redo;
+  ASSERT_TRUE(client().move(s.edit(), redo).ok());
+  EXPECT_EQ(client().move(s.edit(), redo).status().code(), ErrorCode::FailedPrecondition);
+}
+
 TEST_F(ClientTest, GetMeshParsesBackAsGlbAndObj) {
   const Session s = create_with_handles("cylinder_small");
   MoveSpec spec = bend(30.0);
