@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "bench/bench_config.h"
+#include "common/command_line.h"
 #include "core/curve2d.h"
 #include "core/curve2d_svg.h"
 #include "core/koch.h"
@@ -27,6 +28,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using core::CurveMethod;
+namespace command_line = meshdeform::command_line;
 
 constexpr double kPull = 0.3;
 constexpr int kRepeats = 7;                   // timings: the median of this many runs ...
@@ -79,7 +81,19 @@ int fail(const Status& status) {
 }
 
 int run(int argc, char** argv) {
-  const fs::path out_dir = argc > 1 ? fs::path(argv[1]) : fs::path(MESHDEFORM_BENCH_RESULTS_DIR);
+  // One optional positional argument, read by CLI11 (common/command_line.h); anything else on
+  // the line is refused rather than taken for a directory name.
+  std::string out_dir_text = MESHDEFORM_BENCH_RESULTS_DIR;
+  CLI::App app;
+  command_line::configure(app);
+  app.add_option("OUT_DIR", out_dir_text);
+  if (const auto problem = command_line::parse(
+          app, std::vector<std::string>(argv + 1, argv + argc), command_line::Repeats::LastWins)) {
+    return fail(Error(ErrorCode::InvalidArgument,
+                      "unexpected argument '" + problem->word +
+                          "' (usage: meshdeform-bench-curves [OUT_DIR])"));
+  }
+  const fs::path out_dir(out_dir_text);
   std::error_code ec;
   fs::create_directories(out_dir, ec);
 

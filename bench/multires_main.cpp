@@ -89,60 +89,45 @@ void print_usage(std::ostream& out) {
 
 Result<Options> parse_options(int argc, char** argv) {
   Options o;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    auto next = [&]() -> Result<std::string> {
-      if (i + 1 >= argc) return Error(ErrorCode::InvalidArgument, arg + " needs a value");
-      return std::string(argv[++i]);
-    };
-    auto next_int = [&](int min_value) -> Result<int> {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      return parse_integer<int>(arg, value, min_value);
-    };
-    if (arg == "--spot-levels") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      o.spot_levels.clear();
-      for (const auto& item : split_commas(value)) {
-        MD_ASSIGN_OR_RETURN(const int level, parse_integer<int>(arg, item, 0));
-        o.spot_levels.push_back(level);
-      }
-    } else if (arg == "--edit") {
-      MD_ASSIGN_OR_RETURN(o.edit, next());
-      if (o.edit != "bend" && o.edit != "stretch" && o.edit != "twist") {
-        return Error(ErrorCode::InvalidArgument, "unknown edit '" + o.edit + "'");
-      }
-    } else if (arg == "--coarse-vertices") {
-      MD_ASSIGN_OR_RETURN(o.coarse_vertices, next_int(4));
-    } else if (arg == "--constraints") {
-      MD_ASSIGN_OR_RETURN(o.constraints, next());
-      if (o.constraints != "borders" && o.constraints != "all") {
-        return Error(ErrorCode::InvalidArgument, "--constraints wants borders or all");
-      }
-    } else if (arg == "--moves") {
-      MD_ASSIGN_OR_RETURN(o.moves, next_int(2));
-    } else if (arg == "--move-iterations") {
-      MD_ASSIGN_OR_RETURN(o.move_iterations, next_int(1));
-    } else if (arg == "--max-iterations") {
-      MD_ASSIGN_OR_RETURN(o.max_iterations, next_int(1));
-    } else if (arg == "--tolerance-exp") {
-      MD_ASSIGN_OR_RETURN(const int exponent, next_int(0));
-      o.tolerance = std::pow(10.0, -exponent);
-    } else if (arg == "--threads") {
-      MD_ASSIGN_OR_RETURN(o.threads, next_int(0));
-    } else if (arg == "--no-single") {
-      o.single = false;
-    } else if (arg == "--no-refine") {
-      o.refine = false;
-    } else if (arg == "--out-dir") {
-      MD_ASSIGN_OR_RETURN(o.out_dir, next());
-    } else if (arg == "--stem") {
-      MD_ASSIGN_OR_RETURN(o.stem, next());
-    } else if (arg == "--spot") {
-      MD_ASSIGN_OR_RETURN(o.spot_path, next());
-    } else {
-      return Error(ErrorCode::InvalidArgument, "unknown option '" + arg + "'");
+  BenchFlags flags;
+  flags.value("--spot-levels", [&](const std::string& value) -> Status {
+    o.spot_levels.clear();
+    for (const auto& item : split_commas(value)) {
+      MD_ASSIGN_OR_RETURN(const int level, parse_integer<int>("--spot-levels", item, 0));
+      o.spot_levels.push_back(level);
     }
-  }
+    return Status::success();
+  });
+  flags.value("--edit", [&](const std::string& value) -> Status {
+    o.edit = value;
+    if (o.edit != "bend" && o.edit != "stretch" && o.edit != "twist") {
+      return Error(ErrorCode::InvalidArgument, "unknown edit '" + o.edit + "'");
+    }
+    return Status::success();
+  });
+  flags.integer("--coarse-vertices", o.coarse_vertices, 4);
+  flags.value("--constraints", [&](const std::string& value) -> Status {
+    o.constraints = value;
+    if (o.constraints != "borders" && o.constraints != "all") {
+      return Error(ErrorCode::InvalidArgument, "--constraints wants borders or all");
+    }
+    return Status::success();
+  });
+  flags.integer("--moves", o.moves, 2);
+  flags.integer("--move-iterations", o.move_iterations, 1);
+  flags.integer("--max-iterations", o.max_iterations, 1);
+  flags.value("--tolerance-exp", [&](const std::string& value) -> Status {
+    MD_ASSIGN_OR_RETURN(const int exponent, parse_integer<int>("--tolerance-exp", value, 0));
+    o.tolerance = std::pow(10.0, -exponent);
+    return Status::success();
+  });
+  flags.integer("--threads", o.threads, 0);
+  flags.flag("--no-single", [&] { o.single = false; });
+  flags.flag("--no-refine", [&] { o.refine = false; });
+  flags.text("--out-dir", o.out_dir);
+  flags.text("--stem", o.stem);
+  flags.text("--spot", o.spot_path);
+  MD_RETURN_IF_ERROR(flags.parse(argc, argv));
   return o;
 }
 

@@ -96,63 +96,40 @@ void print_usage(std::ostream& out) {
 
 Result<Options> parse_options(int argc, char** argv) {
   Options o;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    auto next = [&]() -> Result<std::string> {
-      if (i + 1 >= argc) return Error(ErrorCode::InvalidArgument, arg + " needs a value");
-      return std::string(argv[++i]);
-    };
-    auto next_int = [&](long min_value) -> Result<long> {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      return parse_integer<long>(arg, value, min_value);
-    };
-    if (arg == "--models") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      o.models = split_commas(value);
-    } else if (arg == "--max-vertices") {
-      MD_ASSIGN_OR_RETURN(o.max_vertices, next_int(1));
-    } else if (arg == "--spot-levels") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      o.spot_levels.clear();
-      for (const auto& item : split_commas(value)) {
-        MD_ASSIGN_OR_RETURN(const long level, parse_integer<long>(arg, item, 0));
-        o.spot_levels.push_back(static_cast<int>(level));
-      }
-    } else if (arg == "--regular") {
-      o.include_regular = true;
-    } else if (arg == "--methods") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      o.methods = split_commas(value);
-    } else if (arg == "--iterations") {
-      MD_ASSIGN_OR_RETURN(const long v, next_int(1));
-      o.iterations = static_cast<int>(v);
-    } else if (arg == "--repeat") {
-      MD_ASSIGN_OR_RETURN(const long v, next_int(1));
-      o.repeat = static_cast<int>(v);
-    } else if (arg == "--repeat-max-vertices") {
-      MD_ASSIGN_OR_RETURN(o.repeat_max_vertices, next_int(1));
-    } else if (arg == "--anderson-window") {
-      MD_ASSIGN_OR_RETURN(const long v, next_int(1));
-      o.anderson_window = static_cast<int>(v);
-    } else if (arg == "--cgal-max-iterations") {
-      MD_ASSIGN_OR_RETURN(const long v, next_int(1));
-      o.cgal_max_iterations = static_cast<int>(v);
-    } else if (arg == "--threads") {
-      MD_ASSIGN_OR_RETURN(const long v, next_int(0));
-      o.threads = static_cast<int>(v);
-    } else if (arg == "--seed") {
-      MD_ASSIGN_OR_RETURN(const long v, next_int(0));
-      o.seed = static_cast<std::uint64_t>(v);
-    } else if (arg == "--out-dir") {
-      MD_ASSIGN_OR_RETURN(o.out_dir, next());
-    } else if (arg == "--stem") {
-      MD_ASSIGN_OR_RETURN(o.stem, next());
-    } else if (arg == "--spot") {
-      MD_ASSIGN_OR_RETURN(o.spot_path, next());
-    } else {
-      return Error(ErrorCode::InvalidArgument, "unknown option '" + arg + "'");
+  BenchFlags flags;
+  flags.value("--models", [&](const std::string& value) {
+    o.models = split_commas(value);
+    return Status::success();
+  });
+  flags.integer("--max-vertices", o.max_vertices, 1L);
+  flags.value("--spot-levels", [&](const std::string& value) -> Status {
+    o.spot_levels.clear();
+    for (const auto& item : split_commas(value)) {
+      MD_ASSIGN_OR_RETURN(const long level, parse_integer<long>("--spot-levels", item, 0));
+      o.spot_levels.push_back(static_cast<int>(level));
     }
-  }
+    return Status::success();
+  });
+  flags.flag("--regular", [&] { o.include_regular = true; });
+  flags.value("--methods", [&](const std::string& value) {
+    o.methods = split_commas(value);
+    return Status::success();
+  });
+  flags.integer("--iterations", o.iterations, 1);
+  flags.integer("--repeat", o.repeat, 1);
+  flags.integer("--repeat-max-vertices", o.repeat_max_vertices, 1L);
+  flags.integer("--anderson-window", o.anderson_window, 1);
+  flags.integer("--cgal-max-iterations", o.cgal_max_iterations, 1);
+  flags.integer("--threads", o.threads, 0);
+  flags.value("--seed", [&](const std::string& value) -> Status {
+    MD_ASSIGN_OR_RETURN(const long seed, parse_integer<long>("--seed", value, 0));
+    o.seed = static_cast<std::uint64_t>(seed);
+    return Status::success();
+  });
+  flags.text("--out-dir", o.out_dir);
+  flags.text("--stem", o.stem);
+  flags.text("--spot", o.spot_path);
+  MD_RETURN_IF_ERROR(flags.parse(argc, argv));
   for (const auto& m : o.methods) {
     if (m != "scale_aware" && m != "scale_aware_anderson" && m != "arap" &&
         m != "arap_anderson" && m != "cgal") {

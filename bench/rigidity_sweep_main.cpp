@@ -642,53 +642,45 @@ Result<double> parse_number(const std::string& flag, const std::string& text) {
 
 Result<Options> parse_options(int argc, char** argv) {
   Options options;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    auto next = [&]() -> Result<std::string> {
-      if (i + 1 >= argc) return Error(ErrorCode::InvalidArgument, arg + " needs a value");
-      return std::string(argv[++i]);
-    };
-    if (arg == "--models") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      options.models = split_commas(value);
-    } else if (arg == "--small") {
-      options.small = true;
-    } else if (arg == "--out-dir") {
-      MD_ASSIGN_OR_RETURN(options.out_dir, next());
-    } else if (arg == "--rigidities") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      options.rigidities.clear();
-      for (const std::string& item : split_commas(value)) {
-        MD_ASSIGN_OR_RETURN(const double rho, parse_number(arg, item));
-        options.rigidities.push_back(rho);
-      }
-    } else if (arg == "--pull") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.pull, parse_number(arg, value));
-    } else if (arg == "--rigid-start-iterations") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(const double k, parse_number(arg, value));
-      options.rigid_start_iterations = static_cast<int>(k);
-    } else if (arg == "--iterations") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(const double k, parse_number(arg, value));
-      options.iterations = static_cast<int>(k);
-    } else if (arg == "--start") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.start, core::parse_start(value));
-    } else if (arg == "--tolerance") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.tolerance, parse_number(arg, value));
-    } else if (arg == "--smooth-length") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.smooth_length, parse_number(arg, value));
-    } else if (arg == "--normal-tie") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.normal_tie, parse_number(arg, value));
-    } else {
-      return Error(ErrorCode::InvalidArgument, "unknown option '" + arg + "'");
+  BenchFlags flags;
+  const auto number = [&flags](const std::string& name, double& out) {
+    flags.value(name, [name, &out](const std::string& value) -> Status {
+      MD_ASSIGN_OR_RETURN(out, parse_number(name, value));
+      return Status::success();
+    });
+  };
+  const auto count = [&flags](const std::string& name, int& out) {  // a number, truncated
+    flags.value(name, [name, &out](const std::string& value) -> Status {
+      MD_ASSIGN_OR_RETURN(const double k, parse_number(name, value));
+      out = static_cast<int>(k);
+      return Status::success();
+    });
+  };
+  flags.value("--models", [&](const std::string& value) {
+    options.models = split_commas(value);
+    return Status::success();
+  });
+  flags.flag("--small", [&] { options.small = true; });
+  flags.text("--out-dir", options.out_dir);
+  flags.value("--rigidities", [&](const std::string& value) -> Status {
+    options.rigidities.clear();
+    for (const std::string& item : split_commas(value)) {
+      MD_ASSIGN_OR_RETURN(const double rho, parse_number("--rigidities", item));
+      options.rigidities.push_back(rho);
     }
-  }
+    return Status::success();
+  });
+  number("--pull", options.pull);
+  count("--rigid-start-iterations", options.rigid_start_iterations);
+  count("--iterations", options.iterations);
+  flags.value("--start", [&](const std::string& value) -> Status {
+    MD_ASSIGN_OR_RETURN(options.start, core::parse_start(value));
+    return Status::success();
+  });
+  number("--tolerance", options.tolerance);
+  number("--smooth-length", options.smooth_length);
+  number("--normal-tie", options.normal_tie);
+  MD_RETURN_IF_ERROR(flags.parse(argc, argv));
   if (std::find(options.rigidities.begin(), options.rigidities.end(), 0.0) ==
       options.rigidities.end()) {
     options.rigidities.insert(options.rigidities.begin(), 0.0);

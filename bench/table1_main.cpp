@@ -104,57 +104,41 @@ void print_usage(std::ostream& out) {
 
 Result<Options> parse_options(int argc, char** argv) {
   Options options;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    auto next = [&]() -> Result<std::string> {
-      if (i + 1 >= argc) return Error(ErrorCode::InvalidArgument, arg + " needs a value");
-      return std::string(argv[++i]);
-    };
-    if (arg == "--models") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      options.models = split_commas(value);
-    } else if (arg == "--small") {
-      options.small = true;
-    } else if (arg == "--out-dir") {
-      MD_ASSIGN_OR_RETURN(options.out_dir, next());
-    } else if (arg == "--iterations") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.iterations, parse_integer<int>(arg, value, 1));
-    } else if (arg == "--rigidity") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      char* end = nullptr;
-      options.rigidity = std::strtod(value.c_str(), &end);
-      if (end == value.c_str() || *end != '\0' || !(options.rigidity >= 0) ||
-          !std::isfinite(options.rigidity)) {
-        return Error(ErrorCode::InvalidArgument, "--rigidity wants a number >= 0, got '" + value + "'");
-      }
-    } else if (arg == "--threads") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.threads, parse_integer<int>(arg, value, 0));
-    } else if (arg == "--move-fraction") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      char* end = nullptr;
-      options.move_fraction = std::strtod(value.c_str(), &end);
-      if (end == value.c_str() || *end != '\0' || !std::isfinite(options.move_fraction)) {
-        return Error(ErrorCode::InvalidArgument, "--move-fraction wants a number, got '" + value + "'");
-      }
-    } else if (arg == "--move-iterations") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.move_iterations, parse_integer<int>(arg, value, 1));
-    } else if (arg == "--no-track-metrics") {
-      options.track_metrics = false;
-    } else if (arg == "--cgal-arap") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.cgal_variant, parse_cgal_arap_variant(value));
-    } else if (arg == "--cgal-max-iterations") {
-      MD_ASSIGN_OR_RETURN(const std::string value, next());
-      MD_ASSIGN_OR_RETURN(options.cgal_max_converge_iterations, parse_integer<int>(arg, value, 1));
-    } else if (arg == "--no-cgal") {
-      options.run_cgal = false;
-    } else {
-      return Error(ErrorCode::InvalidArgument, "unknown option '" + arg + "'");
+  BenchFlags flags;
+  flags.value("--models", [&](const std::string& value) {
+    options.models = split_commas(value);
+    return Status::success();
+  });
+  flags.flag("--small", [&] { options.small = true; });
+  flags.text("--out-dir", options.out_dir);
+  flags.integer("--iterations", options.iterations, 1);
+  flags.value("--rigidity", [&](const std::string& value) -> Status {
+    char* end = nullptr;
+    options.rigidity = std::strtod(value.c_str(), &end);
+    if (end == value.c_str() || *end != '\0' || !(options.rigidity >= 0) ||
+        !std::isfinite(options.rigidity)) {
+      return Error(ErrorCode::InvalidArgument, "--rigidity wants a number >= 0, got '" + value + "'");
     }
-  }
+    return Status::success();
+  });
+  flags.integer("--threads", options.threads, 0);
+  flags.value("--move-fraction", [&](const std::string& value) -> Status {
+    char* end = nullptr;
+    options.move_fraction = std::strtod(value.c_str(), &end);
+    if (end == value.c_str() || *end != '\0' || !std::isfinite(options.move_fraction)) {
+      return Error(ErrorCode::InvalidArgument, "--move-fraction wants a number, got '" + value + "'");
+    }
+    return Status::success();
+  });
+  flags.integer("--move-iterations", options.move_iterations, 1);
+  flags.flag("--no-track-metrics", [&] { options.track_metrics = false; });
+  flags.value("--cgal-arap", [&](const std::string& value) -> Status {
+    MD_ASSIGN_OR_RETURN(options.cgal_variant, parse_cgal_arap_variant(value));
+    return Status::success();
+  });
+  flags.integer("--cgal-max-iterations", options.cgal_max_converge_iterations, 1);
+  flags.flag("--no-cgal", [&] { options.run_cgal = false; });
+  MD_RETURN_IF_ERROR(flags.parse(argc, argv));
   return options;
 }
 

@@ -1,10 +1,11 @@
 #include "cli/args.h"
 
-#include <algorithm>
 #include <cctype>
 #include <charconv>
 #include <cmath>
 #include <cstdlib>
+
+#include "common/command_line.h"
 
 namespace meshdeform::cli {
 
@@ -16,37 +17,48 @@ std::optional<std::string> ParsedArgs::get(const std::string& name) const {
 
 std::optional<UsageError> parse_args(const std::vector<std::string>& args,
                                      const std::vector<OptionSpec>& specs, ParsedArgs& out) {
-  auto find_spec = [&](const std::string& name) -> const OptionSpec* {
-    const auto it = std::find_if(specs.begin(), specs.end(),
-                                 [&](const OptionSpec& spec) { return spec.name == name; });
-    return it == specs.end() ? nullptr : &*it;
-  };
-  for (size_t k = 0; k < args.size(); ++k) {
-    std::string word = args[k];
-    if (word == "-h") word = "--help";
-    if (word.size() < 3 || word.rfind("--", 0) != 0) {
-      return UsageError{"unexpected argument '" + word + "' (options start with --)"};
+  namespace command_line = meshdeform::command_line;
+  CLI::App app;
+  command_line::configure(app);
+  // std::map: the bound values keep their addresses while the App holds references to them.
+  std::map<std::string, std::optional<std::string>> values;
+  std::map<std::string, bool> flags;
+  for (const OptionSpec& spec : specs) {
+    const std::string names = (spec.name == "help" ? "-h,--" : "--") + spec.name;
+    if (spec.takes_value) {
+      command_line::add_text(app, names, values[spec.name]);
+    } else {
+      command_line::add_flag(app, names, flags[spec.name]);
     }
-    std::string name = word.substr(2);
-    std::optional<std::string> inline_value;
-    if (const auto eq = name.find('='); eq != std::string::npos) {
-      inline_value = name.substr(eq + 1);
-      name = name.substr(0, eq);
+  }
+  using Kind = command_line::Problem::Kind;
+  if (const auto problem = command_line::parse(app, args, command_line::Repeats::Refuse)) {
+    const std::string& word = problem->word;
+    switch (problem->kind) {
+      case Kind::UnknownOption:
+        if (word.size() >= 3 && word.rfind("--", 0) == 0) {
+          return UsageError{"unknown option '" + word + "'"};
+        }
+        [[fallthrough]];
+      case Kind::Unexpected:
+        return UsageError{"unexpected argument '" + word + "' (options start with --)"};
+      case Kind::MissingValue:
+        return UsageError{"option '" + word + "' needs a value"};
+      case Kind::Repeated:
+        return UsageError{"option '" + word + "' given twice"};
+      case Kind::TakesNoValue:
+        return UsageError{"option '" + word + "' takes no value"};
+      case Kind::BadValue:  // no add_checked() options here
+      case Kind::Other:
+        break;
     }
-    const OptionSpec* spec = find_spec(name);
-    if (spec == nullptr) return UsageError{"unknown option '--" + name + "'"};
-    if (out.has(name)) return UsageError{"option '--" + name + "' given twice"};
-    if (!spec->takes_value) {
-      if (inline_value) return UsageError{"option '--" + name + "' takes no value"};
-      out.set(name, "");
-      continue;
-    }
-    if (inline_value) {
-      out.set(name, *inline_value);
-      continue;
-    }
-    if (k + 1 >= args.size()) return UsageError{"option '--" + name + "' needs a value"};
-    out.set(name, args[++k]);
+    return UsageError{problem->message};
+  }
+  for (const auto& [name, value] : values) {
+    if (value) out.set(name, *value);
+  }
+  for (const auto& [name, given] : flags) {
+    if (given) out.set(name, "");
   }
   return std::nullopt;
 }

@@ -1,7 +1,8 @@
 #pragma once
 /// @file args.h
-/// A small command-line parser for meshdeform-cli: `--name value`, `--name=value` and boolean
-/// `--flag` options, checked against a per-command list; strict number parsing.
+/// meshdeform-cli's options on top of CLI11 (common/command_line.h): `--name value`,
+/// `--name=value` and boolean `--flag` options, checked against a per-command list, with
+/// meshdeform-cli's own messages; strict number parsing.
 
 #include <map>
 #include <optional>
@@ -34,8 +35,8 @@ struct UsageError {
   std::string message;
 };
 
-/// Parses `args` (the words after the subcommand) against `specs`. "-h" is accepted as "--help"
-/// when "help" is in `specs`.
+/// Parses `args` (the words after the subcommand) against `specs` with CLI11. "-h" is accepted as
+/// "--help" when "help" is in `specs`.
 /// @return the options; a UsageError naming an unknown option, a missing value, an option given
 ///         twice, or a positional argument.
 [[nodiscard]] std::optional<UsageError> parse_args(const std::vector<std::string>& args,

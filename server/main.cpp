@@ -24,6 +24,7 @@
 #include <thread>
 #include <vector>
 
+#include "common/command_line.h"
 #include "server/service/deformation_service.h"
 #include "server/service/log.h"
 #include "server/service/persistence.h"
@@ -155,114 +156,91 @@ bool parse_number(std::string_view text, T min, T max, T& out) {
   return true;
 }
 
+/// Parses the flags with CLI11 (common/command_line.h); each value is checked as soon as it is
+/// read, so the first bad one on the line is reported, and --help/-h stops the parse.
 /// @return false (after printing why) for an unknown flag or a bad value.
 bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
-  for (int i = 1; i < argc; ++i) {
-    std::string_view arg = argv[i], value;
-    if (arg == "--help" || arg == "-h") {
-      help = true;
-      return true;
-    }
-    if (arg == "--trust-forwarded-for") {  // flags without a value
-      flags.trust_forwarded_for = true;
-      continue;
-    }
-    if (arg == "--test-hooks") {
-      flags.test_hooks = true;
-      continue;
-    }
-    if (const std::size_t eq = arg.find('='); eq != std::string_view::npos) {
-      value = arg.substr(eq + 1);
-      arg = arg.substr(0, eq);
-    } else if (i + 1 < argc) {
-      value = argv[++i];
-    } else {
-      std::cerr << "meshdeform-server: " << arg << " needs a value\n" << kUsage;
+  namespace command_line = meshdeform::command_line;
+  CLI::App app;
+  command_line::configure(app);
+  command_line::add_help(app, help, true);
+  command_line::add_flag(app, "--trust-forwarded-for", flags.trust_forwarded_for);
+  command_line::add_flag(app, "--test-hooks", flags.test_hooks);
+  // The value is refused with the generic message below; no per-flag text.
+  const auto check = [](bool ok) { return ok ? std::nullopt : std::optional<std::string>(""); };
+  const auto text = [&](const std::string& name, std::string& out) {
+    command_line::add_checked(app, name, [&out, check](const std::string& value) {
+      out = value;
+      return check(!value.empty());
+    });
+  };
+  const auto number = [&](const std::string& name, auto min, auto max, auto& out) {
+    command_line::add_checked(app, name, [min, max, &out, check](const std::string& value) {
+      return check(parse_number(value, min, max, out));
+    });
+  };
+  text("--listen", flags.listen);
+  number("--max-sessions", 1, 1'000'000, flags.max_sessions);
+  number("--max-vertices", 3, 100'000'000, flags.max_vertices);
+  number("--idle-ttl-seconds", 1, 365 * 24 * 3600, flags.idle_ttl_seconds);
+  number("--memory-budget-mib", 1, 1'000'000, flags.memory_budget_mib);
+  number("--max-message-mib", 1, 2047, flags.max_message_mib);
+  number("--workers", 0, 1024, flags.workers);
+  number("--refine-budget", 0, 100'000, flags.refine_budget);
+  number("--refine-delay-ms", 0, 60'000, flags.refine_delay_ms);
+  text("--http-listen", flags.http_listen);
+  text("--web-root", flags.web_root);
+  command_line::add_checked(app, "--cors-origin", [&flags, check](const std::string& value) {
+    flags.cors_origins.push_back(value);  // repeatable
+    return check(!value.empty());
+  });
+  text("--state-dir", flags.state_dir);
+  text("--redis", flags.redis_url);
+  text("--redis-password-file", flags.redis_password_file);
+  text("--redis-ca-file", flags.redis_ca_file);
+  number("--redis-lease-ms", 100, 600'000, flags.redis_lease_ms);
+  number("--redis-log-length", 1, 100'000, flags.redis_log_length);
+  text("--tls-cert", flags.tls_cert);
+  text("--tls-key", flags.tls_key);
+  text("--tls-client-ca", flags.tls_client_ca);
+  command_line::add_checked(app, "--log-level", [&flags, check](const std::string& value) {
+    flags.log_level = value;
+    return check(value == "debug" || value == "info" || value == "warn" || value == "error");
+  });
+  number("--create-rate", 0.0, 1e6, flags.create_rate);
+  number("--create-burst", 1.0, 1e6, flags.create_burst);
+  number("--move-rate", 0.0, 1e6, flags.move_rate);
+  number("--move-burst", 1.0, 1e6, flags.move_burst);
+  number("--heavy-per-client", 1, 1024, flags.heavy_per_client);
+  number("--heavy-total", 1, 4096, flags.heavy_total);
+  number("--heavy-lanes", 0, 1024, flags.heavy_lanes);
+  number("--shutdown-grace-seconds", 0, 3600, flags.shutdown_grace_seconds);
+
+  const std::optional<command_line::Problem> problem = command_line::parse(
+      app, std::vector<std::string>(argv + 1, argv + argc), command_line::Repeats::LastWins);
+  if (help || !problem) return true;
+  using Kind = command_line::Problem::Kind;
+  switch (problem->kind) {
+    case Kind::BadValue:
+      std::cerr << "meshdeform-server: bad value '" << problem->value << "' for " << problem->word
+                << "\n";
       return false;
-    }
-    bool ok = true;
-    if (arg == "--listen") {
-      flags.listen = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--max-sessions") {
-      ok = parse_number(value, 1, 1'000'000, flags.max_sessions);
-    } else if (arg == "--max-vertices") {
-      ok = parse_number(value, 3, 100'000'000, flags.max_vertices);
-    } else if (arg == "--idle-ttl-seconds") {
-      ok = parse_number(value, 1, 365 * 24 * 3600, flags.idle_ttl_seconds);
-    } else if (arg == "--memory-budget-mib") {
-      ok = parse_number(value, 1, 1'000'000, flags.memory_budget_mib);
-    } else if (arg == "--max-message-mib") {
-      ok = parse_number(value, 1, 2047, flags.max_message_mib);
-    } else if (arg == "--workers") {
-      ok = parse_number(value, 0, 1024, flags.workers);
-    } else if (arg == "--refine-budget") {
-      ok = parse_number(value, 0, 100'000, flags.refine_budget);
-    } else if (arg == "--refine-delay-ms") {
-      ok = parse_number(value, 0, 60'000, flags.refine_delay_ms);
-    } else if (arg == "--http-listen") {
-      flags.http_listen = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--web-root") {
-      flags.web_root = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--cors-origin") {
-      flags.cors_origins.emplace_back(value);
-      ok = !value.empty();
-    } else if (arg == "--state-dir") {
-      flags.state_dir = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--redis") {
-      flags.redis_url = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--redis-password-file") {
-      flags.redis_password_file = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--redis-ca-file") {
-      flags.redis_ca_file = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--redis-lease-ms") {
-      ok = parse_number(value, 100, 600'000, flags.redis_lease_ms);
-    } else if (arg == "--redis-log-length") {
-      ok = parse_number(value, 1, 100'000, flags.redis_log_length);
-    } else if (arg == "--tls-cert") {
-      flags.tls_cert = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--tls-key") {
-      flags.tls_key = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--tls-client-ca") {
-      flags.tls_client_ca = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--log-level") {
-      flags.log_level = std::string(value);
-      ok = value == "debug" || value == "info" || value == "warn" || value == "error";
-    } else if (arg == "--create-rate") {
-      ok = parse_number<double>(value, 0, 1e6, flags.create_rate);
-    } else if (arg == "--create-burst") {
-      ok = parse_number<double>(value, 1, 1e6, flags.create_burst);
-    } else if (arg == "--move-rate") {
-      ok = parse_number<double>(value, 0, 1e6, flags.move_rate);
-    } else if (arg == "--move-burst") {
-      ok = parse_number<double>(value, 1, 1e6, flags.move_burst);
-    } else if (arg == "--heavy-per-client") {
-      ok = parse_number(value, 1, 1024, flags.heavy_per_client);
-    } else if (arg == "--heavy-total") {
-      ok = parse_number(value, 1, 4096, flags.heavy_total);
-    } else if (arg == "--heavy-lanes") {
-      ok = parse_number(value, 0, 1024, flags.heavy_lanes);
-    } else if (arg == "--shutdown-grace-seconds") {
-      ok = parse_number(value, 0, 3600, flags.shutdown_grace_seconds);
-    } else {
-      std::cerr << "meshdeform-server: unknown flag " << arg << "\n" << kUsage;
+    case Kind::MissingValue:
+      std::cerr << "meshdeform-server: " << problem->word << " needs a value\n" << kUsage;
       return false;
-    }
-    if (!ok) {
-      std::cerr << "meshdeform-server: bad value '" << value << "' for " << arg << "\n";
+    case Kind::TakesNoValue:
+      std::cerr << "meshdeform-server: " << problem->word << " takes no value\n" << kUsage;
       return false;
-    }
+    case Kind::UnknownOption:
+    case Kind::Unexpected:
+      std::cerr << "meshdeform-server: unknown flag " << problem->word << "\n" << kUsage;
+      return false;
+    case Kind::Repeated:
+    case Kind::Other:
+      break;
   }
-  return true;
+  std::cerr << "meshdeform-server: " << problem->message << "\n" << kUsage;
+  return false;
 }
 
 }  // namespace

@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "client_cpp/client.h"
+#include "common/command_line.h"
 #include "core/io/deform_spec.h"
 #include "core/io/mesh_io.h"
 #include "core/similarity.h"
@@ -126,50 +127,87 @@ const std::map<std::string, std::set<std::string>> kCommandFlags = {
     {"move", {"ora"}},
 };
 
+/// Parses the command line with CLI11: the commands are subcommands, the global options are the
+/// top level's and may also come after the command (fallthrough).
 std::optional<UsageError> parse_args(int argc, char** argv, Args& out) {
-  std::vector<std::string> words(argv + 1, argv + argc);
-  // The command is the first word that is not an option or an option's value.
-  for (std::size_t i = 0; i < words.size(); ++i) {
-    const std::string& w = words[i];
-    if (w == "--help" || w == "-h") {
-      out.flags.insert("help");
-      continue;
+  namespace command_line = meshdeform::command_line;
+  const std::vector<std::string> words(argv + 1, argv + argc);
+  CLI::App app;
+  command_line::configure(app);
+  app.require_subcommand(0, 1);
+  bool help = false;
+  command_line::add_help(app, help, false);
+  // std::map: the bound values keep their addresses while the App holds references to them.
+  std::map<std::string, std::optional<std::string>> global_values;
+  for (const std::string& name : kGlobalValues) {
+    command_line::add_text(app, "--" + name, global_values[name]);
+  }
+  std::map<std::string, std::map<std::string, std::optional<std::string>>> command_values;
+  std::map<std::string, std::map<std::string, bool>> command_flags;
+  for (const auto& [command, names] : kCommandValues) {
+    CLI::App* sub = app.add_subcommand(command);
+    command_line::configure(*sub);
+    sub->fallthrough();  // global options after the command
+    for (const std::string& name : names) {
+      command_line::add_text(*sub, "--" + name, command_values[command][name]);
     }
-    if (w.rfind("--", 0) != 0) {
-      if (!out.command.empty()) return UsageError{"unexpected argument '" + w + "'"};
-      out.command = w;
-      if (!kCommandValues.count(w)) return UsageError{"unknown command '" + w + "'"};
-      continue;
+    if (const auto flags = kCommandFlags.find(command); flags != kCommandFlags.end()) {
+      for (const std::string& name : flags->second) {
+        command_line::add_flag(*sub, "--" + name, command_flags[command][name]);
+      }
     }
-    std::string name = w.substr(2), value;
-    bool has_value = false;
-    if (const auto eq = name.find('='); eq != std::string::npos) {
-      value = name.substr(eq + 1);
-      name = name.substr(0, eq);
-      has_value = true;
+  }
+  const std::optional<command_line::Problem> problem =
+      command_line::parse(app, words, command_line::Repeats::RefuseValues);
+  const std::vector<CLI::App*> given = app.get_subcommands();
+  if (!given.empty()) out.command = given.front()->get_name();
+  if (problem) {
+    using Kind = command_line::Problem::Kind;
+    const std::string& word = problem->word;
+    // Whether `word` came before the command on the line (or there is no command).
+    const auto before_command = [&] {
+      if (out.command.empty()) return true;
+      const auto at = [&](const std::string& w) {
+        return std::find_if(words.begin(), words.end(), [&](const std::string& x) {
+          return x == w || x.rfind(w + "=", 0) == 0;
+        });
+      };
+      return at(word) < at(out.command);
+    };
+    switch (problem->kind) {
+      case Kind::UnknownOption:
+        if (word.rfind("--", 0) == 0) {
+          return UsageError{"unknown option " + word +
+                            (before_command() ? std::string(" (options follow the command)")
+                                              : " for '" + out.command + "'")};
+        }
+        [[fallthrough]];
+      case Kind::Unexpected:
+        if (before_command()) return UsageError{"unknown command '" + word + "'"};
+        return UsageError{"unexpected argument '" + word + "'"};
+      case Kind::MissingValue:
+        return UsageError{word + " needs a value"};
+      case Kind::Repeated:
+        return UsageError{word + " given twice"};
+      case Kind::TakesNoValue:
+        return UsageError{word + " takes no value"};
+      case Kind::BadValue:  // no add_checked() options here
+      case Kind::Other:
+        break;
     }
-    const std::set<std::string> none;
-    const auto& cmd_values = out.command.empty() ? none : kCommandValues.at(out.command);
-    const auto flag_it =
-        out.command.empty() ? kCommandFlags.end() : kCommandFlags.find(out.command);
-    const bool is_flag = flag_it != kCommandFlags.end() && flag_it->second.count(name);
-    const bool takes_value = kGlobalValues.count(name) || cmd_values.count(name);
-    if (is_flag) {
-      if (has_value) return UsageError{"--" + name + " takes no value"};
-      out.flags.insert(name);
-      continue;
+    return UsageError{problem->message};
+  }
+  if (help) out.flags.insert("help");
+  for (const auto& [name, value] : global_values) {
+    if (value) out.values[name] = *value;
+  }
+  if (!out.command.empty()) {
+    for (const auto& [name, value] : command_values[out.command]) {
+      if (value) out.values[name] = *value;
     }
-    if (!takes_value) {
-      return UsageError{"unknown option --" + name +
-                        (out.command.empty() ? std::string(" (options follow the command)")
-                                             : " for '" + out.command + "'")};
+    for (const auto& [name, is_given] : command_flags[out.command]) {
+      if (is_given) out.flags.insert(name);
     }
-    if (!has_value) {
-      if (i + 1 >= words.size()) return UsageError{"--" + name + " needs a value"};
-      value = words[++i];
-    }
-    if (out.values.count(name)) return UsageError{"--" + name + " given twice"};
-    out.values[name] = value;
   }
   return std::nullopt;
 }

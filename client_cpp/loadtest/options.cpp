@@ -9,10 +9,15 @@
 #include <cstdlib>
 #include <fstream>
 #include <iterator>
+#include <optional>
 #include <string>
+
+#include "common/command_line.h"
 
 namespace meshdeform::loadtest {
 namespace {
+
+namespace command_line = meshdeform::command_line;
 
 bool parse_int64(std::string_view text, std::int64_t min, std::int64_t max, std::int64_t& out) {
   std::int64_t value = 0;
@@ -141,75 +146,81 @@ ParseOutcome parse_options(const std::vector<std::string>& args, Options& option
   const auto usage_error = [](std::string message) {
     return ParseOutcome{ParseOutcome::Kind::UsageError, std::move(message)};
   };
+  // CLI11 (common/command_line.h) reads the line; each value is checked as soon as it is read, so
+  // the first bad one is reported, and --help/-h stops the parse.
+  CLI::App app;
+  command_line::configure(app);
+  bool help = false;
+  command_line::add_help(app, help, true);
+  command_line::add_flag(app, "--allow-remote", options.allow_remote);
+  command_line::add_flag(app, "--fail-on-errors", options.fail_on_errors);
   bool has_sample = false;
-  for (std::size_t i = 0; i < args.size(); ++i) {
-    std::string_view arg = args[i];
-    if (arg == "--help" || arg == "-h") return ParseOutcome{ParseOutcome::Kind::Help, {}};
-    if (arg == "--allow-remote") {
-      options.allow_remote = true;
-      continue;
+  // The value is refused with the generic message below; no per-flag text.
+  const auto check = [](bool ok) { return ok ? std::nullopt : std::optional<std::string>(""); };
+  const auto text = [&](const std::string& name, std::string& out) {
+    command_line::add_checked(app, name, [&out, check](const std::string& value) {
+      out = value;
+      return check(!value.empty());
+    });
+  };
+  const auto integer = [&](const std::string& name, int min, int max, int& out) {
+    command_line::add_checked(app, name, [min, max, &out, check](const std::string& value) {
+      return check(parse_int(value, min, max, out));
+    });
+  };
+  const auto number = [&](const std::string& name, double min, double max, double& out) {
+    command_line::add_checked(app, name, [min, max, &out, check](const std::string& value) {
+      return check(parse_double(value, min, max, out));
+    });
+  };
+  text("--server", options.server);
+  integer("--sessions", 1, 1024, options.sessions);
+  command_line::add_checked(app, "--sample", [&](const std::string& value) {
+    options.sample = value;
+    has_sample = true;
+    return check(!value.empty());
+  });
+  text("--mesh", options.mesh_path);
+  command_line::add_checked(app, "--moves", [&](const std::string& value) {
+    return check(parse_int64(value, 0, 100'000'000, options.moves));
+  });
+  number("--rate", 0.0, 10'000.0, options.rate_hz);
+  number("--duration", 0.1, 7.0 * 24 * 3600, options.duration_seconds);
+  integer("--watchers", 0, 64, options.watchers);
+  integer("--iterations", 1, 1000, options.iterations);
+  command_line::add_checked(app, "--method", [&](const std::string& value) {
+    return check(parse_method(value, options.method));
+  });
+  text("--json", options.json_path);
+  text("--markdown", options.markdown_path);
+  integer("--connections", 0, 1024, options.connections);
+  integer("--move-deadline-ms", 1, 3'600'000, options.move_deadline_ms);
+  integer("--max-message-mib", 1, 1024, options.max_message_mib);
+  text("--tls-ca", options.tls_ca_path);
+  text("--tls-server-name", options.tls_server_name);
+
+  const std::optional<command_line::Problem> problem =
+      command_line::parse(app, args, command_line::Repeats::LastWins);
+  if (help) return ParseOutcome{ParseOutcome::Kind::Help, {}};
+  if (problem) {
+    using Kind = command_line::Problem::Kind;
+    switch (problem->kind) {
+      case Kind::BadValue:
+        return usage_error("bad value '" + problem->value + "' for " + problem->word);
+      case Kind::MissingValue:
+        return usage_error(problem->word + " needs a value");
+      case Kind::TakesNoValue:
+        return usage_error(problem->word + " takes no value");
+      case Kind::UnknownOption:
+        if (starts_with(problem->word, "--")) return usage_error("unknown flag " + problem->word);
+        [[fallthrough]];
+      case Kind::Unexpected:
+        return usage_error("unexpected argument '" + problem->word + "'");
+      case Kind::Repeated:
+      case Kind::Other:
+        break;
     }
-    if (arg == "--fail-on-errors") {
-      options.fail_on_errors = true;
-      continue;
-    }
-    if (!starts_with(arg, "--")) return usage_error("unexpected argument '" + args[i] + "'");
-    std::string_view value;
-    if (const std::size_t eq = arg.find('='); eq != std::string_view::npos) {
-      value = arg.substr(eq + 1);
-      arg = arg.substr(0, eq);
-    } else if (i + 1 < args.size()) {
-      value = args[++i];
-    } else {
-      return usage_error(std::string(arg) + " needs a value");
-    }
-    bool ok = true;
-    if (arg == "--server") {
-      options.server = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--sessions") {
-      ok = parse_int(value, 1, 1024, options.sessions);
-    } else if (arg == "--sample") {
-      options.sample = std::string(value);
-      has_sample = true;
-      ok = !value.empty();
-    } else if (arg == "--mesh") {
-      options.mesh_path = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--moves") {
-      ok = parse_int64(value, 0, 100'000'000, options.moves);
-    } else if (arg == "--rate") {
-      ok = parse_double(value, 0.0, 10'000.0, options.rate_hz);
-    } else if (arg == "--duration") {
-      ok = parse_double(value, 0.1, 7.0 * 24 * 3600, options.duration_seconds);
-    } else if (arg == "--watchers") {
-      ok = parse_int(value, 0, 64, options.watchers);
-    } else if (arg == "--iterations") {
-      ok = parse_int(value, 1, 1000, options.iterations);
-    } else if (arg == "--method") {
-      ok = parse_method(value, options.method);
-    } else if (arg == "--json") {
-      options.json_path = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--markdown") {
-      options.markdown_path = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--connections") {
-      ok = parse_int(value, 0, 1024, options.connections);
-    } else if (arg == "--move-deadline-ms") {
-      ok = parse_int(value, 1, 3'600'000, options.move_deadline_ms);
-    } else if (arg == "--max-message-mib") {
-      ok = parse_int(value, 1, 1024, options.max_message_mib);
-    } else if (arg == "--tls-ca") {
-      options.tls_ca_path = std::string(value);
-      ok = !value.empty();
-    } else if (arg == "--tls-server-name") {
-      options.tls_server_name = std::string(value);
-      ok = !value.empty();
-    } else {
-      return usage_error("unknown flag " + std::string(arg));
-    }
-    if (!ok) return usage_error("bad value '" + std::string(value) + "' for " + std::string(arg));
+    return usage_error(problem->message);
   }
   if (options.server.empty()) return usage_error("--server is required");
   if (!options.tls_server_name.empty() && options.tls_ca_path.empty()) {

@@ -58,7 +58,7 @@ struct ParseOutcome {
 std::string usage_text();
 
 /// Parses `args` (argv without the program name) into `options`.
-/// Accepts "--flag value" and "--flag=value". Checks ranges, that --server is given, that
+/// Accepts "--flag value" and "--flag=value" (CLI11). Checks ranges, that --server is given, that
 /// --sample and --mesh are not both given, and that the target is loopback unless --allow-remote.
 /// @return Run, Help, or UsageError with the reason.
 ParseOutcome parse_options(const std::vector<std::string>& args, Options& options);

@@ -302,6 +302,42 @@ TEST_F(CliTest, HelpForEveryCommand) {
   }
 }
 
+TEST_F(CliTest, OptionSyntaxErrorsExitTwoNamingTheOption) {
+  // The option syntax every command shares (parsed by CLI11 under cli/args.cpp).
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"generate", "--model", "bar", "--out-dir"}, "option '--out-dir' needs a value"},
+      {{"generate", "--model", "bar", "--model", "cylinder", "--out-dir", "g"},
+       "option '--model' given twice"},
+      {{"demo", "--verbose", "--verbose"}, "option '--verbose' given twice"},
+      {{"demo", "--verbose=1"}, "option '--verbose' takes no value"},
+      {{"demo", "--bogus=1"}, "unknown option '--bogus'"},
+      {{"demo", "-x"}, "unexpected argument '-x' (options start with --)"},
+      {{"curve", "--koch", "3", "--svg", "x.svg", "stray"}, "unexpected argument 'stray'"},
+  };
+  for (const auto& [args, expected] : cases) {
+    const RunResult r = run(args);
+    SCOPED_TRACE(expected);
+    EXPECT_EQ(r.exit_code, 2) << r.err;
+    EXPECT_NE(r.err.find(expected), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("Try 'meshdeform-cli " + args.front() + " --help'"), std::string::npos)
+        << r.err;
+    EXPECT_TRUE(r.out.empty()) << r.out;
+  }
+}
+
+TEST_F(CliTest, BothValueSyntaxesAndHelpAfterOtherOptions) {
+  RunResult r = run({"generate", "--model=bar", "--small", "--out-dir=inline"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(fs::exists(dir_ / "inline" / "bar.off"));
+  // --help wins over missing required options, but not over a malformed line.
+  r = run({"deform", "--iterations", "abc", "-h"});
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("Usage: meshdeform-cli deform"), std::string::npos) << r.out;
+  r = run({"deform", "--help", "--bogus"});
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  EXPECT_NE(r.err.find("--bogus"), std::string::npos) << r.err;
+}
+
 TEST_F(CliTest, DemoWritesItsThreeFiles) {
   const RunResult r = run({"demo", "--out-dir", "demo_out"});
   ASSERT_EQ(r.exit_code, 0) << r.err;

@@ -313,5 +313,39 @@ TEST_F(ClientCliTest, UsageErrorsExitTwoAndHelpExitsZero) {
   EXPECT_NE(unreachable.err.find("UNAVAILABLE"), std::string::npos) << unreachable.err;
 }
 
+TEST_F(ClientCliTest, UsageErrorsNameTheOptionOrWord) {
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"create", "--bogus", "1"}, "unknown option --bogus for 'create'"},
+      {{"--bogus", "create"}, "unknown option --bogus (options follow the command)"},
+      {{"--session", "s", "info"}, "unknown option --session (options follow the command)"},
+      {{"create", "--mesh"}, "--mesh needs a value"},
+      {{"create", "--mesh", "a.obj", "--mesh=b.obj"}, "--mesh given twice"},
+      {{"--timeout", "5", "stats", "--timeout", "6"}, "--timeout given twice"},
+      {{"create", "--weld=1"}, "--weld takes no value"},
+      {{"frobnicate"}, "unknown command 'frobnicate'"},
+      {{"create", "info"}, "unexpected argument 'info'"},
+      {{"--timeout", "abc", "stats"}, "--timeout 'abc' is not a finite number"},
+  };
+  for (const auto& [args, expected] : cases) {
+    const CliRun r = run(args, false);
+    SCOPED_TRACE(expected);
+    EXPECT_EQ(r.exit_code, 2) << describe(r);
+    EXPECT_NE(r.err.find("meshdeform-client: " + expected + "\n"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("run 'meshdeform-client --help' for usage"), std::string::npos) << r.err;
+  }
+  // --help anywhere, the command's options included, as long as the line parses.
+  const CliRun help = run({"move", "--session", "s", "--help"}, false);
+  EXPECT_EQ(help.exit_code, 0) << describe(help);
+  EXPECT_NE(help.out.find("usage: meshdeform-client"), std::string::npos);
+}
+
+TEST_F(ClientCliTest, GlobalOptionsAlsoComeAfterTheCommand) {
+  const CliRun info = run({"info", "--session", "nope", "--token", "t", "--server",
+                           server_->address(), "--timeout=20"},
+                          false);
+  EXPECT_EQ(info.exit_code, 1) << describe(info);  // the server's answer, not a usage error
+  EXPECT_NE(info.err.find("meshdeform-client: info: "), std::string::npos) << info.err;
+}
+
 }  // namespace
 }  // namespace meshdeform::client

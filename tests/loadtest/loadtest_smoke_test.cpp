@@ -210,6 +210,30 @@ TEST_F(LoadtestTest, BadFlagsAreUsageErrors) {
   EXPECT_NE(help.out.find("--allow-remote"), std::string::npos);
 }
 
+TEST_F(LoadtestTest, FlagErrorsNameTheFlag) {
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{"--server", "127.0.0.1:1", "--bogus", "1"}, "unknown flag --bogus"},
+      {{"--server", "127.0.0.1:1", "--sessions=0"}, "bad value '0' for --sessions"},
+      {{"--server", "127.0.0.1:1", "--duration"}, "--duration needs a value"},
+      {{"--server", "127.0.0.1:1", "--allow-remote=1"}, "--allow-remote takes no value"},
+      {{"--server", "127.0.0.1:1", "stray"}, "unexpected argument 'stray'"},
+  };
+  for (const auto& [args, message] : cases) {
+    SCOPED_TRACE(message);
+    const ChildResult run = run_loadtest(args, std::chrono::seconds(30));
+    ASSERT_FALSE(run.is_timed_out);
+    EXPECT_EQ(run.exit_code, kExitUsage) << run.err;
+    EXPECT_EQ(run.err.rfind("meshdeform-loadtest: " + message + "\nusage: meshdeform-loadtest", 0),
+              0u)
+        << run.err;
+  }
+  // --help stops the parse: what follows it is not checked.
+  const ChildResult help = run_loadtest({"--sessions", "2", "-h", "--bogus"}, std::chrono::seconds(30));
+  EXPECT_EQ(help.exit_code, kExitOk) << help.err;
+  EXPECT_EQ(help.out.rfind("usage: meshdeform-loadtest --server HOST:PORT [flags]\n", 0), 0u)
+      << help.out;
+}
+
 TEST_F(LoadtestTest, UnreachableServerFailsSetupAndStillReports) {
   // Port 1 on loopback: nobody listens (binding it needs root), so every call is UNAVAILABLE.
   const fs::path json_path = dir_ / "report.json";
