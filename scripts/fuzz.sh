@@ -33,7 +33,7 @@ if [ $# -gt 0 ]; then
   targets=("$@")
 else
   targets=(fuzz_mesh_obj fuzz_mesh_off fuzz_mesh_ply fuzz_mesh_stl fuzz_mesh_glb fuzz_mesh_gltf
-           fuzz_sel fuzz_def fuzz_edit_spec fuzz_clean fuzz_request)
+           fuzz_sel fuzz_def fuzz_edit_spec fuzz_clean fuzz_request fuzz_state)
 fi
 
 scratch="$(mktemp -d)"

@@ -22,7 +22,13 @@ constexpr std::string_view kMagic = "MDSTATE1";
 /// Tags the edit state after the fields of the first format (which files may end without).
 constexpr std::uint32_t kEditTag = 0x31544445;  // "EDT1" little-endian
 
-std::uint32_t crc32(std::string_view data) {
+Status os_error(const std::string& what, const std::string& path) {
+  return Error(ErrorCode::Internal, what + " " + path + ": " + std::strerror(errno));
+}
+
+}  // namespace
+
+std::uint32_t state_checksum(std::string_view data) {
   static const std::array<std::uint32_t, 256> table = [] {
     std::array<std::uint32_t, 256> t{};
     for (std::uint32_t i = 0; i < 256; ++i) {
@@ -36,12 +42,6 @@ std::uint32_t crc32(std::string_view data) {
   for (const char ch : data) crc = table[(crc ^ static_cast<unsigned char>(ch)) & 0xFFu] ^ (crc >> 8);
   return crc ^ 0xFFFFFFFFu;
 }
-
-Status os_error(const std::string& what, const std::string& path) {
-  return Error(ErrorCode::Internal, what + " " + path + ": " + std::strerror(errno));
-}
-
-}  // namespace
 
 bool is_valid_session_id(std::string_view id) {
   return id.size() == 32 && id.find_first_not_of("0123456789abcdef") == std::string_view::npos;
@@ -130,7 +130,7 @@ std::string encode_session(const PersistedSession& s) {
   file += header.bytes();
   file += payload;
   BinaryWriter trailer;
-  trailer.pod(crc32(payload));
+  trailer.pod(state_checksum(payload));
   file += trailer.bytes();
   return file;
 }
@@ -150,7 +150,7 @@ Result<PersistedSession> decode_session(std::string_view bytes) {
   const std::string_view payload = bytes.substr(header, length);
   std::uint32_t stored = 0;
   std::memcpy(&stored, bytes.data() + header + length, 4);
-  if (crc32(payload) != stored) {
+  if (state_checksum(payload) != stored) {
     return Error(ErrorCode::InvalidArgument, "state file checksum mismatch (corrupt)");
   }
 

@@ -54,6 +54,9 @@ void write_session_state(BinaryWriter& out, const PersistedSession& state);
 /// are checked against it). @return InvalidArgument naming the field when corrupt.
 [[nodiscard]] Status read_session_state(BinaryReader& in, PersistedSession& state);
 
+/// The checksum a state file ends with: CRC-32 (IEEE 802.3) of its payload.
+std::uint32_t state_checksum(std::string_view payload);
+
 /// Serialises a session state (the file's bytes, header and checksum included).
 std::string encode_session(const PersistedSession& state);
 /// Parses and checks a file's bytes.
