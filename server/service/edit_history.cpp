@@ -34,6 +34,12 @@ EditStep merge_step(const EditStep& current, const std::vector<GroupMove>& moves
     std::erase_if(incoming, [&m](const GroupMove& x) { return x.group == m.group; });
     incoming.push_back(std::move(m));
   }
+  // The identity about any pivot leaves the group at its anchors: stored as no move, so that
+  // re-sending the handles as set is the state as set.
+  auto identity = [](const GroupMove& m) {
+    return m.translation.isZero(0) && m.scale == 1.0 &&
+           m.rotation.coeffs() == Eigen::Quaterniond::Identity().coeffs();
+  };
   auto moved = [&incoming](int group) {
     return std::any_of(incoming.begin(), incoming.end(),
                        [group](const GroupMove& m) { return m.group == group; });
@@ -41,7 +47,9 @@ EditStep merge_step(const EditStep& current, const std::vector<GroupMove>& moves
   for (const GroupMove& m : current.moves) {
     if (!moved(m.group)) next.moves.push_back(m);
   }
-  next.moves.insert(next.moves.end(), incoming.begin(), incoming.end());
+  for (const GroupMove& m : incoming) {
+    if (!identity(m)) next.moves.push_back(m);
+  }
   std::sort(next.moves.begin(), next.moves.end(),
             [](const GroupMove& a, const GroupMove& b) { return a.group < b.group; });
 

@@ -57,6 +57,14 @@ TEST(EditHistoryTest, MergeKeepsUnnamedGroupsAndDropsTargetsAMoveOverrides) {
   EXPECT_EQ(next.gesture, 7u);
 }
 
+TEST(EditHistoryTest, AnIdentityMoveIsNoMove) {
+  GroupMove still = lift_group(1, 0.0);
+  still.pivot = Eigen::Vector3d(1, 2, 3);
+  const EditStep moved = step_of({lift_group(1, 0.5)});
+  EXPECT_TRUE(merge_step(moved, {still}, {}, kVertexGroup, 0).moves.empty());
+  EXPECT_TRUE(same_state(merge_step(EditStep{}, {still}, {}, kVertexGroup, 0), EditStep{}));
+}
+
 TEST(EditHistoryTest, GesturesMakeOneStepAndANewEditDropsTheRedoBranch) {
   EditState state;
   record_step(state, step_of({lift_group(1, 0.1)}, 5), 1000);
