@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "meshdeform/v1/deformation.grpc.pb.h"
+#include "tests/support/grpc_calls.h"
 #include "tests/support/server_process.h"
 
 namespace meshdeform {
@@ -37,9 +38,7 @@ using tcp = boost::asio::ip::tcp;
 
 constexpr int kMaxMessageMib = 1;  // the server's limit in this test: oversize is cheap to build
 
-void bound(grpc::ClientContext& context, seconds timeout = seconds(30)) {
-  context.set_deadline(std::chrono::system_clock::now() + timeout);
-}
+using test::bound;
 
 /// One gRPC-Web unary call (binary framing) to 127.0.0.1:port; returns the grpc-status (from the
 /// headers of a trailers-only answer or from the trailer frame) and fills `reply` with the
@@ -128,20 +127,9 @@ class BadInputMatrixTest : public ::testing::Test {
   }
 
   v1::CreateSessionResponse create_with_handles(const std::string& sample) {
-    v1::CreateSessionRequest request;
-    request.set_sample(sample);
     v1::CreateSessionResponse created;
-    grpc::ClientContext context;
-    bound(context);
-    EXPECT_TRUE(stub_->CreateSession(&context, request, &created).ok());
-    v1::SetHandlesRequest handles;
-    handles.set_session_id(created.session_id());
-    handles.set_token(created.edit_token());
-    *handles.mutable_groups() = created.suggested_groups();
-    v1::SetHandlesResponse response;
-    grpc::ClientContext c2;
-    bound(c2);
-    EXPECT_TRUE(stub_->SetHandles(&c2, handles, &response).ok());
+    const grpc::Status status = test::create_sample_with_handles(*stub_, sample, &created);
+    EXPECT_TRUE(status.ok()) << status.error_message();
     return created;
   }
 

@@ -42,24 +42,8 @@ TEST(Kill9RecoveryTest, NoAcknowledgedRevisionIsLost) {
   ASSERT_NE(server, nullptr) << error;
   auto stub = connect(*server);
 
-  v1::CreateSessionRequest create;
-  create.set_sample("cylinder_small");
   v1::CreateSessionResponse created;
-  {
-    grpc::ClientContext context;
-    bound(context);
-    ASSERT_TRUE(stub->CreateSession(&context, create, &created).ok());
-  }
-  {
-    v1::SetHandlesRequest handles;
-    handles.set_session_id(created.session_id());
-    handles.set_token(created.edit_token());
-    *handles.mutable_groups() = created.suggested_groups();
-    v1::SetHandlesResponse response;
-    grpc::ClientContext context;
-    bound(context);
-    ASSERT_TRUE(stub->SetHandles(&context, handles, &response).ok());
-  }
+  ASSERT_TRUE(test::create_sample_with_handles(*stub, "cylinder_small", &created).ok());
 
   // The editor: moves until the server dies (bounded: at most 400 moves).
   std::atomic<std::uint64_t> acked_revision{0};

@@ -634,24 +634,8 @@ TEST(RedisServerTest, Kill9OfTheOwningReplicaMovesTheSessionWithEveryAcknowledge
   ASSERT_NE(other, nullptr) << error;
   auto stub = connect(*owner);
 
-  v1::CreateSessionRequest create;
-  create.set_sample("cylinder_small");
   v1::CreateSessionResponse created;
-  {
-    grpc::ClientContext context;
-    bound(context);
-    ASSERT_TRUE(stub->CreateSession(&context, create, &created).ok());
-  }
-  {
-    v1::SetHandlesRequest handles;
-    handles.set_session_id(created.session_id());
-    handles.set_token(created.edit_token());
-    *handles.mutable_groups() = created.suggested_groups();
-    v1::SetHandlesResponse response;
-    grpc::ClientContext context;
-    bound(context);
-    ASSERT_TRUE(stub->SetHandles(&context, handles, &response).ok());
-  }
+  ASSERT_TRUE(test::create_sample_with_handles(*stub, "cylinder_small", &created).ok());
   // A watcher on the other replica, from the start.
   auto other_stub = connect(*other);
   grpc::ClientContext watch_context;

@@ -1,7 +1,8 @@
 #pragma once
 /// @file grpc_calls.h
 /// Header-only helpers for the tests that drive a real meshdeform-server over gRPC (recovery,
-/// Redis, nginx): a bounded deadline for every call and the one "drag" move those tests send.
+/// Redis, nginx, bad input): a bounded deadline for every call, the sample session with its
+/// handles set that they start from, and the one "drag" move those tests send.
 /// Header-only so that the test support library does not link gRPC (core-only builds use it).
 
 #include <chrono>
@@ -18,6 +19,30 @@ namespace meshdeform::test {
 inline void bound(grpc::ClientContext& context,
                   std::chrono::seconds timeout = std::chrono::seconds(30)) {
   context.set_deadline(std::chrono::system_clock::now() + timeout);
+}
+
+/// Creates a session from the built-in `sample` and sets its suggested groups as handles.
+/// @return OK and the created session; the first failing call's status otherwise.
+inline grpc::Status create_sample_with_handles(::meshdeform::v1::DeformationService::Stub& stub,
+                                               const std::string& sample,
+                                               ::meshdeform::v1::CreateSessionResponse* created) {
+  ::meshdeform::v1::CreateSessionRequest create;
+  create.set_sample(sample);
+  {
+    grpc::ClientContext context;
+    bound(context);
+    if (grpc::Status status = stub.CreateSession(&context, create, created); !status.ok()) {
+      return status;
+    }
+  }
+  ::meshdeform::v1::SetHandlesRequest handles;
+  handles.set_session_id(created->session_id());
+  handles.set_token(created->edit_token());
+  *handles.mutable_groups() = created->suggested_groups();
+  ::meshdeform::v1::SetHandlesResponse response;
+  grpc::ClientContext context;
+  bound(context);
+  return stub.SetHandles(&context, handles, &response);
 }
 
 /// Step `step` of a drag: handle group 1 lifted to z = 0.002 * step, one outer iteration, the
