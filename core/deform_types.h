@@ -80,6 +80,9 @@ struct SolveOptions {
   double rigidity = kDefaultRigidity;
   /// ARAP iterations of the Rigid start (>= 0; 0 is ARAP's Laplacian guess with hard handles).
   int rigid_start_iterations = 5;
+  /// Multiresolution deformers only (DeformerSettings::multires_above): solve at full
+  /// resolution (a refinement) instead of on the coarse level. Other deformers ignore it.
+  bool full_resolution = false;
 };
 
 /// What one outer iteration did (iteration 0 is the starting guess).

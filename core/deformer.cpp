@@ -1,5 +1,6 @@
 #include "core/deformer.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <optional>
@@ -9,6 +10,7 @@
 #include "core/arap.h"
 #include "core/constraints.h"
 #include "core/measures.h"
+#include "core/multires.h"
 #include "core/scale_aware.h"
 #include "core/topology.h"
 #include "core/validate.h"
@@ -47,6 +49,35 @@ class SolverDeformer final : public Deformer {
 };
 using ScaleAwareDeformer = SolverDeformer<ScaleAwareSolver, Method::ScaleAware>;
 using ArapDeformer = SolverDeformer<ArapSolver, Method::Arap>;
+
+// Scale-aware through a coarse level (DeformerSettings::multires_above): moves solve on the
+// coarse level and are prolonged; full_resolution, ORA and magnification (per fine face) solve at
+// full resolution, warm-started from the prolonged result.
+class MultiresScaleAwareDeformer final : public Deformer {
+ public:
+  MultiresScaleAwareDeformer(MultiresDeformer multires, const Eigen::VectorXi& constrained)
+      : multires_(std::move(multires)), constrained_(constrained) {}
+  Method method() const override { return Method::ScaleAware; }
+  Result<SolveReport> solve(const Positions& targets, const SolveOptions& options,
+                            const ProgressCallback& progress, std::stop_token stop) override {
+    if (options.full_resolution || options.ora || options.face_scale.size() > 0) {
+      return multires_.refine(targets, options, progress, std::move(stop));
+    }
+    MD_ASSIGN_OR_RETURN(MultiresMove move, multires_.move(targets, options, progress, std::move(stop)));
+    SolveReport report = std::move(move.coarse);
+    report.V = std::move(move.V);
+    report.seconds += move.prolong_seconds;
+    report.converged = false;  // the full resolution has not been solved
+    return report;
+  }
+  const Positions& positions() const override { return multires_.positions(); }
+  const Eigen::VectorXi& constrained() const override { return constrained_; }
+  void reset() override { multires_.reset(); }
+
+ private:
+  MultiresDeformer multires_;
+  Eigen::VectorXi constrained_;
+};
 
 // Laplacian editing is one direct solve: no iterations, no start, nothing to warm.
 class LaplacianDeformer final : public Deformer {
@@ -182,6 +213,18 @@ Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& 
       s.threads = settings.threads;
       s.refactor_cost_ratio = settings.refactor_cost_ratio;
       s.preconditioner = settings.preconditioner;
+      if (settings.multires_above > 0 && V0.rows() > settings.multires_above &&
+          V0.rows() > 2 * static_cast<Eigen::Index>(settings.multires_coarse_vertices)) {
+        MultiresDeformerSettings multires;
+        multires.solver = s;
+        multires.hierarchy.level_vertices = {std::max(settings.multires_coarse_vertices, 3)};
+        // Big handle regions would keep the coarse level large: only their borders are kept.
+        multires.hierarchy.constraint_levels = ConstraintLevels::KeepBorders;
+        MD_ASSIGN_OR_RETURN(MultiresDeformer built,
+                            MultiresDeformer::create(V0, F, constrained, multires, {}, stop));
+        return std::unique_ptr<Deformer>(
+            std::make_unique<MultiresScaleAwareDeformer>(std::move(built), constrained));
+      }
       MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(V0, F, constrained, s, stop));
       return std::unique_ptr<Deformer>(std::make_unique<ScaleAwareDeformer>(std::move(solver)));
     }

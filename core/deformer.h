@@ -44,6 +44,18 @@ struct DeformerSettings {
   double refactor_cost_ratio = 0.5;  ///< scale-aware lagged-factor rule
   /// Scale-aware step two's PCG preconditioner (see core/scale_aware.h).
   StepTwoPreconditioner preconditioner = StepTwoPreconditioner::BlockTrace;
+  /// Scale-aware on meshes of more vertices than this (0: never) and than twice
+  /// multires_coarse_vertices: a multiresolution deformer
+  /// (core/multires.h, issue 15). Its solves run on a coarse level of an OpenMesh decimation
+  /// hierarchy (region borders of the constrained set kept) and are prolonged to full
+  /// resolution with their details: a move costs a coarse solve plus a prolongation. Solves with
+  /// SolveOptions::full_resolution, ORA or magnification run the full-resolution solver instead
+  /// (built on first use), warm-started from the prolonged result: background refinement
+  /// converges the full mesh that way. A coarse solve reports converged = false.
+  int multires_above = 0;
+  /// The coarse level's target vertex count (it stays above when the constrained region
+  /// borders need more).
+  int multires_coarse_vertices = 10000;
 };
 
 /// A prefactored deformation method for one mesh and one handle set.

@@ -655,6 +655,7 @@ struct MultiresDeformer::Impl {
   MultiresBuildReport report;
   Positions positions;
   bool has_positions = false;  // a move or a refinement set `positions`
+  bool fine_holds_positions = false;  // `positions` is the fine solver's own last result
 };
 
 MultiresDeformer::MultiresDeformer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -722,6 +723,7 @@ Result<MultiresMove> MultiresDeformer::move(const Positions& targets, const Solv
   move.prolong_seconds = seconds_since(start);
   s.positions = move.V;
   s.has_positions = true;
+  s.fine_holds_positions = false;
   return move;
 }
 
@@ -735,8 +737,12 @@ Status MultiresDeformer::prepare_refinement(const BuildProgress& progress, std::
   for (Eigen::Index j = 0; j < fine.constrained.size(); ++j) {
     constrained(fine.constrained_rows(j)) = fine.constrained(j);
   }
+  // Refinement always starts from the prolonged move: the Laplacian guess is built only if ever
+  // asked for (a refine before any move).
+  ScaleAwareSettings fine_settings = s.settings.solver;
+  fine_settings.lazy_laplacian_guess = true;
   MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(fine.V, fine.F, constrained,
-                                                                        s.settings.solver, stop));
+                                                                        fine_settings, stop));
   s.fine.emplace(std::move(solver));
   if (progress) progress("fine_precompute", 1.0);
   return Status::success();
@@ -750,13 +756,25 @@ Result<SolveReport> MultiresDeformer::refine(const Positions& targets, const Sol
   SolveOptions run = options;
   if (s.has_positions &&
       (options.start == StartFrom::Auto || options.start == StartFrom::Previous)) {
-    MD_RETURN_IF_ERROR(s.fine->set_positions(s.positions));
+    // A prolonged move seeds the fine solver; its own last result it continues from as is
+    // (keeping its rotations and acceleration history).
+    if (!s.fine_holds_positions) MD_RETURN_IF_ERROR(s.fine->set_positions(s.positions));
     run.start = StartFrom::Previous;
   }
   MD_ASSIGN_OR_RETURN(SolveReport report, s.fine->solve(targets, run, progress, stop));
   s.positions = report.V;
   s.has_positions = true;
+  s.fine_holds_positions = true;
   return report;
+}
+
+void MultiresDeformer::reset() {
+  Impl& s = *impl_;
+  s.positions = s.hierarchy.level(0).V;
+  s.has_positions = false;
+  s.fine_holds_positions = false;
+  s.coarse->reset();
+  if (s.fine) s.fine->reset();
 }
 
 const Positions& MultiresDeformer::positions() const { return impl_->positions; }

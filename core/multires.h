@@ -258,6 +258,10 @@ class MultiresDeformer {
                                            const ProgressCallback& progress = {},
                                            std::stop_token stop = {});
 
+  /// Forgets every result: positions() is the rest mesh, the next move starts the coarse solver
+  /// from its Laplacian guess.
+  void reset();
+
   /// The latest full-resolution positions (the rest mesh before the first move).
   const Positions& positions() const;
   const MeshHierarchy& hierarchy() const;

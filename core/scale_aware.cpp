@@ -187,11 +187,13 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   N0 = face_normals(V0_in, F_in);
 
   MD_RETURN_IF_ERROR(check_stop());
-  MD_ASSIGN_OR_RETURN(LaplacianEditor editor,
-                      LaplacianEditor::create(V0_in, F_in, topology, constrained,
-                                              LaplacianWeights::Cotangent, settings.lambda));
-  laplacian.emplace(std::move(editor));
-  MD_RETURN_IF_ERROR(check_stop());
+  if (!settings.lazy_laplacian_guess) {
+    MD_ASSIGN_OR_RETURN(LaplacianEditor editor,
+                        LaplacianEditor::create(V0_in, F_in, topology, constrained,
+                                                LaplacianWeights::Cotangent, settings.lambda));
+    laplacian.emplace(std::move(editor));
+    MD_RETURN_IF_ERROR(check_stop());
+  }
 
   build_pattern();
   // The rest normals give the first numeric factor; later systems reuse it as a preconditioner.
@@ -869,6 +871,12 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     rotations_warm = false;
   }
   if (from_laplacian) {
+    if (!s.laplacian) {  // ScaleAwareSettings::lazy_laplacian_guess
+      MD_ASSIGN_OR_RETURN(LaplacianEditor editor,
+                          LaplacianEditor::create(s.V0, s.F, s.topology, s.constrained,
+                                                  LaplacianWeights::Cotangent, s.settings.lambda));
+      s.laplacian.emplace(std::move(editor));
+    }
     MD_ASSIGN_OR_RETURN(Positions guess, s.laplacian->solve(targets));
     const RowPositions guess_rows = guess;
     x = Eigen::Map<const Eigen::VectorXd>(guess_rows.data(), 3 * s.nv);

@@ -57,6 +57,11 @@ struct ScaleAwareSettings {
   /// (ARAP's rotation: area and E_theta fall, E_phi rises above ARAP's). 0.3 by measurement
   /// (bench/results/rigidity_sweep.md, README "Scale control").
   double scale_normal_tie = 0.3;
+  /// Build the Laplacian-editing guess (a factorization of the bi-Laplacian system, the largest
+  /// one the solver holds) on the first solve that starts from it instead of at create. For
+  /// solvers always seeded with set_positions (the full-resolution solver of a multiresolution
+  /// deformer) it is then never built: less precompute and memory.
+  bool lazy_laplacian_guess = false;
 };
 
 /// The scale-aware deformation solver for one mesh and one handle set.
