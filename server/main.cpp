@@ -50,6 +50,8 @@ struct Flags {
   int shutdown_grace_seconds = 10;
   int refine_budget = 30;
   int refine_delay_ms = 150;
+  int multires_above = 100'000;
+  int multires_coarse_vertices = 10'000;
   std::string http_listen;
   std::string web_root;
   std::vector<std::string> cors_origins;
@@ -91,6 +93,11 @@ constexpr const char* kUsage =
     "                              each improvement as a revision (default 30; 0 = off)\n"
     "  --refine-delay-ms N         ... starting once the handles have rested N ms (default 150:\n"
     "                              no refinement revisions between the moves of a drag)\n"
+    "  --multires-above N          scale-aware sessions on meshes of more than N vertices move\n"
+    "                              on a coarse level of a mesh hierarchy (answered at once) and\n"
+    "                              the background refinement converges the full mesh (default\n"
+    "                              100000; 0 = always full resolution)\n"
+    "  --multires-coarse-vertices N  the coarse level's size (default 10000)\n"
     "  --http-listen ADDR          also serve HTTP/1.1 on ADDR (e.g. 127.0.0.1:8080): the service\n"
     "                              over gRPC-Web (for browsers), GET /metrics (Prometheus text\n"
     "                              format), GET /healthz, and --web-root files (default: off)\n"
@@ -188,6 +195,8 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
   number("--workers", 0, 1024, flags.workers);
   number("--refine-budget", 0, 100'000, flags.refine_budget);
   number("--refine-delay-ms", 0, 60'000, flags.refine_delay_ms);
+  number("--multires-above", 0, 100'000'000, flags.multires_above);
+  number("--multires-coarse-vertices", 100, 10'000'000, flags.multires_coarse_vertices);
   text("--http-listen", flags.http_listen);
   text("--web-root", flags.web_root);
   command_line::add_checked(app, "--cors-origin", [&flags, check](const std::string& value) {
@@ -277,6 +286,8 @@ int main(int argc, char** argv) {
   options.idle_ttl = std::chrono::seconds(flags.idle_ttl_seconds);
   options.refine_budget = flags.refine_budget;
   options.refine_delay = std::chrono::milliseconds(flags.refine_delay_ms);
+  options.multires_above = flags.multires_above;
+  options.multires_coarse_vertices = flags.multires_coarse_vertices;
   options.memory_budget_bytes = static_cast<std::size_t>(flags.memory_budget_mib) << 20;
   options.state_dir = flags.state_dir;
   options.create_rate = {flags.create_rate, flags.create_burst};
@@ -380,7 +391,8 @@ int main(int argc, char** argv) {
                 .add("port", port)
                 .add("tls", tls.has_value())
                 .add("workers", service.stats().workers)
-                .add("refine_budget", flags.refine_budget));
+                .add("refine_budget", flags.refine_budget)
+                .add("multires_above", flags.multires_above));
 
   std::atomic<bool> serving{true};
   // Declared in this order so that the gateway and the files outlive the listener using them.

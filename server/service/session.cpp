@@ -64,6 +64,8 @@ Result<std::shared_ptr<Session>> Session::create(SessionId id, Token edit_token,
   session->rest_ = std::move(mesh);
   session->settings_ = settings;
   session->settings_.threads = std::max(1, options.solver_threads);
+  session->settings_.multires_above = options.multires_above;
+  session->settings_.multires_coarse_vertices = options.multires_coarse_vertices;
   session->options_ = options;
   session->options_.kept_revisions = std::max(1, options.kept_revisions);
   session->options_.max_cached_deformers = std::max(1, options.max_cached_deformers);
@@ -690,6 +692,8 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
   options.face_scale = state.face_scale;
   options.rigidity = state.rigidity;
   options.track_metrics = false;  // as in move(): commit() measures once
+  // A multiresolution deformer's moves ran on its coarse level: refinement is at full resolution.
+  options.full_resolution = true;
   Result<core::SolveReport> report =
       local.stop_requested()
           ? Result<core::SolveReport>(Error(ErrorCode::Cancelled, "refinement preempted"))

@@ -266,6 +266,11 @@ struct ServiceOptions {
   int kept_revisions = 4;          ///< GetMesh can read the newest K revisions
   int max_cached_deformers = 4;    ///< per session, least recently used dropped first
   int solver_threads = 1;          ///< OpenMP threads inside one solve
+  /// Scale-aware sessions on meshes of more vertices than this move on a coarse level of a mesh
+  /// hierarchy and refine at full resolution in the background (core::DeformerSettings::
+  /// multires_above, issue 15); 0 = always full resolution.
+  int multires_above = 100'000;
+  int multires_coarse_vertices = 10'000;  ///< the coarse level's target size
   /// Background refinement: after a committed move, while no other edit of the session waits,
   /// the service keeps running outer iterations on the same targets (in slices, committing each
   /// improvement as a revision) up to this many in total; 0 = off.

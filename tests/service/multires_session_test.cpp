@@ -1,0 +1,117 @@
+// Issue 15 in the service: a session on a mesh above ServiceOptions::multires_above answers moves
+// on a coarse level (not converged at full resolution), and background refinement converges the
+// full mesh to the single-level result.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <optional>
+#include <string>
+
+#include "core/deformer.h"
+#include "core/io/mesh_io.h"
+#include "core/measures.h"
+#include "core/topology.h"
+#include "server/service/deformation_service.h"
+
+namespace meshdeform::service {
+namespace {
+
+using std::chrono::milliseconds;
+
+TEST(MultiresSessionTest, MovesAreCoarseAndRefinementConvergesTheFullMesh) {
+  ServiceOptions options;
+  options.workers = 2;
+  options.multires_above = 1000;
+  options.multires_coarse_vertices = 1000;
+  options.refine_budget = 600;
+  options.refine_delay = milliseconds(0);
+  DeformationService service(options);
+  CreateSessionRequest create;
+  create.sample = "cylinder";  // 4,802 vertices
+  Result<CreatedSession> created = service.create_session(create);
+  ASSERT_TRUE(created.ok()) << created.status().to_string();
+  ASSERT_GT(created->info.vertices, 1000) << "the sample must be above the multires threshold";
+  const std::vector<HandleGroup> groups = created->suggested_groups;
+  SetHandlesRequest handles;
+  handles.groups = groups;
+  ASSERT_TRUE(service.set_handles(created->id, created->edit_token, handles).ok());
+
+  Result<Subscription> watch = service.watch(created->id, created->view_token);
+  ASSERT_TRUE(watch.ok());
+  ASSERT_TRUE(watch->watcher().wait_take(milliseconds(30'000)).has_value());  // join snapshot
+
+  MoveRequest move;
+  GroupMove lift;
+  lift.group = 1;
+  lift.translation = Eigen::Vector3d(0.2, 0.0, 0.3);
+  move.moves.push_back(lift);
+  move.max_iterations = 400;
+  move.tolerance = 1e-7;  // refinement runs to the same tolerance: converged for real
+  // Control: the same move at full resolution converges within its budget...
+  {
+    ServiceOptions single_options = options;
+    single_options.multires_above = 0;
+    single_options.refine_budget = 0;
+    DeformationService single(single_options);
+    Result<CreatedSession> other = single.create_session(create);
+    ASSERT_TRUE(other.ok());
+    ASSERT_TRUE(single.set_handles(other->id, other->edit_token, handles).ok());
+    Result<DeformResult> full = single.move_handles(other->id, other->edit_token, move);
+    ASSERT_TRUE(full.ok()) << full.status().to_string();
+    EXPECT_TRUE(full->converged);
+  }
+  // ... while a coarse move never claims the full resolution converged: refinement does that.
+  Result<DeformResult> moved = service.move_handles(created->id, created->edit_token, move);
+  ASSERT_TRUE(moved.ok()) << moved.status().to_string();
+  EXPECT_FALSE(moved->converged) << "a coarse move leaves the full resolution to refinement";
+
+  // Refinement revisions stream until one says converged (bounded in count and time).
+  std::shared_ptr<const DeformResult> last;
+  for (int i = 0; i < 2000 && !(last && last->refinement && last->converged); ++i) {
+    std::optional<DeformUpdate> update = watch->watcher().wait_take(milliseconds(60'000));
+    ASSERT_TRUE(update.has_value()) << "no refinement revision arrived";
+    last = update->result;
+  }
+  ASSERT_TRUE(last && last->refinement && last->converged);
+
+  // The single-level solve of the same targets, converged from the Laplacian guess.
+  Result<std::string> rest_obj =
+      service.get_mesh(created->id, created->view_token, io::MeshFormat::Obj, 0);
+  ASSERT_TRUE(rest_obj.ok());
+  Result<io::LoadedMesh> rest = io::load_mesh_from_memory(*rest_obj, io::MeshFormat::Obj);
+  ASSERT_TRUE(rest.ok());
+  const MeshData& mesh = rest->mesh;
+  std::vector<int> c;
+  for (const HandleGroup& g : groups) c.insert(c.end(), g.vertices.begin(), g.vertices.end());
+  std::sort(c.begin(), c.end());
+  const Eigen::VectorXi constrained = Eigen::Map<const Eigen::VectorXi>(c.data(), Eigen::Index(c.size()));
+  Positions targets(constrained.size(), 3);
+  for (Eigen::Index j = 0; j < constrained.size(); ++j) {
+    const bool handle = std::find(groups[1].vertices.begin(), groups[1].vertices.end(),
+                                  constrained(j)) != groups[1].vertices.end();
+    const Eigen::RowVector3d offset =
+        handle ? Eigen::RowVector3d(lift.translation.transpose()) : Eigen::RowVector3d::Zero();
+    targets.row(j) = mesh.V.row(constrained(j)) + offset;
+  }
+  auto single = core::make_deformer(core::Method::ScaleAware, mesh.V, mesh.F, constrained);
+  ASSERT_TRUE(single.ok());
+  core::SolveOptions converge;
+  converge.max_iterations = 600;
+  converge.tolerance = 1e-7;
+  converge.track_metrics = false;
+  auto reference = (*single)->solve(targets, converge);
+  ASSERT_TRUE(reference.ok()) << reference.status().to_string();
+  ASSERT_TRUE(reference->converged);
+  const core::MeshTopology topology =
+      core::build_topology(mesh.F, static_cast<int>(mesh.V.rows())).value();
+  const core::Measures measures = core::compute_measures(mesh.V, mesh.F, topology);
+  const core::AngleErrors want =
+      core::angle_errors(measures, core::compute_measures(reference->V, mesh.F, topology));
+  EXPECT_NEAR(last->e_theta, want.e_theta, 0.02 * want.e_theta);
+  EXPECT_NEAR(last->e_phi, want.e_phi, 0.02 * want.e_phi);
+  EXPECT_NEAR(last->area_log_rms, want.area_log_rms, 0.02 * want.area_log_rms);
+}
+
+}  // namespace
+}  // namespace meshdeform::service
