@@ -1,0 +1,74 @@
+#!/usr/bin/env bash
+# Issue 15 through the server: one interactive session on Spot subdivided to 187,394 vertices
+# (three midpoint subdivisions of tests/data/spot.obj, written to a scratch directory), dragged
+# by the load tester at 10 Hz with one outer iteration per move and one watcher, with the
+# multiresolution path (the default --multires-above 100000) and without it (--multires-above 0),
+# each against a fresh server on loopback. Writes bench/results/multires_server_{multires,single}
+# .{md,json}. Usage: bench/run_multires_server.sh [BUILD_DIR] [SECONDS] (default ./build, 90).
+# Needs python3 (to subdivide). Run it on a quiet machine: the figures are latencies.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+build="${1:-build}"
+seconds="${2:-90}"
+server="$build/server/transport/meshdeform-server"
+loadtest="$build/client_cpp/loadtest/meshdeform-loadtest"
+out=bench/results
+for binary in "$server" "$loadtest"; do
+  [[ -x "$binary" ]] || { echo "missing $binary: run ./scripts/build.sh first" >&2; exit 2; }
+done
+mkdir -p "$out"
+scratch=$(mktemp -d)
+log="$scratch/server.log"
+pid=""
+cleanup() { [[ -n "$pid" ]] && kill "$pid" 2>/dev/null || true; rm -rf "$scratch"; }
+trap cleanup EXIT
+
+python3 - "$scratch/spot187k.obj" <<'PY'
+import sys
+V, F = [], []
+for line in open("tests/data/spot.obj"):
+    p = line.split()
+    if p and p[0] == "v": V.append(tuple(float(x) for x in p[1:4]))
+    elif p and p[0] == "f": F.append(tuple(int(x.split("/")[0]) - 1 for x in p[1:4]))
+for _ in range(3):  # midpoint (1-to-4) subdivision
+    mid, NV, NF = {}, list(V), []
+    def m(a, b):
+        k = (min(a, b), max(a, b))
+        if k not in mid:
+            mid[k] = len(NV)
+            NV.append(tuple((V[a][i] + V[b][i]) / 2 for i in range(3)))
+        return mid[k]
+    for a, b, c in F:
+        ab, bc, ca = m(a, b), m(b, c), m(c, a)
+        NF += [(a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca)]
+    V, F = NV, NF
+with open(sys.argv[1], "w") as f:
+    f.write("".join(f"v {x:.9g} {y:.9g} {z:.9g}\n" for x, y, z in V))
+    f.write("".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F))
+print(f"spot: {len(V)} vertices, {len(F)} faces", file=sys.stderr)
+PY
+
+start_server() {
+  "$server" --listen 127.0.0.1:0 --max-message-mib 256 "$@" 2>"$log" &
+  pid=$!
+  for _ in $(seq 1 100); do
+    port=$(grep -o '"event":"listening".*"port":[0-9]*' "$log" | grep -o '[0-9]*$' || true)
+    [[ -n "$port" ]] && return 0
+    sleep 0.1
+  done
+  echo "server did not start:" >&2; cat "$log" >&2; exit 1
+}
+stop_server() { kill -TERM "$pid"; wait "$pid" || true; pid=""; }
+
+for variant in multires single; do
+  flags=()
+  [[ $variant == single ]] && flags=(--multires-above 0)
+  start_server "${flags[@]}"
+  echo "== $variant"
+  "$loadtest" --server "127.0.0.1:$port" --mesh "$scratch/spot187k.obj" --sessions 1 --rate 10 \
+    --iterations 1 --watchers 1 --duration "$seconds" --move-deadline-ms 60000 \
+    --max-message-mib 256 --json "$out/multires_server_$variant.json" \
+    --markdown "$out/multires_server_$variant.md"
+  stop_server
+done
+echo "wrote $out/multires_server_{multires,single}.{md,json}"
