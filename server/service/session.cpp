@@ -77,7 +77,7 @@ Result<std::shared_ptr<Session>> Session::create(SessionId id, Token edit_token,
   session->rest_positions_ = rest->positions;
   rest->changed_positions.resize(0, 3);
   session->history_.push_back(std::move(rest));
-  session->update_estimate();
+  session->init_deformer_cache();
   return session;
 }
 
@@ -232,47 +232,23 @@ Result<Eigen::VectorXd> Session::magnify_scales(const MoveRequest& request) cons
   return core::face_scales_from_regions(regions, rest_.F, static_cast<int>(rest_.V.rows()));
 }
 
-void Session::update_estimate() {
-  cached_deformers_.store(static_cast<int>(deformers_.size()));
-  estimated_bytes_.store(estimate_session_bytes(static_cast<int>(rest_.V.rows()),
-                                                static_cast<int>(rest_.F.rows()),
-                                                static_cast<int>(deformers_.size()),
-                                                options_.kept_revisions));
-}
-
-Result<Session::CachedDeformer*> Session::get_or_build(core::Method method,
-                                                       const std::vector<int>& constrained,
-                                                       bool* built, std::stop_token stop) {
-  *built = false;
-  for (CachedDeformer& entry : deformers_) {
-    if (entry.method == method && entry.constrained == constrained) {
-      entry.last_used = ++deformer_tick_;
-      return &entry;
-    }
-  }
-  // Evict this session's least recently used deformer first, so the budget sees the net growth.
-  if (static_cast<int>(deformers_.size()) >= options_.max_cached_deformers) {
-    auto oldest = std::min_element(deformers_.begin(), deformers_.end(),
-                                   [](const CachedDeformer& a, const CachedDeformer& b) {
-                                     return a.last_used < b.last_used;
-                                   });
-    deformers_.erase(oldest);
-    update_estimate();
-  }
+void Session::init_deformer_cache() {
   const int v = static_cast<int>(rest_.V.rows()), f = static_cast<int>(rest_.F.rows());
-  const std::size_t extra = estimate_session_bytes(v, f, 1, 0) - estimate_session_bytes(v, f, 0, 0);
-  if (reserve_) MD_RETURN_IF_ERROR(reserve_(extra, *this));
-
-  const Eigen::VectorXi idx =
-      Eigen::Map<const Eigen::VectorXi>(constrained.data(), static_cast<Eigen::Index>(constrained.size()));
-  MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
-                      core::make_deformer(method, rest_.V, rest_.F, idx, settings_, stop));
-  counters_->deformer_constructions.fetch_add(1);
-  *built = true;
-  // A fresh deformer sits at the rest pose, i.e. revision 0's positions only.
-  deformers_.push_back(CachedDeformer{method, constrained, std::move(deformer), 0, ++deformer_tick_});
-  update_estimate();
-  return &deformers_.back();
+  base_bytes_ = estimate_session_bytes(v, f, 0, options_.kept_revisions);
+  const std::size_t per_deformer = estimate_session_bytes(v, f, 1, 0) - estimate_session_bytes(v, f, 0, 0);
+  // The session owns the cache, so the cache's functions may hold `this`.
+  DeformerCache::BuildFn build = [this](core::Method method, const Eigen::VectorXi& constrained,
+                                        std::stop_token stop)
+      -> Result<std::unique_ptr<core::Deformer>> {
+    MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
+                        core::make_deformer(method, rest_.V, rest_.F, constrained, settings_, stop));
+    counters_->deformer_constructions.fetch_add(1);
+    return deformer;
+  };
+  DeformerCache::ReserveFn reserve;
+  if (reserve_) reserve = [this](std::size_t bytes) { return reserve_(bytes, *this); };
+  deformers_ = std::make_unique<DeformerCache>(options_.max_cached_deformers, per_deformer,
+                                               std::move(build), std::move(reserve));
 }
 
 Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::stop_token stop) {
@@ -309,10 +285,7 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
   }
   std::sort(constrained.begin(), constrained.end());
   MD_RETURN_IF_ERROR(check_pinnable(request.prepare, constrained));
-  bool built = false;
-  MD_ASSIGN_OR_RETURN(CachedDeformer * entry,
-                      get_or_build(request.prepare, constrained, &built, stop));
-  (void)entry;
+  MD_RETURN_IF_ERROR(deformers_->get_or_build(request.prepare, constrained, stop).status());
 
   {
     std::unique_lock shared_lock(shared_mutex_, std::defer_lock);
@@ -508,8 +481,10 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   };
   if (local.stop_requested() || deadline_passed()) return stopped_status();
 
-  bool built = false;
-  MD_ASSIGN_OR_RETURN(CachedDeformer * entry, get_or_build(request.method, constrained, &built));
+  MD_ASSIGN_OR_RETURN(const DeformerCache::Found found,
+                      deformers_->get_or_build(request.method, constrained));
+  DeformerCache::Entry* entry = found.entry;
+  const bool built = found.built;
   if (entry->state_revision != base_revision) entry->deformer->reset();
 
   core::SolveOptions options;
@@ -557,7 +532,7 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
                                      std::uint64_t base_revision,
                                      const std::shared_ptr<const Positions>& base_positions,
                                      bool built, const std::string& editor, bool refinement,
-                                     CachedDeformer* entry, const EditState* edit) {
+                                     DeformerCache::Entry* entry, const EditState* edit) {
   const int nv = static_cast<int>(rest_.V.rows());
   auto result = std::make_shared<DeformResult>();
   result->method = method;
@@ -660,17 +635,14 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
     base_revision = revision_;
     base_positions = history_.back()->positions;
   }
-  CachedDeformer* entry = nullptr;
-  for (CachedDeformer& d : deformers_) {
-    if (d.method == state.method && d.constrained == constrained) entry = &d;
-  }
+  DeformerCache::Entry* entry = deformers_->find(state.method, constrained);
   // The deformer must still hold the current revision (it is warm-started from it); otherwise
   // something else committed or the cache dropped it, and there is nothing to continue.
   if (entry == nullptr || entry->state_revision != base_revision) {
     refine_.reset();
     return std::optional<DeformResult>{};
   }
-  entry->last_used = ++deformer_tick_;
+  deformers_->touch(*entry);
 
   std::stop_source local;
   {
@@ -765,7 +737,7 @@ SessionInfo Session::info() const {
   }
   info.rigidity = default_rigidity_;
   info.watchers = static_cast<int>(watchers_.size());
-  info.cached_deformers = cached_deformers_.load();
+  info.cached_deformers = deformers_->size();
   return info;
 }
 

@@ -17,6 +17,7 @@
 #include "core/deformer.h"
 #include "core/measures.h"
 #include "core/topology.h"
+#include "server/service/deformer_cache.h"
 #include "server/service/metrics.h"
 #include "server/service/persistence.h"
 #include "server/service/shared_store.h"
@@ -167,7 +168,8 @@ class Session : public std::enable_shared_from_this<Session> {
   void close_watchers();
   bool is_closed() const { return closed_.load(); }
 
-  std::size_t estimated_bytes() const { return estimated_bytes_.load(); }
+  /// What the memory budget charges: the mesh, its revisions and the cached deformers.
+  std::size_t estimated_bytes() const { return base_bytes_ + deformers_->bytes(); }
   std::chrono::steady_clock::time_point last_used() const;
   /// When the last move (not refinement) was committed; the epoch before any.
   std::chrono::steady_clock::time_point last_move_time() const {
@@ -193,23 +195,14 @@ class Session : public std::enable_shared_from_this<Session> {
   std::optional<StrandStep> run_next();
 
  private:
-  struct CachedDeformer {
-    core::Method method;
-    std::vector<int> constrained;
-    std::unique_ptr<core::Deformer> deformer;
-    std::uint64_t state_revision = 0;  ///< the revision the deformer's positions() equal
-    std::uint64_t last_used = 0;
-  };
-
   Session() = default;
   Status check_pinnable(core::Method method, const std::vector<int>& constrained) const;
   /// The #F face scales of the request's magnify regions (empty when it has none).
   /// @return InvalidArgument for regions with a method other than scale-aware, a bad scale, an
   ///         index out of range, or a region covering no whole face (naming the region).
   Result<Eigen::VectorXd> magnify_scales(const MoveRequest& request) const;
-  Result<CachedDeformer*> get_or_build(core::Method method, const std::vector<int>& constrained,
-                                       bool* built, std::stop_token stop = {});
-  void update_estimate();
+  /// Sets up deformers_ and base_bytes_ for the mesh and options (create only).
+  void init_deformer_cache();
   /// Turns a solver report into the next revision, publishes it and updates the deformer entry.
   /// Strand only.
   /// @return the revision; with a shared store, the store's refusal (Aborted naming the current
@@ -218,7 +211,8 @@ class Session : public std::enable_shared_from_this<Session> {
   Result<DeformResult> commit(core::SolveReport report, core::Method method, double rigidity,
                               const Positions& targets, std::uint64_t base_revision,
                               const std::shared_ptr<const Positions>& base_positions, bool built,
-                              const std::string& editor, bool refinement, CachedDeformer* entry,
+                              const std::string& editor, bool refinement,
+                              DeformerCache::Entry* entry,
                               const EditState* edit);
   /// Shared store: takes the lease (waiting at most `wait`) and catches up (sync_shared).
   Status begin_shared_edit(std::chrono::milliseconds wait, std::stop_token stop);
@@ -252,9 +246,8 @@ class Session : public std::enable_shared_from_this<Session> {
   std::shared_ptr<ServiceCounters> counters_;
   ReserveFn reserve_;
 
-  // Touched only by the strand (edits).
-  std::vector<CachedDeformer> deformers_;
-  std::uint64_t deformer_tick_ = 0;
+  // Touched only by the strand (edits), except the cache's size and bytes.
+  std::unique_ptr<DeformerCache> deformers_;  ///< set by create()
   std::optional<RefineState> refine_;
 
   // Guarded by state_mutex_.
@@ -292,9 +285,8 @@ class Session : public std::enable_shared_from_this<Session> {
   bool strand_running_ = false;
 
   std::atomic<bool> closed_{false};
-  std::atomic<std::size_t> estimated_bytes_{0};
+  std::size_t base_bytes_ = 0;  ///< estimate_session_bytes without deformers; set by create()
   std::atomic<int> inflight_{0};
-  std::atomic<int> cached_deformers_{0};
 };
 
 }  // namespace meshdeform::service
