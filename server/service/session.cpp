@@ -220,16 +220,14 @@ Result<Eigen::VectorXd> Session::magnify_scales(const MoveRequest& request) cons
                  std::string("magnify regions need the scale-aware method, not ") +
                      core::method_name(request.method));
   }
-  std::vector<core::MagnifyRegion> regions;
-  regions.reserve(request.magnify.size());
-  for (const MagnifyRegion& region : request.magnify) {
-    core::MagnifyRegion converted;
-    converted.vertices = Eigen::Map<const Eigen::VectorXi>(
-        region.vertices.data(), static_cast<Eigen::Index>(region.vertices.size()));
-    converted.scale = region.scale;
-    regions.push_back(std::move(converted));
+  for (std::size_t r = 0; r < request.magnify.size(); ++r) {
+    if (request.magnify[r].faces.size() != 0) {
+      return Error(ErrorCode::InvalidArgument, "magnify[" + std::to_string(r) +
+                                                   "]: name the region by vertices, not faces");
+    }
   }
-  return core::face_scales_from_regions(regions, rest_.F, static_cast<int>(rest_.V.rows()));
+  return core::face_scales_from_regions(request.magnify, rest_.F,
+                                        static_cast<int>(rest_.V.rows()));
 }
 
 void Session::init_deformer_cache() {

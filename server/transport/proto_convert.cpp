@@ -177,10 +177,13 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
   for (int r = 0; r < request.magnify_size(); ++r) {
     const v1::MagnifyRegion& region = request.magnify(r);
     const std::string where = "magnify[" + std::to_string(r) + "]";
-    service::MagnifyRegion converted;
+    core::MagnifyRegion converted;
     if (!std::isfinite(region.scale())) return invalid(where + ".scale is non-finite");
     converted.scale = region.scale();
-    MD_ASSIGN_OR_RETURN(converted.vertices, indices_from_proto(region.vertices(), where));
+    MD_ASSIGN_OR_RETURN(const std::vector<int> vertices,
+                        indices_from_proto(region.vertices(), where));
+    converted.vertices = Eigen::Map<const Eigen::VectorXi>(
+        vertices.data(), static_cast<Eigen::Index>(vertices.size()));
     out.magnify.push_back(std::move(converted));
   }
   switch (request.history()) {
@@ -250,9 +253,10 @@ void edit_state_to_proto(const service::EditState& edit, v1::EditState* out) {
     settings->set_max_iterations(static_cast<std::uint32_t>(s.max_iterations));
     settings->set_tolerance(s.tolerance);
     settings->set_rigidity(s.rigidity);
-    for (const service::MagnifyRegion& region : s.magnify) {
+    for (const core::MagnifyRegion& region : s.magnify) {
       v1::MagnifyRegion* r = settings->add_magnify();
-      (void)wire::indices_to_proto(region.vertices, r->mutable_vertices());
+      const std::vector<int> vertices(region.vertices.begin(), region.vertices.end());
+      (void)wire::indices_to_proto(vertices, r->mutable_vertices());
       r->set_scale(region.scale);
     }
   }
