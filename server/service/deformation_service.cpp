@@ -12,6 +12,7 @@
 
 #include "core/procedural.h"
 #include "core/validate.h"
+#include "server/service/call_stop.h"
 #include "server/service/guard.h"
 #include "server/service/log.h"
 #include "server/service/tokens.h"
@@ -86,22 +87,6 @@ Result<Sample> make_sample(const std::string& name) {
   }
   return Sample{std::move(bench->mesh), groups_from_selection(bench->selection)};
 }
-
-/// Ties a task's stop token to the request's token and the service shutdown.
-class CombinedStop {
- public:
-  CombinedStop(std::stop_token a, std::stop_token b)
-      : a_(std::move(a), Forward{&source_}), b_(std::move(b), Forward{&source_}) {}
-  std::stop_token token() const { return source_.get_token(); }
-
- private:
-  struct Forward {
-    std::stop_source* source;
-    void operator()() const { source->request_stop(); }
-  };
-  std::stop_source source_;
-  std::stop_callback<Forward> a_, b_;
-};
 
 }  // namespace
 
@@ -254,8 +239,8 @@ void DeformationService::create_session_async(CreateSessionRequest request, std:
           done(Error(ErrorCode::Cancelled, "create_session cancelled before it started"));
           return;
         }
-        const CombinedStop combined(stop, shutdown_.get_token());
-        Result<CreatedSession> created = create_session(request, combined.token());
+        const CallStop call_stop(stop, shutdown_.get_token());
+        Result<CreatedSession> created = create_session(request, call_stop.token());
         ticket->release();  // before done: a client that retries at once is admitted
         if (!created.ok() && created.status().code() == ErrorCode::Cancelled) {
           uploads_cancelled_.fetch_add(1);
@@ -490,8 +475,8 @@ void DeformationService::set_handles_async(const SessionId& id, const Token& edi
           if (stop.stop_requested() || shutdown_.stop_requested()) {
             return Error(ErrorCode::Cancelled, "set_handles cancelled before it started");
           }
-          const CombinedStop combined(stop, shutdown_.get_token());
-          return session->set_handles(request, combined.token());
+          const CallStop call_stop(stop, shutdown_.get_token());
+          return session->set_handles(request, call_stop.token());
         });
         ticket->release();
         if (!result.ok() && result.status().code() == ErrorCode::Cancelled) {
@@ -524,8 +509,8 @@ void DeformationService::move_handles_async(const SessionId& id, const Token& ed
   post(session, [this, session, request = std::move(request), stop = std::move(stop),
                  done = std::move(done)] {
     Result<DeformResult> result = run_guarded("MoveHandles", [&]() -> Result<DeformResult> {
-      const CombinedStop combined(stop, shutdown_.get_token());
-      return session->move(request, combined.token());
+      const CallStop call_stop(stop, shutdown_.get_token(), request.deadline, deadlines_);
+      return session->move(request, call_stop.token());
     });
     done(std::move(result));
     schedule_refinement(session, /*after_move=*/true);
@@ -557,7 +542,8 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
           if (session->has_queued_edits() || shutdown_.stop_requested()) return;
           const Result<std::optional<DeformResult>> refined = run_guarded(
               "refinement", [&]() -> Result<std::optional<DeformResult>> {
-                return session->refine(shutdown_.get_token());
+                const CallStop slice({}, shutdown_.get_token());
+                return session->refine(slice.source());
               });
           if (refined.ok() && refined->has_value()) {
             const DeformResult& r = **refined;

@@ -462,9 +462,8 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   }
   if (!request.keep_settings) edit.settings = settings_of(request, rigidity);
 
-  // One stop source for the client's token and the deadline: the solver sees a single token.
-  std::stop_source local;
-  std::stop_callback forward(stop, [&local] { local.request_stop(); });
+  // `stop` is the call's one stop (the service requests it at the deadline too): the solver
+  // polls it. The deadline itself only tells which error a stop is.
   auto deadline_passed = [&request] {
     return request.deadline && std::chrono::steady_clock::now() >= *request.deadline;
   };
@@ -477,7 +476,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     return Error(ErrorCode::Cancelled,
                  "move cancelled; revision " + std::to_string(base_revision) + " unchanged");
   };
-  if (local.stop_requested() || deadline_passed()) return stopped_status();
+  if (stop.stop_requested() || deadline_passed()) return stopped_status();
 
   MD_ASSIGN_OR_RETURN(const DeformerCache::Found found,
                       deformers_->get_or_build(request.method, constrained));
@@ -495,12 +494,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   // commit() measures E_theta / E_phi once; per-iteration tracking would measure the mesh three
   // more times per interactive move (rest, guess, each iteration).
   options.track_metrics = false;
-  // Deadlines are checked after every outer iteration; the solver itself polls the token.
-  auto progress = [&](const core::IterationInfo&) {
-    if (deadline_passed()) local.request_stop();
-  };
-  Result<core::SolveReport> report =
-      entry->deformer->solve(targets, options, progress, local.get_token());
+  Result<core::SolveReport> report = entry->deformer->solve(targets, options, {}, stop);
   if (!report.ok()) {
     if (report.status().code() == ErrorCode::Cancelled) return stopped_status();
     // The deformer may have moved; make sure it restarts cleanly next time.
@@ -611,13 +605,14 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
   return DeformResult(*result);
 }
 
-Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
+Result<std::optional<DeformResult>> Session::refine(std::stop_source slice) {
   if (!refine_ || is_closed() || !is_fresh()) {
     refine_.reset();
     return std::optional<DeformResult>{};
   }
   // Shared: refinement never waits for another replica's lease; whoever edits there wins.
-  if (shared_ != nullptr && !begin_shared_edit(std::chrono::milliseconds(0), stop).ok()) {
+  if (shared_ != nullptr &&
+      !begin_shared_edit(std::chrono::milliseconds(0), slice.get_token()).ok()) {
     refine_.reset();
     return std::optional<DeformResult>{};
   }
@@ -642,13 +637,11 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
   }
   deformers_->touch(*entry);
 
-  std::stop_source local;
   {
     std::lock_guard lock(refine_mutex_);
-    refine_stop_ = local;
+    refine_stop_ = slice;  // preempt_refinement() stops this slice
   }
-  std::stop_callback forward(stop, [&local] { local.request_stop(); });
-  if (has_queued_edits()) local.request_stop();  // an edit is waiting: yield to it
+  if (has_queued_edits()) slice.request_stop();  // an edit is waiting: yield to it
 
   // Short slices keep a waiting edit's latency to about one outer iteration.
   constexpr int kSliceIterations = 2;
@@ -661,9 +654,9 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
   options.rigidity = state.rigidity;
   options.track_metrics = false;  // as in move(): commit() measures once
   Result<core::SolveReport> report =
-      local.stop_requested()
+      slice.stop_requested()
           ? Result<core::SolveReport>(Error(ErrorCode::Cancelled, "refinement preempted"))
-          : entry->deformer->solve(targets, options, {}, local.get_token());
+          : entry->deformer->solve(targets, options, {}, slice.get_token());
   {
     std::lock_guard lock(refine_mutex_);
     refine_stop_ = std::stop_source(std::nostopstate);

@@ -126,9 +126,13 @@ class Session : public std::enable_shared_from_this<Session> {
   /// @return the result; FailedPrecondition before set_handles or for a component the method
   ///         cannot pin; InvalidArgument for a bad group/vertex index, a move of a Fixed group, a
   ///         non-finite or out-of-range value, or options the method rejects (ORA on ARAP or
-  ///         Laplacian); Cancelled when `stop` is requested, DeadlineExceeded past the deadline
-  ///         (nothing committed either way); NotFound once closed; ResourceExhausted when a new
-  ///         factorization does not fit the budget; NumericalFailure if the solve breaks down.
+  ///         Laplacian); Cancelled when `stop` is requested, DeadlineExceeded when it is and
+  ///         request.deadline has passed, or when the move starts past it (nothing committed
+  ///         either way); NotFound once closed; ResourceExhausted when a new factorization does
+  ///         not fit the budget; NumericalFailure if the solve breaks down.
+  /// @param stop  the call's one stop: the caller requests it on cancellation and at
+  ///              request.deadline (DeformationService does, through CallStop); the session
+  ///              polls nothing else.
   [[nodiscard]] Result<DeformResult> move(const MoveRequest& request, std::stop_token stop);
 
   /// Background refinement (ServiceOptions::refine_budget > 0). A committed move that did not
@@ -137,10 +141,12 @@ class Session : public std::enable_shared_from_this<Session> {
   /// each committed as a revision marked `refinement`, until the solver converges or the budget
   /// is spent. set_handles, a failed move and closing end it; a new edit preempts a running slice.
   /// Edit (strand) only.
+  /// @param slice  the slice's stop (the caller ties it to shutdown); preempt_refinement()
+  ///               requests it, and so does this call when an edit is already queued.
   /// @return the committed revision; nullopt when there was nothing to refine (or the state
   ///         changed since); Cancelled when preempted or stopped (nothing committed); the
   ///         solver's error otherwise (refinement then ends).
-  [[nodiscard]] Result<std::optional<DeformResult>> refine(std::stop_token stop);
+  [[nodiscard]] Result<std::optional<DeformResult>> refine(std::stop_source slice);
   /// True while refinement should continue. Edit (strand) only.
   bool wants_refinement() const { return refine_.has_value() && !is_closed(); }
   /// Stops a running refinement slice (any thread). Called when a new edit is queued.
@@ -274,7 +280,7 @@ class Session : public std::enable_shared_from_this<Session> {
   std::optional<FileStamp> stamp_;  ///< guarded by stamp_mutex_
 
   std::mutex refine_mutex_;
-  std::stop_source refine_stop_;  ///< of the running refinement slice; guarded by refine_mutex_
+  std::stop_source refine_stop_;  ///< the running refinement slice's; guarded by refine_mutex_
 
   std::mutex strand_mutex_;
   struct StrandTask {

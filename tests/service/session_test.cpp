@@ -516,7 +516,7 @@ TEST(SessionTest, RefineCommitsSlicesUntilTheBudgetIsSpent) {
   f.create();
   f.set_columns();
   EXPECT_FALSE(f.session->wants_refinement());
-  Result<std::optional<DeformResult>> nothing = f.session->refine({});
+  Result<std::optional<DeformResult>> nothing = f.session->refine(std::stop_source());
   ASSERT_TRUE(nothing.ok());
   EXPECT_FALSE(nothing->has_value());
 
@@ -528,7 +528,7 @@ TEST(SessionTest, RefineCommitsSlicesUntilTheBudgetIsSpent) {
   int slices = 0, iterations = 0;
   std::uint64_t revision = moved->revision;
   while (f.session->wants_refinement() && slices < 10) {
-    Result<std::optional<DeformResult>> refined = f.session->refine({});
+    Result<std::optional<DeformResult>> refined = f.session->refine(std::stop_source());
     ASSERT_TRUE(refined.ok()) << refined.status().to_string();
     ASSERT_TRUE(refined->has_value());
     const DeformResult& r = **refined;
@@ -557,19 +557,19 @@ TEST(SessionTest, RefineYieldsToAQueuedEditOrAStop) {
 
   // An edit waiting on the strand preempts the slice before it solves.
   ASSERT_TRUE(f.session->enqueue([] {}, {}).has_value());
-  expect_error(f.session->refine({}).status(), ErrorCode::Cancelled, "preempted");
+  expect_error(f.session->refine(std::stop_source()).status(), ErrorCode::Cancelled, "preempted");
   EXPECT_EQ(f.counters->refinements_preempted.load(), 1u);
   EXPECT_TRUE(f.session->wants_refinement());  // resumes after the edit
   EXPECT_FALSE(f.session->run_next().has_value());
 
   std::stop_source stop;
   stop.request_stop();
-  EXPECT_EQ(f.session->refine(stop.get_token()).status().code(), ErrorCode::Cancelled);
+  EXPECT_EQ(f.session->refine(stop).status().code(), ErrorCode::Cancelled);
   EXPECT_EQ(f.counters->refinements_preempted.load(), 2u);
   EXPECT_EQ(f.session->revision(), 1u);
 
   // Nothing stops it now: a slice commits.
-  Result<std::optional<DeformResult>> refined = f.session->refine({});
+  Result<std::optional<DeformResult>> refined = f.session->refine(std::stop_source());
   ASSERT_TRUE(refined.ok()) << refined.status().to_string();
   EXPECT_TRUE(refined->has_value());
 }
