@@ -17,8 +17,6 @@
 namespace meshdeform::service {
 namespace {
 
-bool finite3(const Eigen::Vector3d& v) { return v.allFinite(); }
-
 std::string vec_str(const Eigen::Vector3d& v) {
   std::string out = "(";
   out += std::to_string(v.x());
@@ -28,6 +26,50 @@ std::string vec_str(const Eigen::Vector3d& v) {
   out += std::to_string(v.z());
   out += ")";
   return out;
+}
+
+/// InvalidArgument naming `field` (as the client wrote it) when `v` is not finite.
+Status check_finite(const Eigen::Vector3d& v, const std::string& field) {
+  if (v.allFinite()) return Status::success();
+  return Error(ErrorCode::InvalidArgument, field + " has a non-finite component " + vec_str(v));
+}
+
+/// The one check of a group move's transform: finite numbers, a rotation quaternion that can be
+/// normalised, a positive scale. `where` is the move's field ("moves[2]").
+Status check_transform(const GroupMove& move, const std::string& where) {
+  MD_RETURN_IF_ERROR(check_finite(move.translation, where + ".translation"));
+  if (!move.rotation.coeffs().allFinite()) {
+    return Error(ErrorCode::InvalidArgument, where + ".rotation has a non-finite component");
+  }
+  if (move.rotation.norm() < 1e-12) {
+    return Error(ErrorCode::InvalidArgument,
+                 where + ".rotation is the zero quaternion (it has no rotation to normalise)");
+  }
+  if (!std::isfinite(move.scale) || move.scale <= 0) {
+    return Error(ErrorCode::InvalidArgument,
+                 where + ".scale " + std::to_string(move.scale) + " is not finite and positive");
+  }
+  if (move.pivot) MD_RETURN_IF_ERROR(check_finite(*move.pivot, where + ".pivot"));
+  return Status::success();
+}
+
+/// The one range check of a move's solver budget.
+Status check_budget(const MoveRequest& request) {
+  if (request.max_iterations < 1 || request.max_iterations > kMaxMoveIterations) {
+    return Error(ErrorCode::InvalidArgument,
+                 "max_iterations " + std::to_string(request.max_iterations) + " is outside [1, " +
+                     std::to_string(kMaxMoveIterations) + "]");
+  }
+  if (!std::isfinite(request.tolerance) || request.tolerance < 0) {
+    return Error(ErrorCode::InvalidArgument,
+                 "tolerance " + std::to_string(request.tolerance) + " is not finite and >= 0");
+  }
+  if (request.magnify.size() > static_cast<std::size_t>(kMaxMagnifyRegions)) {
+    return Error(ErrorCode::InvalidArgument,
+                 std::to_string(request.magnify.size()) + " magnify regions (at most " +
+                     std::to_string(kMaxMagnifyRegions) + ")");
+  }
+  return check_rigidity(request.rigidity);
 }
 
 }  // namespace
@@ -353,16 +395,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     return Error(ErrorCode::FailedPrecondition,
                  "no handle groups: call set_handles before moving handles");
   }
-  if (request.max_iterations < 1 || request.max_iterations > 1000) {
-    return Error(ErrorCode::InvalidArgument, "max_iterations " +
-                                                 std::to_string(request.max_iterations) +
-                                                 " is outside [1, 1000]");
-  }
-  if (!std::isfinite(request.tolerance) || request.tolerance < 0) {
-    return Error(ErrorCode::InvalidArgument,
-                 "tolerance " + std::to_string(request.tolerance) + " is not finite and >= 0");
-  }
-  MD_RETURN_IF_ERROR(check_rigidity(request.rigidity));
+  MD_RETURN_IF_ERROR(check_budget(request));
   const double rigidity = request.rigidity.value_or(default_rigidity_);
   // Undo / redo: the step's moves and targets, applied to the anchors (a step is a whole state).
   const std::vector<GroupMove>* moves = &request.moves;
@@ -387,32 +420,20 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   };
   for (std::size_t m = 0; m < moves->size(); ++m) {
     const GroupMove& move = (*moves)[m];
-    const std::string where = "move " + std::to_string(m) + ": ";
+    const std::string where = "moves[" + std::to_string(m) + "]";
     if (move.group < 0 || move.group >= static_cast<int>(groups.size())) {
-      return Error(ErrorCode::InvalidArgument, where + "group " + std::to_string(move.group) +
+      return Error(ErrorCode::InvalidArgument, where + ".group " + std::to_string(move.group) +
                                                    " does not exist (" +
                                                    std::to_string(groups.size()) + " groups)");
     }
     const HandleGroup& group = groups[static_cast<std::size_t>(move.group)];
     if (group.role != HandleRole::Handle) {
-      return Error(ErrorCode::InvalidArgument,
-                   where + "group " + std::to_string(move.group) + " is fixed and cannot move");
+      return Error(ErrorCode::InvalidArgument, where + ".group " + std::to_string(move.group) +
+                                                   " is fixed and cannot move");
     }
-    if (!finite3(move.translation) || !move.rotation.coeffs().allFinite() ||
-        !std::isfinite(move.scale) || (move.pivot && !finite3(*move.pivot))) {
-      return Error(ErrorCode::InvalidArgument, where + "non-finite transform for group " +
-                                                   std::to_string(move.group));
-    }
-    if (move.scale <= 0) {
-      return Error(ErrorCode::InvalidArgument,
-                   where + "scale " + std::to_string(move.scale) + " is not positive");
-    }
-    const double qnorm = move.rotation.norm();
-    if (qnorm < 1e-12) {
-      return Error(ErrorCode::InvalidArgument, where + "rotation quaternion has zero length");
-    }
+    MD_RETURN_IF_ERROR(check_transform(move, where));
     core::GroupSimilarity transform;
-    transform.rotation = Eigen::Quaterniond(move.rotation.coeffs() / qnorm).toRotationMatrix();
+    transform.rotation = move.rotation.normalized().toRotationMatrix();
     transform.scale = move.scale;
     transform.translation = move.translation;
     transform.pivot = move.pivot;
@@ -428,7 +449,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   const int nv = static_cast<int>(rest_.V.rows());
   for (std::size_t t = 0; t < vertex_targets->size(); ++t) {
     const VertexTarget& target = (*vertex_targets)[t];
-    const std::string where = "target " + std::to_string(t) + ": ";
+    const std::string where = "targets.vertices[" + std::to_string(t) + "]: ";
     if (target.vertex < 0 || target.vertex >= nv) {
       return Error(ErrorCode::InvalidArgument, where + "vertex " + std::to_string(target.vertex) +
                                                    " is out of range (#V=" + std::to_string(nv) +
@@ -443,11 +464,8 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
       return Error(ErrorCode::InvalidArgument, where + "vertex " + std::to_string(target.vertex) +
                                                    " is in fixed group " + std::to_string(g));
     }
-    if (!finite3(target.position)) {
-      return Error(ErrorCode::InvalidArgument, where + "vertex " + std::to_string(target.vertex) +
-                                                   " has a non-finite target " +
-                                                   vec_str(target.position));
-    }
+    MD_RETURN_IF_ERROR(check_finite(target.position, "targets.positions of vertex " +
+                                                         std::to_string(target.vertex)));
     targets.row(row_of(target.vertex)) = target.position.transpose();
   }
   MD_RETURN_IF_ERROR(check_pinnable(request.method, constrained));

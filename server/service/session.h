@@ -125,8 +125,10 @@ class Session : public std::enable_shared_from_this<Session> {
   /// changing targets never refactors. Commits a revision and publishes it to the watchers.
   /// @return the result; FailedPrecondition before set_handles or for a component the method
   ///         cannot pin; InvalidArgument for a bad group/vertex index, a move of a Fixed group, a
-  ///         non-finite or out-of-range value, or options the method rejects (ORA on ARAP or
-  ///         Laplacian); Cancelled when `stop` is requested, DeadlineExceeded when it is and
+  ///         non-finite or out-of-range value (max_iterations, tolerance, rigidity, a zero
+  ///         quaternion, a scale <= 0, more than kMaxMagnifyRegions regions), naming the field
+  ///         as clients write it ("moves[1].scale"), or options the method rejects (ORA on ARAP
+  ///         or Laplacian); Cancelled when `stop` is requested, DeadlineExceeded when it is and
   ///         request.deadline has passed, or when the move starts past it (nothing committed
   ///         either way); NotFound once closed; ResourceExhausted when a new factorization does
   ///         not fit the budget; NumericalFailure if the solve breaks down.

@@ -127,9 +127,10 @@ struct MoveRequest {
   /// Section 5.3): the faces whose three vertices are all in a region's `vertices` get scale^2
   /// times their rest area. Regions are named by vertices: `faces` must stay empty (the undo
   /// history stores vertices only). Absolute like the moves: an empty list magnifies nothing. A
-  /// face in several regions takes the last.
+  /// face in several regions takes the last. At most kMaxMagnifyRegions.
   std::vector<core::MagnifyRegion> magnify;
-  int max_iterations = 2;  ///< outer-iteration budget; small for interactive drags, 1..1000
+  /// Outer-iteration budget, 1..kMaxMoveIterations; small for interactive drags.
+  int max_iterations = 2;
   double tolerance = 1e-4; ///< relative energy change that stops the solve early, >= 0
   /// Undo history: Record (the default) records the move's state as a step; Undo / Redo apply
   /// the previous / next step instead of `moves` and `targets` (which must then be empty).
@@ -226,6 +227,12 @@ struct CreatedSession {
   int dropped_unreferenced = 0;
   std::vector<HandleGroup> suggested_groups;  ///< samples: the benchmark's fixed and handle sets
 };
+
+/// The largest outer-iteration budget of one move (MoveRequest::max_iterations).
+inline constexpr int kMaxMoveIterations = 1000;
+
+/// At most this many magnify regions per move (each is resolved over every face).
+inline constexpr int kMaxMagnifyRegions = 64;
 
 /// The largest scale control a request may ask for (core::SolveOptions::rigidity): far past
 /// ARAP-like behaviour, and the solve stays well conditioned.

@@ -323,27 +323,33 @@ TEST(SessionTest, MoveNamesWhatIsWrongWithTheRequest) {
   struct Case {
     const char* name;
     std::function<void(MoveRequest&)> edit;
-    const char* fragment;
+    std::string fragment;
   };
   const double nan = std::nan("");
   const std::vector<Case> cases = {
       {"group out of range", [](MoveRequest& r) { r.moves[0].group = 2; },
-       "move 0: group 2 does not exist (2 groups)"},
-      {"negative group", [](MoveRequest& r) { r.moves[0].group = -1; }, "group -1 does not exist"},
+       "moves[0].group 2 does not exist (2 groups)"},
+      {"negative group", [](MoveRequest& r) { r.moves[0].group = -1; }, "moves[0].group -1 does not exist"},
       {"fixed group", [](MoveRequest& r) { r.moves[0].group = 0; },
-       "group 0 is fixed and cannot move"},
+       "moves[0].group 0 is fixed and cannot move"},
       {"non-finite translation", [nan](MoveRequest& r) { r.moves[0].translation.x() = nan; },
-       "non-finite transform"},
+       "moves[0].translation has a non-finite component"},
       {"non-finite pivot",
        [nan](MoveRequest& r) { r.moves[0].pivot = Eigen::Vector3d(0, nan, 0); },
-       "non-finite transform"},
-      {"zero scale", [](MoveRequest& r) { r.moves[0].scale = 0; }, "scale 0.000000 is not positive"},
+       "moves[0].pivot has a non-finite component"},
+      {"non-finite rotation",
+       [nan](MoveRequest& r) { r.moves[0].rotation = Eigen::Quaterniond(1, nan, 0, 0); },
+       "moves[0].rotation has a non-finite component"},
+      {"zero scale", [](MoveRequest& r) { r.moves[0].scale = 0; },
+       "moves[0].scale 0.000000 is not finite and positive"},
+      {"non-finite scale", [nan](MoveRequest& r) { r.moves[0].scale = nan; },
+       "moves[0].scale nan is not finite and positive"},
       {"zero quaternion",
        [](MoveRequest& r) { r.moves[0].rotation = Eigen::Quaterniond(0, 0, 0, 0); },
-       "zero length"},
+       "moves[0].rotation is the zero quaternion"},
       {"target out of range",
        [nv](MoveRequest& r) { r.targets.push_back(VertexTarget{nv, Eigen::Vector3d::Zero()}); },
-       "target 0: vertex 49 is out of range (#V=49)"},
+       "targets.vertices[0]: vertex 49 is out of range (#V=49)"},
       {"target not constrained",
        [free_vertex](MoveRequest& r) {
          r.targets.push_back(VertexTarget{free_vertex, Eigen::Vector3d::Zero()});
@@ -358,13 +364,28 @@ TEST(SessionTest, MoveNamesWhatIsWrongWithTheRequest) {
        [handle_vertex, nan](MoveRequest& r) {
          r.targets.push_back(VertexTarget{handle_vertex, Eigen::Vector3d(nan, 0, 0)});
        },
-       "non-finite target"},
-      {"no iterations", [](MoveRequest& r) { r.max_iterations = 0; }, "max_iterations 0"},
+       "targets.positions of vertex " + std::to_string(handle_vertex) +
+           " has a non-finite component"},
+      {"no iterations", [](MoveRequest& r) { r.max_iterations = 0; },
+       "max_iterations 0 is outside [1, 1000]"},
       {"too many iterations", [](MoveRequest& r) { r.max_iterations = 1001; },
        "max_iterations 1001"},
-      {"negative tolerance", [](MoveRequest& r) { r.tolerance = -1; }, "tolerance"},
+      {"negative tolerance", [](MoveRequest& r) { r.tolerance = -1; },
+       "tolerance -1.000000 is not finite and >= 0"},
       {"non-finite tolerance", [nan](MoveRequest& r) { r.tolerance = nan; }, "tolerance"},
       {"rigidity out of range", [](MoveRequest& r) { r.rigidity = -1; }, "rigidity"},
+      {"too many magnify regions",
+       [](MoveRequest& r) { r.magnify.resize(kMaxMagnifyRegions + 1); },
+       "65 magnify regions (at most 64)"},
+      {"magnify scale",
+       [](MoveRequest& r) {
+         r.method = core::Method::ScaleAware;
+         core::MagnifyRegion region;
+         region.vertices = Eigen::Vector3i(0, 1, 7);
+         region.scale = 0;
+         r.magnify.push_back(region);
+       },
+       "scale must be positive and finite"},
       {"magnify with ARAP",
        [](MoveRequest& r) {
          core::MagnifyRegion region;
