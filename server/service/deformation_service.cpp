@@ -5,9 +5,7 @@
 #include <cmath>
 #include <condition_variable>
 #include <cstdio>
-#include <exception>
 #include <future>
-#include <new>
 #include <utility>
 
 #include "core/procedural.h"
