@@ -169,13 +169,13 @@ Result<std::vector<int>> to_indices(const json& value, const std::string& where)
   return out;
 }
 
-Result<HandleGroup> parse_group(const json& value, const std::string& where) {
+Result<HandleMotion> parse_motion(const json& value, const std::string& where) {
   if (!value.is_object()) return invalid(where + ": expected an object");
   MD_RETURN_IF_ERROR(check_keys(
       value,
       {"vertices", "translation", "rotation", "quaternion", "scale", "pivot", "matrix", "targets"},
       where));
-  HandleGroup group;
+  HandleMotion group;
   if (!value.contains("vertices")) return invalid(where + ": missing 'vertices'");
   MD_ASSIGN_OR_RETURN(group.vertices, to_indices(value["vertices"], where + ".vertices"));
   if (group.vertices.empty()) return invalid(where + ".vertices: is empty");
@@ -267,8 +267,8 @@ Result<EditSpec> parse_spec_json(const json& root) {
     const json& handles = root["handles"];
     if (!handles.is_array()) return invalid("handles: expected an array of handle groups");
     for (std::size_t k = 0; k < handles.size(); ++k) {
-      MD_ASSIGN_OR_RETURN(HandleGroup group,
-                          parse_group(handles[k], "handles[" + std::to_string(k) + "]"));
+      MD_ASSIGN_OR_RETURN(HandleMotion group,
+                          parse_motion(handles[k], "handles[" + std::to_string(k) + "]"));
       spec.handles.push_back(std::move(group));
     }
   }
@@ -357,9 +357,9 @@ std::string group_name(int group) {
   return group == -1 ? std::string("fixed") : "handles[" + std::to_string(group) + "]";
 }
 
-// Targets of one handle group, row i for vertices[i] (indices already range-checked).
-Result<Positions> group_targets(const HandleGroup& group, const Positions& V,
-                                const std::string& where) {
+// Targets of one handle motion, row i for vertices[i] (indices already range-checked).
+Result<Positions> motion_targets(const HandleMotion& group, const Positions& V,
+                                 const std::string& where) {
   const auto n = static_cast<Eigen::Index>(group.vertices.size());
   Positions rest(n, 3);
   for (Eigen::Index i = 0; i < n; ++i)
@@ -597,7 +597,7 @@ Result<std::string> format_edit_spec(const EditSpec& spec) {
     root["fixed"] = spec.fixed;
     json handles = json::array();
     for (std::size_t k = 0; k < spec.handles.size(); ++k) {
-      const HandleGroup& group = spec.handles[k];
+      const HandleMotion& group = spec.handles[k];
       const std::string where = "handles[" + std::to_string(k) + "]";
       json g = json::object();
       g["vertices"] = group.vertices;
@@ -716,14 +716,14 @@ Result<core::HandleSetup> resolve_edit(const EditSpec& spec, const Positions& V)
       target.row(v) = V.row(v);
     }
     for (std::size_t k = 0; k < spec.handles.size(); ++k) {
-      const HandleGroup& group = spec.handles[k];
+      const HandleMotion& group = spec.handles[k];
       const std::string where = "handles[" + std::to_string(k) + "]";
       if (group.vertices.empty()) return invalid(where + ".vertices: is empty");
       for (std::size_t i = 0; i < group.vertices.size(); ++i) {
         MD_RETURN_IF_ERROR(
             check_index(group.vertices[i], where + ".vertices[" + std::to_string(i) + "]"));
       }
-      MD_ASSIGN_OR_RETURN(const Positions targets, group_targets(group, V, where));
+      MD_ASSIGN_OR_RETURN(const Positions targets, motion_targets(group, V, where));
       for (std::size_t i = 0; i < group.vertices.size(); ++i) {
         const int v = group.vertices[i];
         const bool seen = owner[static_cast<std::size_t>(v)] == static_cast<int>(k);

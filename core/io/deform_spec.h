@@ -106,8 +106,9 @@ enum class HandleForm {
   Targets,  ///< one explicit target per vertex
 };
 
-/// One group of handle vertices that move together.
-struct HandleGroup {
+/// A motion of handle vertices from the edit spec: which vertices (one entry of "handles") and
+/// how they move together (a rigid transform, a matrix, or explicit targets).
+struct HandleMotion {
   std::vector<int> vertices;  ///< indices into V (non-empty)
   HandleForm form = HandleForm::Rigid;
   // Rigid form: target = pivot + translation + R * (scale * (rest - pivot)).
@@ -121,6 +122,10 @@ struct HandleGroup {
   // Targets form: #vertices x 3, row i is the target of vertices[i].
   Positions targets;
 };
+
+/// The former name of HandleMotion, kept while client_cpp/cli/main.cpp still uses it (issue 14);
+/// new code uses HandleMotion.
+using HandleGroup = HandleMotion;
 
 /// Solver options carried by the spec (absent = solver default).
 struct EditOptions {
@@ -142,7 +147,7 @@ struct MagnifySpec {
 /// A parsed JSON edit spec.
 struct EditSpec {
   std::vector<int> fixed;            ///< vertices held at their rest position
-  std::vector<HandleGroup> handles;  ///< moved groups
+  std::vector<HandleMotion> handles;  ///< moved groups
   std::vector<MagnifySpec> magnify;  ///< regions to magnify (empty: none)
   EditOptions options;
 };

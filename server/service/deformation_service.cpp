@@ -5,13 +5,13 @@
 #include <cmath>
 #include <condition_variable>
 #include <cstdio>
-#include <exception>
 #include <future>
-#include <new>
 #include <utility>
 
 #include "core/procedural.h"
 #include "core/validate.h"
+#include "server/service/call_stop.h"
+#include "server/service/guard.h"
 #include "server/service/log.h"
 #include "server/service/tokens.h"
 
@@ -20,20 +20,6 @@ namespace {
 
 constexpr std::size_t kSessionIdBytes = 16;
 constexpr std::size_t kTokenBytes = 32;
-
-/// Runs `fn`, turning escaped exceptions into statuses (no exception leaves the service).
-template <typename Fn>
-auto run_guarded(Fn&& fn) -> decltype(fn()) {
-  try {
-    return fn();
-  } catch (const std::bad_alloc&) {
-    return Error(ErrorCode::ResourceExhausted, "out of memory");
-  } catch (const std::exception& e) {
-    return Error(ErrorCode::Internal, std::string("unexpected exception: ") + e.what());
-  } catch (...) {
-    return Error(ErrorCode::Internal, "unexpected non-standard exception");
-  }
-}
 
 /// The resident set of this process from /proc/self/statm (Linux); 0 where unavailable.
 std::size_t resident_set_bytes() {
@@ -100,22 +86,6 @@ Result<Sample> make_sample(const std::string& name) {
   return Sample{std::move(bench->mesh), groups_from_selection(bench->selection)};
 }
 
-/// Ties a task's stop token to the request's token and the service shutdown.
-class CombinedStop {
- public:
-  CombinedStop(std::stop_token a, std::stop_token b)
-      : a_(std::move(a), Forward{&source_}), b_(std::move(b), Forward{&source_}) {}
-  std::stop_token token() const { return source_.get_token(); }
-
- private:
-  struct Forward {
-    std::stop_source* source;
-    void operator()() const { source->request_stop(); }
-  };
-  std::stop_source source_;
-  std::stop_callback<Forward> a_, b_;
-};
-
 }  // namespace
 
 DeformationService::DeformationService(ServiceOptions options,
@@ -180,7 +150,7 @@ std::vector<std::string> DeformationService::sample_names() {
 
 Result<CreatedSession> DeformationService::create_session(const CreateSessionRequest& request,
                                                           std::stop_token stop) {
-  return run_guarded([&]() -> Result<CreatedSession> {
+  return run_guarded("CreateSession", [&]() -> Result<CreatedSession> {
     const bool has_bytes = !request.mesh_bytes.empty(), has_sample = !request.sample.empty();
     if (has_bytes == has_sample) {
       return Error(ErrorCode::InvalidArgument,
@@ -267,8 +237,8 @@ void DeformationService::create_session_async(CreateSessionRequest request, std:
           done(Error(ErrorCode::Cancelled, "create_session cancelled before it started"));
           return;
         }
-        const CombinedStop combined(stop, shutdown_.get_token());
-        Result<CreatedSession> created = create_session(request, combined.token());
+        const CallStop call_stop(stop, shutdown_.get_token());
+        Result<CreatedSession> created = create_session(request, call_stop.token());
         ticket->release();  // before done: a client that retries at once is admitted
         if (!created.ok() && created.status().code() == ErrorCode::Cancelled) {
           uploads_cancelled_.fetch_add(1);
@@ -325,7 +295,7 @@ std::shared_ptr<Session> DeformationService::find_or_restore(const SessionId& id
     return nullptr;
   }
   SessionStore* store = &store_;
-  Result<std::shared_ptr<Session>> restored = run_guarded([&] {
+  Result<std::shared_ptr<Session>> restored = run_guarded("restore", [&] {
     return Session::restore(std::move(state).value(), options_, counters_,
                             [store](std::size_t bytes, const Session& requester) {
                               return store->reserve(bytes, requester);
@@ -381,7 +351,7 @@ Result<std::shared_ptr<Session>> DeformationService::find_shared(const SessionId
   const std::uint64_t version = loaded->version;
   SessionStore* store = &store_;
   // The factorizations are this replica's own: they are built on the first edit here.
-  MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, run_guarded([&] {
+  MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, run_guarded("load_shared", [&] {
                         return Session::restore(std::move(loaded->state), options_, counters_,
                                                 [store](std::size_t bytes, const Session& who) {
                                                   return store->reserve(bytes, who);
@@ -499,12 +469,12 @@ void DeformationService::set_handles_async(const SessionId& id, const Token& edi
       session,
       [this, session, ticket, request = std::move(request), stop = std::move(stop),
        done = std::move(done)] {
-        Result<SessionInfo> result = run_guarded([&]() -> Result<SessionInfo> {
+        Result<SessionInfo> result = run_guarded("SetHandles", [&]() -> Result<SessionInfo> {
           if (stop.stop_requested() || shutdown_.stop_requested()) {
             return Error(ErrorCode::Cancelled, "set_handles cancelled before it started");
           }
-          const CombinedStop combined(stop, shutdown_.get_token());
-          return session->set_handles(request, combined.token());
+          const CallStop call_stop(stop, shutdown_.get_token());
+          return session->set_handles(request, call_stop.token());
         });
         ticket->release();
         if (!result.ok() && result.status().code() == ErrorCode::Cancelled) {
@@ -536,9 +506,9 @@ void DeformationService::move_handles_async(const SessionId& id, const Token& ed
   std::shared_ptr<Session> session = std::move(found).value();
   post(session, [this, session, request = std::move(request), stop = std::move(stop),
                  done = std::move(done)] {
-    Result<DeformResult> result = run_guarded([&]() -> Result<DeformResult> {
-      const CombinedStop combined(stop, shutdown_.get_token());
-      return session->move(request, combined.token());
+    Result<DeformResult> result = run_guarded("MoveHandles", [&]() -> Result<DeformResult> {
+      const CallStop call_stop(stop, shutdown_.get_token(), request.deadline, deadlines_);
+      return session->move(request, call_stop.token());
     });
     done(std::move(result));
     schedule_refinement(session, /*after_move=*/true);
@@ -569,8 +539,9 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
           // An edit queued meanwhile runs first and schedules refinement again after itself.
           if (session->has_queued_edits() || shutdown_.stop_requested()) return;
           const Result<std::optional<DeformResult>> refined = run_guarded(
-              [&]() -> Result<std::optional<DeformResult>> {
-                return session->refine(shutdown_.get_token());
+              "refinement", [&]() -> Result<std::optional<DeformResult>> {
+                const CallStop slice({}, shutdown_.get_token());
+                return session->refine(slice.source());
               });
           if (refined.ok() && refined->has_value()) {
             const DeformResult& r = **refined;
@@ -601,7 +572,7 @@ Result<DeformResult> DeformationService::move_handles(const SessionId& id, const
 Result<std::string> DeformationService::get_mesh(const SessionId& id, const Token& token,
                                                  io::MeshFormat format,
                                                  std::optional<std::uint64_t> revision) {
-  return run_guarded([&]() -> Result<std::string> {
+  return run_guarded("GetMesh", [&]() -> Result<std::string> {
     MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, find_for_view(id, token));
     MD_ASSIGN_OR_RETURN(std::shared_ptr<const Positions> positions, session->positions_at(revision));
     const MeshData mesh{*positions, session->rest().F};
@@ -610,7 +581,7 @@ Result<std::string> DeformationService::get_mesh(const SessionId& id, const Toke
 }
 
 Result<SessionInfo> DeformationService::session_info(const SessionId& id, const Token& token) {
-  return run_guarded([&]() -> Result<SessionInfo> {
+  return run_guarded("GetSessionInfo", [&]() -> Result<SessionInfo> {
     MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, find_for_view(id, token));
     SessionInfo info = session->info();
     info.token_can_edit = session->can_edit(token);
@@ -629,7 +600,7 @@ Status DeformationService::close_session(const SessionId& id, const Token& edit_
 }
 
 Result<Subscription> DeformationService::watch(const SessionId& id, const Token& view_token) {
-  return run_guarded([&]() -> Result<Subscription> {
+  return run_guarded("Watch", [&]() -> Result<Subscription> {
     MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, find_for_view(id, view_token));
     std::shared_ptr<Watcher> watcher = session->add_watcher();
     return Subscription(session, std::move(watcher));

@@ -95,9 +95,9 @@ class DeformationService {
                                                 std::stop_token stop = {});
 
   /// Moves handles and solves on the worker pool; see Session::move for the errors, plus
-  /// NotFound and PermissionDenied. `stop` (tied by the transport to client cancellation) stops
-  /// the solve mid-iteration with Cancelled; request.deadline gives DeadlineExceeded. Nothing is
-  /// committed on error. `done` runs on a worker thread and must not block for long.
+  /// NotFound and PermissionDenied. `stop` (tied by the transport to client cancellation),
+  /// shutdown and request.deadline make one stop (CallStop) that stops the solve mid-iteration:
+  /// Cancelled, or DeadlineExceeded past the deadline. Nothing is committed on error. `done` runs on a worker thread and must not block for long.
   void move_handles_async(const SessionId& id, const Token& edit_token, MoveRequest request,
                           std::stop_token stop, std::function<void(Result<DeformResult>)> done);
   /// Blocking move_handles_async.
@@ -191,6 +191,9 @@ class DeformationService {
   std::atomic<std::uint64_t> precomputes_cancelled_{0};
   HeavyWorkAdmission heavy_;  // declared before pool_: tickets held by queued tasks outlive it
   SessionStore store_;
+  /// Moves' deadlines (CallStop): its timers only request stops, so it outlives the pool whose
+  /// tasks post into it.
+  DelayQueue deadlines_;
   WorkerPool pool_;  // destroyed (drained, joined) before the store
   DelayQueue delays_;  // no timer posts into a dead pool: destroyed before it
   std::shared_ptr<SharedStateStore> shared_;  ///< null without a shared store

@@ -132,10 +132,10 @@ void write_edit_state(BinaryWriter& out, const EditState& state) {
     out.pod<std::int32_t>(s.max_iterations);
     out.pod(s.tolerance);
     out.pod(static_cast<std::uint32_t>(s.magnify.size()));
-    for (const MagnifyRegion& region : s.magnify) {
+    for (const core::MagnifyRegion& region : s.magnify) {
       out.pod(region.scale);
       out.pod(static_cast<std::uint32_t>(region.vertices.size()));
-      for (int v : region.vertices) out.pod<std::int32_t>(v);
+      for (const int v : region.vertices) out.pod<std::int32_t>(v);
     }
   }
   out.pod(static_cast<std::uint32_t>(state.steps.size()));
@@ -196,21 +196,21 @@ Status read_settings(BinaryReader& in, EditSettings& s, int vertices) {
   MD_RETURN_IF_ERROR(in.pod(iterations, "settings iterations"));
   s.max_iterations = iterations;
   MD_RETURN_IF_ERROR(in.pod(s.tolerance, "settings tolerance"));
-  if (!is_valid_rigidity(s.rigidity) || iterations < 1 || iterations > 1000 ||
+  if (!is_valid_rigidity(s.rigidity) || iterations < 1 || iterations > kMaxMoveIterations ||
       !(s.tolerance >= 0) || !std::isfinite(s.tolerance)) {
     return in.corrupt("settings out of range");
   }
   std::uint32_t regions = 0;
   MD_RETURN_IF_ERROR(in.count(regions, "magnify regions", 12));
   s.magnify.resize(regions);
-  for (MagnifyRegion& region : s.magnify) {
+  for (core::MagnifyRegion& region : s.magnify) {
     MD_RETURN_IF_ERROR(in.pod(region.scale, "magnify scale"));
     if (!(region.scale > 0) || !std::isfinite(region.scale)) {
       return in.corrupt("magnify scale is not finite and > 0");
     }
     std::uint32_t n = 0;
     MD_RETURN_IF_ERROR(in.count(n, "magnify vertices", 4));
-    region.vertices.resize(n);
+    region.vertices.resize(static_cast<Eigen::Index>(n));
     for (int& v : region.vertices) MD_RETURN_IF_ERROR(read_index(in, v, vertices, "magnify vertex"));
   }
   return Status::success();

@@ -17,8 +17,6 @@
 namespace meshdeform::service {
 namespace {
 
-bool finite3(const Eigen::Vector3d& v) { return v.allFinite(); }
-
 std::string vec_str(const Eigen::Vector3d& v) {
   std::string out = "(";
   out += std::to_string(v.x());
@@ -28,6 +26,50 @@ std::string vec_str(const Eigen::Vector3d& v) {
   out += std::to_string(v.z());
   out += ")";
   return out;
+}
+
+/// InvalidArgument naming `field` (as the client wrote it) when `v` is not finite.
+Status check_finite(const Eigen::Vector3d& v, const std::string& field) {
+  if (v.allFinite()) return Status::success();
+  return Error(ErrorCode::InvalidArgument, field + " has a non-finite component " + vec_str(v));
+}
+
+/// The one check of a group move's transform: finite numbers, a rotation quaternion that can be
+/// normalised, a positive scale. `where` is the move's field ("moves[2]").
+Status check_transform(const GroupMove& move, const std::string& where) {
+  MD_RETURN_IF_ERROR(check_finite(move.translation, where + ".translation"));
+  if (!move.rotation.coeffs().allFinite()) {
+    return Error(ErrorCode::InvalidArgument, where + ".rotation has a non-finite component");
+  }
+  if (move.rotation.norm() < 1e-12) {
+    return Error(ErrorCode::InvalidArgument,
+                 where + ".rotation is the zero quaternion (it has no rotation to normalise)");
+  }
+  if (!std::isfinite(move.scale) || move.scale <= 0) {
+    return Error(ErrorCode::InvalidArgument,
+                 where + ".scale " + std::to_string(move.scale) + " is not finite and positive");
+  }
+  if (move.pivot) MD_RETURN_IF_ERROR(check_finite(*move.pivot, where + ".pivot"));
+  return Status::success();
+}
+
+/// The one range check of a move's solver budget.
+Status check_budget(const MoveRequest& request) {
+  if (request.max_iterations < 1 || request.max_iterations > kMaxMoveIterations) {
+    return Error(ErrorCode::InvalidArgument,
+                 "max_iterations " + std::to_string(request.max_iterations) + " is outside [1, " +
+                     std::to_string(kMaxMoveIterations) + "]");
+  }
+  if (!std::isfinite(request.tolerance) || request.tolerance < 0) {
+    return Error(ErrorCode::InvalidArgument,
+                 "tolerance " + std::to_string(request.tolerance) + " is not finite and >= 0");
+  }
+  if (request.magnify.size() > static_cast<std::size_t>(kMaxMagnifyRegions)) {
+    return Error(ErrorCode::InvalidArgument,
+                 std::to_string(request.magnify.size()) + " magnify regions (at most " +
+                     std::to_string(kMaxMagnifyRegions) + ")");
+  }
+  return check_rigidity(request.rigidity);
 }
 
 }  // namespace
@@ -79,7 +121,7 @@ Result<std::shared_ptr<Session>> Session::create(SessionId id, Token edit_token,
   session->rest_positions_ = rest->positions;
   rest->changed_positions.resize(0, 3);
   session->history_.push_back(std::move(rest));
-  session->update_estimate();
+  session->init_deformer_cache();
   return session;
 }
 
@@ -222,59 +264,33 @@ Result<Eigen::VectorXd> Session::magnify_scales(const MoveRequest& request) cons
                  std::string("magnify regions need the scale-aware method, not ") +
                      core::method_name(request.method));
   }
-  std::vector<core::MagnifyRegion> regions;
-  regions.reserve(request.magnify.size());
-  for (const MagnifyRegion& region : request.magnify) {
-    core::MagnifyRegion converted;
-    converted.vertices = Eigen::Map<const Eigen::VectorXi>(
-        region.vertices.data(), static_cast<Eigen::Index>(region.vertices.size()));
-    converted.scale = region.scale;
-    regions.push_back(std::move(converted));
-  }
-  return core::face_scales_from_regions(regions, rest_.F, static_cast<int>(rest_.V.rows()));
-}
-
-void Session::update_estimate() {
-  cached_deformers_.store(static_cast<int>(deformers_.size()));
-  estimated_bytes_.store(estimate_session_bytes(static_cast<int>(rest_.V.rows()),
-                                                static_cast<int>(rest_.F.rows()),
-                                                static_cast<int>(deformers_.size()),
-                                                options_.kept_revisions));
-}
-
-Result<Session::CachedDeformer*> Session::get_or_build(core::Method method,
-                                                       const std::vector<int>& constrained,
-                                                       bool* built, std::stop_token stop) {
-  *built = false;
-  for (CachedDeformer& entry : deformers_) {
-    if (entry.method == method && entry.constrained == constrained) {
-      entry.last_used = ++deformer_tick_;
-      return &entry;
+  for (std::size_t r = 0; r < request.magnify.size(); ++r) {
+    if (request.magnify[r].faces.size() != 0) {
+      return Error(ErrorCode::InvalidArgument, "magnify[" + std::to_string(r) +
+                                                   "]: name the region by vertices, not faces");
     }
   }
-  // Evict this session's least recently used deformer first, so the budget sees the net growth.
-  if (static_cast<int>(deformers_.size()) >= options_.max_cached_deformers) {
-    auto oldest = std::min_element(deformers_.begin(), deformers_.end(),
-                                   [](const CachedDeformer& a, const CachedDeformer& b) {
-                                     return a.last_used < b.last_used;
-                                   });
-    deformers_.erase(oldest);
-    update_estimate();
-  }
-  const int v = static_cast<int>(rest_.V.rows()), f = static_cast<int>(rest_.F.rows());
-  const std::size_t extra = estimate_session_bytes(v, f, 1, 0) - estimate_session_bytes(v, f, 0, 0);
-  if (reserve_) MD_RETURN_IF_ERROR(reserve_(extra, *this));
+  return core::face_scales_from_regions(request.magnify, rest_.F,
+                                        static_cast<int>(rest_.V.rows()));
+}
 
-  const Eigen::VectorXi idx =
-      Eigen::Map<const Eigen::VectorXi>(constrained.data(), static_cast<Eigen::Index>(constrained.size()));
-  MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
-                      core::make_deformer(method, rest_.V, rest_.F, idx, settings_, stop));
-  counters_->deformer_constructions.fetch_add(1);
-  *built = true;
-  // A fresh deformer sits at the rest pose, i.e. revision 0's positions only.
-  deformers_.push_back(CachedDeformer{method, constrained, std::move(deformer), 0, ++deformer_tick_});
-  update_estimate();
-  return &deformers_.back();
+void Session::init_deformer_cache() {
+  const int v = static_cast<int>(rest_.V.rows()), f = static_cast<int>(rest_.F.rows());
+  base_bytes_ = estimate_session_bytes(v, f, 0, options_.kept_revisions);
+  const std::size_t per_deformer = estimate_session_bytes(v, f, 1, 0) - estimate_session_bytes(v, f, 0, 0);
+  // The session owns the cache, so the cache's functions may hold `this`.
+  DeformerCache::BuildFn build = [this](core::Method method, const Eigen::VectorXi& constrained,
+                                        std::stop_token stop)
+      -> Result<std::unique_ptr<core::Deformer>> {
+    MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
+                        core::make_deformer(method, rest_.V, rest_.F, constrained, settings_, stop));
+    counters_->deformer_constructions.fetch_add(1);
+    return deformer;
+  };
+  DeformerCache::ReserveFn reserve;
+  if (reserve_) reserve = [this](std::size_t bytes) { return reserve_(bytes, *this); };
+  deformers_ = std::make_unique<DeformerCache>(options_.max_cached_deformers, per_deformer,
+                                               std::move(build), std::move(reserve));
 }
 
 Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::stop_token stop) {
@@ -311,10 +327,7 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
   }
   std::sort(constrained.begin(), constrained.end());
   MD_RETURN_IF_ERROR(check_pinnable(request.prepare, constrained));
-  bool built = false;
-  MD_ASSIGN_OR_RETURN(CachedDeformer * entry,
-                      get_or_build(request.prepare, constrained, &built, stop));
-  (void)entry;
+  MD_RETURN_IF_ERROR(deformers_->get_or_build(request.prepare, constrained, stop).status());
 
   {
     std::unique_lock shared_lock(shared_mutex_, std::defer_lock);
@@ -384,16 +397,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     return Error(ErrorCode::FailedPrecondition,
                  "no handle groups: call set_handles before moving handles");
   }
-  if (request.max_iterations < 1 || request.max_iterations > 1000) {
-    return Error(ErrorCode::InvalidArgument, "max_iterations " +
-                                                 std::to_string(request.max_iterations) +
-                                                 " is outside [1, 1000]");
-  }
-  if (!std::isfinite(request.tolerance) || request.tolerance < 0) {
-    return Error(ErrorCode::InvalidArgument,
-                 "tolerance " + std::to_string(request.tolerance) + " is not finite and >= 0");
-  }
-  MD_RETURN_IF_ERROR(check_rigidity(request.rigidity));
+  MD_RETURN_IF_ERROR(check_budget(request));
   const double rigidity = request.rigidity.value_or(default_rigidity_);
   // Undo / redo: the step's moves and targets, applied to the anchors (a step is a whole state).
   const std::vector<GroupMove>* moves = &request.moves;
@@ -418,32 +422,20 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   };
   for (std::size_t m = 0; m < moves->size(); ++m) {
     const GroupMove& move = (*moves)[m];
-    const std::string where = "move " + std::to_string(m) + ": ";
+    const std::string where = "moves[" + std::to_string(m) + "]";
     if (move.group < 0 || move.group >= static_cast<int>(groups.size())) {
-      return Error(ErrorCode::InvalidArgument, where + "group " + std::to_string(move.group) +
+      return Error(ErrorCode::InvalidArgument, where + ".group " + std::to_string(move.group) +
                                                    " does not exist (" +
                                                    std::to_string(groups.size()) + " groups)");
     }
     const HandleGroup& group = groups[static_cast<std::size_t>(move.group)];
     if (group.role != HandleRole::Handle) {
-      return Error(ErrorCode::InvalidArgument,
-                   where + "group " + std::to_string(move.group) + " is fixed and cannot move");
+      return Error(ErrorCode::InvalidArgument, where + ".group " + std::to_string(move.group) +
+                                                   " is fixed and cannot move");
     }
-    if (!finite3(move.translation) || !move.rotation.coeffs().allFinite() ||
-        !std::isfinite(move.scale) || (move.pivot && !finite3(*move.pivot))) {
-      return Error(ErrorCode::InvalidArgument, where + "non-finite transform for group " +
-                                                   std::to_string(move.group));
-    }
-    if (move.scale <= 0) {
-      return Error(ErrorCode::InvalidArgument,
-                   where + "scale " + std::to_string(move.scale) + " is not positive");
-    }
-    const double qnorm = move.rotation.norm();
-    if (qnorm < 1e-12) {
-      return Error(ErrorCode::InvalidArgument, where + "rotation quaternion has zero length");
-    }
+    MD_RETURN_IF_ERROR(check_transform(move, where));
     core::GroupSimilarity transform;
-    transform.rotation = Eigen::Quaterniond(move.rotation.coeffs() / qnorm).toRotationMatrix();
+    transform.rotation = move.rotation.normalized().toRotationMatrix();
     transform.scale = move.scale;
     transform.translation = move.translation;
     transform.pivot = move.pivot;
@@ -459,7 +451,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   const int nv = static_cast<int>(rest_.V.rows());
   for (std::size_t t = 0; t < vertex_targets->size(); ++t) {
     const VertexTarget& target = (*vertex_targets)[t];
-    const std::string where = "target " + std::to_string(t) + ": ";
+    const std::string where = "targets.vertices[" + std::to_string(t) + "]: ";
     if (target.vertex < 0 || target.vertex >= nv) {
       return Error(ErrorCode::InvalidArgument, where + "vertex " + std::to_string(target.vertex) +
                                                    " is out of range (#V=" + std::to_string(nv) +
@@ -474,11 +466,8 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
       return Error(ErrorCode::InvalidArgument, where + "vertex " + std::to_string(target.vertex) +
                                                    " is in fixed group " + std::to_string(g));
     }
-    if (!finite3(target.position)) {
-      return Error(ErrorCode::InvalidArgument, where + "vertex " + std::to_string(target.vertex) +
-                                                   " has a non-finite target " +
-                                                   vec_str(target.position));
-    }
+    MD_RETURN_IF_ERROR(check_finite(target.position, "targets.positions of vertex " +
+                                                         std::to_string(target.vertex)));
     targets.row(row_of(target.vertex)) = target.position.transpose();
   }
   MD_RETURN_IF_ERROR(check_pinnable(request.method, constrained));
@@ -493,9 +482,8 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   }
   if (!request.keep_settings) edit.settings = settings_of(request, rigidity);
 
-  // One stop source for the client's token and the deadline: the solver sees a single token.
-  std::stop_source local;
-  std::stop_callback forward(stop, [&local] { local.request_stop(); });
+  // `stop` is the call's one stop (the service requests it at the deadline too): the solver
+  // polls it. The deadline itself only tells which error a stop is.
   auto deadline_passed = [&request] {
     return request.deadline && std::chrono::steady_clock::now() >= *request.deadline;
   };
@@ -508,10 +496,12 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     return Error(ErrorCode::Cancelled,
                  "move cancelled; revision " + std::to_string(base_revision) + " unchanged");
   };
-  if (local.stop_requested() || deadline_passed()) return stopped_status();
+  if (stop.stop_requested() || deadline_passed()) return stopped_status();
 
-  bool built = false;
-  MD_ASSIGN_OR_RETURN(CachedDeformer * entry, get_or_build(request.method, constrained, &built));
+  MD_ASSIGN_OR_RETURN(const DeformerCache::Found found,
+                      deformers_->get_or_build(request.method, constrained));
+  DeformerCache::Entry* entry = found.entry;
+  const bool built = found.built;
   if (entry->state_revision != base_revision) entry->deformer->reset();
 
   core::SolveOptions options;
@@ -524,12 +514,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   // commit() measures E_theta / E_phi once; per-iteration tracking would measure the mesh three
   // more times per interactive move (rest, guess, each iteration).
   options.track_metrics = false;
-  // Deadlines are checked after every outer iteration; the solver itself polls the token.
-  auto progress = [&](const core::IterationInfo&) {
-    if (deadline_passed()) local.request_stop();
-  };
-  Result<core::SolveReport> report =
-      entry->deformer->solve(targets, options, progress, local.get_token());
+  Result<core::SolveReport> report = entry->deformer->solve(targets, options, {}, stop);
   if (!report.ok()) {
     if (report.status().code() == ErrorCode::Cancelled) return stopped_status();
     // The deformer may have moved; make sure it restarts cleanly next time.
@@ -559,7 +544,7 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
                                      std::uint64_t base_revision,
                                      const std::shared_ptr<const Positions>& base_positions,
                                      bool built, const std::string& editor, bool refinement,
-                                     CachedDeformer* entry, const EditState* edit) {
+                                     DeformerCache::Entry* entry, const EditState* edit) {
   const int nv = static_cast<int>(rest_.V.rows());
   auto result = std::make_shared<DeformResult>();
   result->method = method;
@@ -640,13 +625,14 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
   return DeformResult(*result);
 }
 
-Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
+Result<std::optional<DeformResult>> Session::refine(std::stop_source slice) {
   if (!refine_ || is_closed() || !is_fresh()) {
     refine_.reset();
     return std::optional<DeformResult>{};
   }
   // Shared: refinement never waits for another replica's lease; whoever edits there wins.
-  if (shared_ != nullptr && !begin_shared_edit(std::chrono::milliseconds(0), stop).ok()) {
+  if (shared_ != nullptr &&
+      !begin_shared_edit(std::chrono::milliseconds(0), slice.get_token()).ok()) {
     refine_.reset();
     return std::optional<DeformResult>{};
   }
@@ -662,25 +648,20 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
     base_revision = revision_;
     base_positions = history_.back()->positions;
   }
-  CachedDeformer* entry = nullptr;
-  for (CachedDeformer& d : deformers_) {
-    if (d.method == state.method && d.constrained == constrained) entry = &d;
-  }
+  DeformerCache::Entry* entry = deformers_->find(state.method, constrained);
   // The deformer must still hold the current revision (it is warm-started from it); otherwise
   // something else committed or the cache dropped it, and there is nothing to continue.
   if (entry == nullptr || entry->state_revision != base_revision) {
     refine_.reset();
     return std::optional<DeformResult>{};
   }
-  entry->last_used = ++deformer_tick_;
+  deformers_->touch(*entry);
 
-  std::stop_source local;
   {
     std::lock_guard lock(refine_mutex_);
-    refine_stop_ = local;
+    refine_stop_ = slice;  // preempt_refinement() stops this slice
   }
-  std::stop_callback forward(stop, [&local] { local.request_stop(); });
-  if (has_queued_edits()) local.request_stop();  // an edit is waiting: yield to it
+  if (has_queued_edits()) slice.request_stop();  // an edit is waiting: yield to it
 
   // Short slices keep a waiting edit's latency to about one outer iteration.
   constexpr int kSliceIterations = 2;
@@ -695,9 +676,9 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_token stop) {
   // A multiresolution deformer's moves ran on its coarse level: refinement is at full resolution.
   options.full_resolution = true;
   Result<core::SolveReport> report =
-      local.stop_requested()
+      slice.stop_requested()
           ? Result<core::SolveReport>(Error(ErrorCode::Cancelled, "refinement preempted"))
-          : entry->deformer->solve(targets, options, {}, local.get_token());
+          : entry->deformer->solve(targets, options, {}, slice.get_token());
   {
     std::lock_guard lock(refine_mutex_);
     refine_stop_ = std::stop_source(std::nostopstate);
@@ -769,7 +750,7 @@ SessionInfo Session::info() const {
   }
   info.rigidity = default_rigidity_;
   info.watchers = static_cast<int>(watchers_.size());
-  info.cached_deformers = cached_deformers_.load();
+  info.cached_deformers = deformers_->size();
   return info;
 }
 

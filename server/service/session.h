@@ -17,6 +17,7 @@
 #include "core/deformer.h"
 #include "core/measures.h"
 #include "core/topology.h"
+#include "server/service/deformer_cache.h"
 #include "server/service/metrics.h"
 #include "server/service/persistence.h"
 #include "server/service/shared_store.h"
@@ -124,10 +125,16 @@ class Session : public std::enable_shared_from_this<Session> {
   /// changing targets never refactors. Commits a revision and publishes it to the watchers.
   /// @return the result; FailedPrecondition before set_handles or for a component the method
   ///         cannot pin; InvalidArgument for a bad group/vertex index, a move of a Fixed group, a
-  ///         non-finite or out-of-range value, or options the method rejects (ORA on ARAP or
-  ///         Laplacian); Cancelled when `stop` is requested, DeadlineExceeded past the deadline
-  ///         (nothing committed either way); NotFound once closed; ResourceExhausted when a new
-  ///         factorization does not fit the budget; NumericalFailure if the solve breaks down.
+  ///         non-finite or out-of-range value (max_iterations, tolerance, rigidity, a zero
+  ///         quaternion, a scale <= 0, more than kMaxMagnifyRegions regions), naming the field
+  ///         as clients write it ("moves[1].scale"), or options the method rejects (ORA on ARAP
+  ///         or Laplacian); Cancelled when `stop` is requested, DeadlineExceeded when it is and
+  ///         request.deadline has passed, or when the move starts past it (nothing committed
+  ///         either way); NotFound once closed; ResourceExhausted when a new factorization does
+  ///         not fit the budget; NumericalFailure if the solve breaks down.
+  /// @param stop  the call's one stop: the caller requests it on cancellation and at
+  ///              request.deadline (DeformationService does, through CallStop); the session
+  ///              polls nothing else.
   [[nodiscard]] Result<DeformResult> move(const MoveRequest& request, std::stop_token stop);
 
   /// Background refinement (ServiceOptions::refine_budget > 0). A committed move that did not
@@ -136,10 +143,12 @@ class Session : public std::enable_shared_from_this<Session> {
   /// each committed as a revision marked `refinement`, until the solver converges or the budget
   /// is spent. set_handles, a failed move and closing end it; a new edit preempts a running slice.
   /// Edit (strand) only.
+  /// @param slice  the slice's stop (the caller ties it to shutdown); preempt_refinement()
+  ///               requests it, and so does this call when an edit is already queued.
   /// @return the committed revision; nullopt when there was nothing to refine (or the state
   ///         changed since); Cancelled when preempted or stopped (nothing committed); the
   ///         solver's error otherwise (refinement then ends).
-  [[nodiscard]] Result<std::optional<DeformResult>> refine(std::stop_token stop);
+  [[nodiscard]] Result<std::optional<DeformResult>> refine(std::stop_source slice);
   /// True while refinement should continue. Edit (strand) only.
   bool wants_refinement() const { return refine_.has_value() && !is_closed(); }
   /// Stops a running refinement slice (any thread). Called when a new edit is queued.
@@ -167,7 +176,8 @@ class Session : public std::enable_shared_from_this<Session> {
   void close_watchers();
   bool is_closed() const { return closed_.load(); }
 
-  std::size_t estimated_bytes() const { return estimated_bytes_.load(); }
+  /// What the memory budget charges: the mesh, its revisions and the cached deformers.
+  std::size_t estimated_bytes() const { return base_bytes_ + deformers_->bytes(); }
   std::chrono::steady_clock::time_point last_used() const;
   /// When the last move (not refinement) was committed; the epoch before any.
   std::chrono::steady_clock::time_point last_move_time() const {
@@ -193,23 +203,14 @@ class Session : public std::enable_shared_from_this<Session> {
   std::optional<StrandStep> run_next();
 
  private:
-  struct CachedDeformer {
-    core::Method method;
-    std::vector<int> constrained;
-    std::unique_ptr<core::Deformer> deformer;
-    std::uint64_t state_revision = 0;  ///< the revision the deformer's positions() equal
-    std::uint64_t last_used = 0;
-  };
-
   Session() = default;
   Status check_pinnable(core::Method method, const std::vector<int>& constrained) const;
   /// The #F face scales of the request's magnify regions (empty when it has none).
   /// @return InvalidArgument for regions with a method other than scale-aware, a bad scale, an
   ///         index out of range, or a region covering no whole face (naming the region).
   Result<Eigen::VectorXd> magnify_scales(const MoveRequest& request) const;
-  Result<CachedDeformer*> get_or_build(core::Method method, const std::vector<int>& constrained,
-                                       bool* built, std::stop_token stop = {});
-  void update_estimate();
+  /// Sets up deformers_ and base_bytes_ for the mesh and options (create only).
+  void init_deformer_cache();
   /// Turns a solver report into the next revision, publishes it and updates the deformer entry.
   /// Strand only.
   /// @return the revision; with a shared store, the store's refusal (Aborted naming the current
@@ -218,7 +219,8 @@ class Session : public std::enable_shared_from_this<Session> {
   Result<DeformResult> commit(core::SolveReport report, core::Method method, double rigidity,
                               const Positions& targets, std::uint64_t base_revision,
                               const std::shared_ptr<const Positions>& base_positions, bool built,
-                              const std::string& editor, bool refinement, CachedDeformer* entry,
+                              const std::string& editor, bool refinement,
+                              DeformerCache::Entry* entry,
                               const EditState* edit);
   /// Shared store: takes the lease (waiting at most `wait`) and catches up (sync_shared).
   Status begin_shared_edit(std::chrono::milliseconds wait, std::stop_token stop);
@@ -252,9 +254,8 @@ class Session : public std::enable_shared_from_this<Session> {
   std::shared_ptr<ServiceCounters> counters_;
   ReserveFn reserve_;
 
-  // Touched only by the strand (edits).
-  std::vector<CachedDeformer> deformers_;
-  std::uint64_t deformer_tick_ = 0;
+  // Touched only by the strand (edits), except the cache's size and bytes.
+  std::unique_ptr<DeformerCache> deformers_;  ///< set by create()
   std::optional<RefineState> refine_;
 
   // Guarded by state_mutex_.
@@ -281,7 +282,7 @@ class Session : public std::enable_shared_from_this<Session> {
   std::optional<FileStamp> stamp_;  ///< guarded by stamp_mutex_
 
   std::mutex refine_mutex_;
-  std::stop_source refine_stop_;  ///< of the running refinement slice; guarded by refine_mutex_
+  std::stop_source refine_stop_;  ///< the running refinement slice's; guarded by refine_mutex_
 
   std::mutex strand_mutex_;
   struct StrandTask {
@@ -292,9 +293,8 @@ class Session : public std::enable_shared_from_this<Session> {
   bool strand_running_ = false;
 
   std::atomic<bool> closed_{false};
-  std::atomic<std::size_t> estimated_bytes_{0};
+  std::size_t base_bytes_ = 0;  ///< estimate_session_bytes without deformers; set by create()
   std::atomic<int> inflight_{0};
-  std::atomic<int> cached_deformers_{0};
 };
 
 }  // namespace meshdeform::service

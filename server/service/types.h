@@ -19,6 +19,7 @@
 #include "core/deformer.h"
 #include "core/io/mesh_io.h"
 #include "core/mesh_data.h"
+#include "core/ora.h"
 #include "server/service/admission.h"
 
 namespace meshdeform::service {
@@ -76,12 +77,6 @@ struct VertexTarget {
   Eigen::Vector3d position = Eigen::Vector3d::Zero();
 };
 
-/// A region grown by `scale` (paper Section 5.3, region magnification): the faces whose three
-/// vertices are all in `vertices` get scale^2 times their rest area.
-struct MagnifyRegion {
-  std::vector<int> vertices;
-  double scale = 1.0;  ///< > 0 and finite
-};
 
 /// How a move changes the session's undo history (edit_history.h).
 enum class HistoryAction {
@@ -105,7 +100,7 @@ struct EditSettings {
   core::Method method = core::Method::ScaleAware;
   bool ora = false;
   double rigidity = 0;  ///< the scale control the move used (resolved: never unset)
-  std::vector<MagnifyRegion> magnify;
+  std::vector<core::MagnifyRegion> magnify;  ///< as MoveRequest::magnify
   int max_iterations = 2;
   double tolerance = 1e-4;
 };
@@ -128,10 +123,14 @@ struct MoveRequest {
   /// Scale control of the scale-aware method (core::SolveOptions::rigidity; 0 = the paper's
   /// pure method); unset: the session's (CreateSessionRequest::rigidity). [0, kMaxRigidity].
   std::optional<double> rigidity;
-  /// Regions to magnify in this move and its background refinement (scale-aware only); absolute
-  /// like the moves: an empty list magnifies nothing. A face in several regions takes the last.
-  std::vector<MagnifyRegion> magnify;
-  int max_iterations = 2;  ///< outer-iteration budget; small for interactive drags, 1..1000
+  /// Regions to magnify in this move and its background refinement (scale-aware only; paper
+  /// Section 5.3): the faces whose three vertices are all in a region's `vertices` get scale^2
+  /// times their rest area. Regions are named by vertices: `faces` must stay empty (the undo
+  /// history stores vertices only). Absolute like the moves: an empty list magnifies nothing. A
+  /// face in several regions takes the last. At most kMaxMagnifyRegions.
+  std::vector<core::MagnifyRegion> magnify;
+  /// Outer-iteration budget, 1..kMaxMoveIterations; small for interactive drags.
+  int max_iterations = 2;
   double tolerance = 1e-4; ///< relative energy change that stops the solve early, >= 0
   /// Undo history: Record (the default) records the move's state as a step; Undo / Redo apply
   /// the previous / next step instead of `moves` and `targets` (which must then be empty).
@@ -228,6 +227,12 @@ struct CreatedSession {
   int dropped_unreferenced = 0;
   std::vector<HandleGroup> suggested_groups;  ///< samples: the benchmark's fixed and handle sets
 };
+
+/// The largest outer-iteration budget of one move (MoveRequest::max_iterations).
+inline constexpr int kMaxMoveIterations = 1000;
+
+/// At most this many magnify regions per move (each is resolved over every face).
+inline constexpr int kMaxMagnifyRegions = 64;
 
 /// The largest scale control a request may ask for (core::SolveOptions::rigidity): far past
 /// ARAP-like behaviour, and the solve stays well conditioned.

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 
+#include "server/service/guard.h"
+
 namespace meshdeform::service {
 
 WorkerPool::WorkerPool(int size, int heavy_lanes) {
@@ -89,11 +91,11 @@ void WorkerPool::run(std::stop_token stop, bool heavy_lane) {
         continue;  // woken for a heavy task that another lane took
       }
     }
-    try {
+    // Tasks report their own errors; a pool thread must survive (and log) a buggy one.
+    (void)run_guarded("worker task", [&task] {
       task();
-    } catch (...) {
-      // Tasks report their own errors; a pool thread must survive a buggy one.
-    }
+      return Status::success();
+    });
     if (is_heavy) {
       std::lock_guard lock(mutex_);
       --heavy_running_;

@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "proto/wire/wire_mapping.h"
+#include "server/service/guard.h"
 #include "server/service/log.h"
 #include "server/transport/proto_convert.h"
 #include "server/transport/status_mapping.h"
@@ -86,7 +87,7 @@ class CallRecord {
 template <typename T, typename Fill>
 auto finish_with(StoppableUnaryReactor* reactor, CallRecord call, Fill fill) {
   return [reactor, call = std::move(call), fill = std::move(fill)](Result<T> result) {
-    const Status status = run_guarded(call.rpc(), [&]() -> Status {
+    const Status status = service::run_guarded(call.rpc(), [&]() -> Status {
       if (!result.ok()) return result.status();
       fill(std::move(result).value());
       return Status::success();
@@ -101,7 +102,7 @@ auto finish_with(StoppableUnaryReactor* reactor, CallRecord call, Fill fill) {
 template <typename Start>
 grpc::ServerUnaryReactor* start_async(const CallRecord& call, Start&& start) {
   auto* reactor = new StoppableUnaryReactor();
-  const Status started = run_guarded(call.rpc(), [&]() -> Status { return start(reactor); });
+  const Status started = service::run_guarded(call.rpc(), [&]() -> Status { return start(reactor); });
   if (!started.ok()) reactor->Finish(call.finish(started));
   return reactor;
 }
@@ -339,7 +340,7 @@ grpc::ServerWriteReactor<v1::DeformUpdate>* DeformServiceImpl::Watch(
   CallRecord call(service_, "Watch", request->session_id());
   const Result<v1::PositionEncoding> encoding = encoding_from_proto(request->encoding());
   if (!encoding.ok()) return new FailedWriteReactor(call.finish(encoding.status()));
-  Result<service::Subscription> subscription = run_guarded("Watch", [&] {
+  Result<service::Subscription> subscription = service::run_guarded("Watch", [&] {
     return service_.watch(service::SessionId{request->session_id()},
                           service::Token{request->token()});
   });
@@ -374,7 +375,7 @@ grpc::ServerUnaryReactor* DeformServiceImpl::GetSessionInfo(
     grpc::CallbackServerContext* context, const v1::GetSessionInfoRequest* request,
     v1::GetSessionInfoResponse* response) {
   const CallRecord call(service_, "GetSessionInfo", request->session_id());
-  return finish_now(context, call, run_guarded("GetSessionInfo", [&]() -> Status {
+  return finish_now(context, call, service::run_guarded("GetSessionInfo", [&]() -> Status {
     MD_ASSIGN_OR_RETURN(service::SessionInfo info,
                         service_.session_info(service::SessionId{request->session_id()},
                                               service::Token{request->token()}));
@@ -390,7 +391,7 @@ grpc::ServerUnaryReactor* DeformServiceImpl::CloseSession(grpc::CallbackServerCo
                                                           v1::CloseSessionResponse* response) {
   (void)response;
   const CallRecord call(service_, "CloseSession", request->session_id());
-  return finish_now(context, call, run_guarded("CloseSession", [&]() -> Status {
+  return finish_now(context, call, service::run_guarded("CloseSession", [&]() -> Status {
     return service_.close_session(service::SessionId{request->session_id()},
                                   service::Token{request->token()});
   }));
@@ -401,7 +402,7 @@ grpc::ServerUnaryReactor* DeformServiceImpl::GetServerStats(
     v1::GetServerStatsResponse* response) {
   (void)request;
   const CallRecord call(service_, "GetServerStats", {});
-  return finish_now(context, call, run_guarded("GetServerStats", [&]() -> Status {
+  return finish_now(context, call, service::run_guarded("GetServerStats", [&]() -> Status {
     server_stats_to_proto(service_.stats(), uptime_seconds(), response);
     return Status::success();
   }));

@@ -1,7 +1,8 @@
 #include "server/transport/http_message.h"
 
 #include <algorithm>
-#include <exception>
+
+#include "server/service/guard.h"
 
 namespace meshdeform::transport {
 
@@ -20,13 +21,10 @@ void respond_synchronously(const HttpHandler& handler, const HttpRequest& reques
                                             " bytes over the limit\n"));
     return;
   }
-  HttpResponse response;
-  try {
-    response = handler(request);
-  } catch (const std::exception&) {
-    response = text_response(500, "internal error\n");
-  }
-  exchange.respond(std::move(response));
+  Result<HttpResponse> response =
+      service::run_guarded("http", [&]() -> Result<HttpResponse> { return handler(request); });
+  exchange.respond(response.ok() ? std::move(response).value()
+                                 : text_response(500, "internal error\n"));
 }
 
 HttpResponse text_response(int status, std::string body, HttpHeaders headers) {

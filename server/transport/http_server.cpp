@@ -1,5 +1,6 @@
 #include "server/transport/http_server.h"
 
+#include "server/service/guard.h"
 #include "server/service/log.h"
 
 #include <boost/asio/dispatch.hpp>
@@ -662,11 +663,11 @@ void Connection<Stream>::dispatch(HttpRequest in, bool keep_alive, unsigned vers
   tcp().expires_never();
   start_monitor();
   auto exchange = std::make_shared<ConnectionExchange>(self(), server_.lifeline, seq_);
-  try {
+  const Status handled = service::run_guarded("http", [&]() -> Status {
     server_.handler(std::move(in), exchange);
-  } catch (const std::exception&) {
-    exchange->respond(text_response(500, "internal error\n"));
-  }
+    return Status::success();
+  });
+  if (!handled.ok()) exchange->respond(text_response(500, "internal error\n"));
 }
 
 }  // namespace

@@ -4,8 +4,8 @@
 
 #include <algorithm>
 #include <bit>
-#include <cmath>
 #include <cstring>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -16,15 +16,6 @@ namespace {
 
 Status invalid(std::string message) {
   return Error(ErrorCode::InvalidArgument, std::move(message));
-}
-
-/// InvalidArgument naming `field` when `v` has a non-finite component.
-Status check_finite(const Eigen::Vector3d& v, const std::string& field) {
-  if (!v.allFinite()) {
-    return invalid(field + " has a non-finite component (" + std::to_string(v.x()) + ", " +
-                   std::to_string(v.y()) + ", " + std::to_string(v.z()) + ")");
-  }
-  return Status::success();
 }
 
 Result<int> index_from_proto(std::uint32_t value, const std::string& field) {
@@ -88,15 +79,9 @@ Result<service::CreateSessionRequest> create_request_from_proto(
       return invalid("give one of mesh_bytes and sample (got neither)");
   }
   out.weld = request.weld();
-  if (request.has_lambda()) {
-    if (!std::isfinite(request.lambda()) || request.lambda() <= 0) {
-      return invalid("lambda " + std::to_string(request.lambda()) + " is not finite and > 0");
-    }
-    out.settings.lambda = request.lambda();
-  }
-  if (request.has_rigidity()) {
-    out.rigidity = request.rigidity();  // range checked by the service
-  }
+  // Ranges (lambda > 0, rigidity) are the service's to check.
+  if (request.has_lambda()) out.settings.lambda = request.lambda();
+  if (request.has_rigidity()) out.rigidity = request.rigidity();
   return out;
 }
 
@@ -127,15 +112,9 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
     const v1::GroupMove& move = request.moves(m);
     const std::string where = "moves[" + std::to_string(m) + "]";
     MD_RETURN_IF_ERROR(index_from_proto(move.group(), where + ".group").status());
-    // Absent fields are the defaults (zero, identity, 1, none): finite and non-zero.
-    auto converted = wire::group_move_from_proto<service::GroupMove>(move);
-    MD_RETURN_IF_ERROR(check_finite(converted.translation, where + ".translation"));
-    const Eigen::Vector4d q = converted.rotation.coeffs();
-    if (!q.allFinite()) return invalid(where + ".rotation has a non-finite component");
-    if ((q.array() == 0.0).all()) return invalid(where + ".rotation is the zero quaternion");
-    if (!std::isfinite(converted.scale)) return invalid(where + ".scale is non-finite");
-    if (converted.pivot) MD_RETURN_IF_ERROR(check_finite(*converted.pivot, where + ".pivot"));
-    out.moves.push_back(std::move(converted));
+    // Absent fields are the defaults (zero, identity, 1, none). The values (finite, a non-zero
+    // quaternion, scale > 0) are the service's to check.
+    out.moves.push_back(wire::group_move_from_proto<service::GroupMove>(move));
   }
   const v1::VertexTargets& targets = request.targets();
   if (static_cast<std::size_t>(targets.positions_size()) !=
@@ -150,37 +129,30 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
                                                    "targets.vertices[" + std::to_string(i) + "]"));
     t.position = Eigen::Vector3d(targets.positions(3 * i), targets.positions(3 * i + 1),
                                  targets.positions(3 * i + 2));
-    if (!t.position.allFinite()) {
-      return invalid("targets: vertex " + std::to_string(t.vertex) +
-                     " has a non-finite target position");
-    }
     out.targets.push_back(t);
   }
   MD_ASSIGN_OR_RETURN(out.method, method_from_proto(request.method()));
   out.ora = request.ora();
+  // 0 is "unset" on the wire (the service's default). Ranges (max_iterations, tolerance,
+  // rigidity, magnify scales and count) are the service's to check.
   if (request.max_iterations() != 0) {
-    if (request.max_iterations() > 1000) {
-      return invalid("max_iterations " + std::to_string(request.max_iterations()) +
-                     " is not in 1..1000");
+    if (request.max_iterations() > static_cast<std::uint32_t>(std::numeric_limits<int>::max())) {
+      return invalid("max_iterations = " + std::to_string(request.max_iterations()) +
+                     " is out of range");
     }
     out.max_iterations = static_cast<int>(request.max_iterations());
   }
-  if (request.has_rigidity()) out.rigidity = request.rigidity();  // range: the service
-  if (request.has_tolerance()) {
-    if (!std::isfinite(request.tolerance())) return invalid("tolerance is non-finite");
-    out.tolerance = request.tolerance();
-  }
-  if (request.magnify_size() > kMaxMagnifyRegions) {
-    return invalid(std::to_string(request.magnify_size()) + " magnify regions (at most " +
-                   std::to_string(kMaxMagnifyRegions) + ")");
-  }
+  if (request.has_rigidity()) out.rigidity = request.rigidity();
+  if (request.has_tolerance()) out.tolerance = request.tolerance();
   for (int r = 0; r < request.magnify_size(); ++r) {
     const v1::MagnifyRegion& region = request.magnify(r);
     const std::string where = "magnify[" + std::to_string(r) + "]";
-    service::MagnifyRegion converted;
-    if (!std::isfinite(region.scale())) return invalid(where + ".scale is non-finite");
+    core::MagnifyRegion converted;
     converted.scale = region.scale();
-    MD_ASSIGN_OR_RETURN(converted.vertices, indices_from_proto(region.vertices(), where));
+    MD_ASSIGN_OR_RETURN(const std::vector<int> vertices,
+                        indices_from_proto(region.vertices(), where));
+    converted.vertices = Eigen::Map<const Eigen::VectorXi>(
+        vertices.data(), static_cast<Eigen::Index>(vertices.size()));
     out.magnify.push_back(std::move(converted));
   }
   switch (request.history()) {
@@ -250,9 +222,10 @@ void edit_state_to_proto(const service::EditState& edit, v1::EditState* out) {
     settings->set_max_iterations(static_cast<std::uint32_t>(s.max_iterations));
     settings->set_tolerance(s.tolerance);
     settings->set_rigidity(s.rigidity);
-    for (const service::MagnifyRegion& region : s.magnify) {
+    for (const core::MagnifyRegion& region : s.magnify) {
       v1::MagnifyRegion* r = settings->add_magnify();
-      (void)wire::indices_to_proto(region.vertices, r->mutable_vertices());
+      const std::vector<int> vertices(region.vertices.begin(), region.vertices.end());
+      (void)wire::indices_to_proto(vertices, r->mutable_vertices());
       r->set_scale(region.scale);
     }
   }

@@ -1,9 +1,12 @@
 #pragma once
 /// @file proto_convert.h
-/// meshdeform.v1 messages <-> service domain types. Checks the wire shape only (finite numbers,
-/// lengths, indices that fit an int, known enum values); the service checks the meaning (indices
-/// < #V, roles, scale > 0, ...). Every error is InvalidArgument naming the field. The value and
-/// enum maps themselves are meshdeform::wire's (proto/wire/wire_mapping.h), shared with the client.
+/// meshdeform.v1 messages <-> service domain types. Checks the wire shape only: what cannot be
+/// represented in the service's types (the oneof given, lengths such as 3 positions per target,
+/// indices and counts that fit an int, known enum values). The service checks the meaning, once:
+/// finite numbers, ranges (max_iterations, tolerance, lambda, rigidity, scales), non-zero
+/// quaternions, indices < #V, roles. Every error here is InvalidArgument naming the field. The
+/// value and enum maps themselves are meshdeform::wire's (proto/wire/wire_mapping.h), shared with
+/// the client.
 
 #include "core/deformer.h"
 #include "core/io/mesh_io.h"
@@ -19,23 +22,19 @@ namespace meshdeform::transport {
 [[nodiscard]] Result<io::MeshFormat> format_from_proto(v1::MeshFormat format,
                                                        bool allow_unspecified);
 
-/// @return the request; InvalidArgument for neither bytes nor sample, a missing/unknown format
-///         with bytes, or a non-finite / non-positive lambda.
+/// @return the request; InvalidArgument for neither bytes nor sample (or an empty one), or a
+///         missing/unknown format with bytes.
 [[nodiscard]] Result<service::CreateSessionRequest> create_request_from_proto(
     const v1::CreateSessionRequest& request);
 /// @return the groups; InvalidArgument for an unspecified/unknown role or an index > INT_MAX.
 [[nodiscard]] Result<service::SetHandlesRequest> set_handles_from_proto(
     const v1::SetHandlesRequest& request);
-/// @return the move; InvalidArgument for non-finite numbers, an all-zero quaternion, targets whose
-///         positions are not 3 per vertex, indices > INT_MAX, max_iterations > 1000, more than
-///         kMaxMagnifyRegions regions or a non-finite magnify scale.
+/// @return the move; InvalidArgument for targets whose positions are not 3 per vertex, indices or
+///         max_iterations > INT_MAX, or an unknown history action.
 [[nodiscard]] Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& request);
 
 /// Compact deltas changing more than this fraction of the vertices are sent dense.
 inline constexpr double kDenseFraction = 0.85;
-
-/// At most this many magnify regions per move (each is resolved over every face).
-inline constexpr int kMaxMagnifyRegions = 64;
 
 /// @return the encoding; InvalidArgument for a value this server does not know.
 [[nodiscard]] Result<v1::PositionEncoding> encoding_from_proto(int value);

@@ -1,11 +1,9 @@
 #pragma once
 /// @file status_mapping.h
-/// meshdeform::Status -> grpc::Status (one switch), message truncation, and run_guarded, which
-/// keeps exceptions from escaping an RPC handler (gRPC would turn them into UNKNOWN).
+/// meshdeform::Status -> grpc::Status (one switch) and message truncation. Handlers keep
+/// exceptions in with service::run_guarded (server/service/guard.h), the server's one guard.
 
 #include <cstddef>
-#include <exception>
-#include <new>
 #include <string>
 #include <string_view>
 
@@ -35,23 +33,5 @@ grpc::Status to_grpc_status(const Status& status, std::string_view rpc = {});
 
 /// Writes one structured error line (event "rpc_error", fields rpc and message); thread-safe.
 void log_line(std::string_view rpc, std::string_view text);
-
-/// Runs `fn` (returning Status or Result<T>), turning escaped exceptions into statuses:
-/// std::bad_alloc -> ResourceExhausted, other exceptions -> Internal (both logged).
-template <typename Fn>
-auto run_guarded(std::string_view rpc, Fn&& fn) -> decltype(fn()) {
-  try {
-    return fn();
-  } catch (const std::bad_alloc&) {
-    log_line(rpc, "out of memory");
-    return Error(ErrorCode::ResourceExhausted, "out of memory");
-  } catch (const std::exception& e) {
-    log_line(rpc, std::string("unexpected exception: ") + e.what());
-    return Error(ErrorCode::Internal, "unexpected exception");
-  } catch (...) {
-    log_line(rpc, "unexpected non-standard exception");
-    return Error(ErrorCode::Internal, "unexpected exception");
-  }
-}
 
 }  // namespace meshdeform::transport

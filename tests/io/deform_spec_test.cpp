@@ -239,7 +239,7 @@ TEST(EditSpecParseTest, RejectsNonFiniteNumbers) {
 TEST(EditSpecParseTest, ResolveRejectsNonFiniteValuesOfProgrammaticSpecs) {
   const MeshData grid = test::make_grid(2);
   EditSpec spec;
-  HandleGroup g;
+  HandleMotion g;
   g.vertices = {0, 1};
   g.translation.y() = std::numeric_limits<double>::infinity();
   spec.handles = {g};
@@ -291,20 +291,20 @@ TEST(EditSpecParseTest, RejectsTypeErrorsAndStructure) {
 TEST(EditSpecParseTest, WriterRoundTripsEveryForm) {
   EditSpec spec;
   spec.fixed = {4, 1, 9};
-  HandleGroup rigid;
+  HandleMotion rigid;
   rigid.vertices = {10, 11};
   rigid.translation = Eigen::Vector3d(1.0 / 3.0, -2, M_PI);
   rigid.rotation = AxisAngle{Eigen::Vector3d(0, 1, 1), 33.3};
   rigid.scale = 0.75;
   rigid.pivot = Eigen::Vector3d(0.1, 0.2, 0.3);
-  HandleGroup quat;
+  HandleMotion quat;
   quat.vertices = {12};
   quat.quaternion = Eigen::Vector4d(0.5, 0.5, 0.5, 0.5);
-  HandleGroup matrix;
+  HandleMotion matrix;
   matrix.form = HandleForm::Matrix;
   matrix.vertices = {13, 14};
   matrix.matrix.topRightCorner<3, 1>() << 1e-300, 2, 3;
-  HandleGroup targets;
+  HandleMotion targets;
   targets.form = HandleForm::Targets;
   targets.vertices = {15, 16};
   targets.targets.resize(2, 3);
@@ -354,7 +354,7 @@ TEST(EditSpecParseTest, WriterRoundTripsEveryForm) {
 
 TEST(EditSpecParseTest, WriterRejectsNonFinite) {
   EditSpec spec;
-  HandleGroup g;
+  HandleMotion g;
   g.vertices = {0};
   g.translation.x() = std::nan("");
   spec.handles = {g};

@@ -119,7 +119,10 @@ TEST(EditHistoryTest, StoredBytesRoundTripAndCorruptionIsNamed) {
   settings.rigidity = 30;
   settings.max_iterations = 7;
   settings.tolerance = 1e-6;
-  settings.magnify = {MagnifyRegion{{6, 7, 8}, 1.5}};
+  core::MagnifyRegion region;
+  region.vertices = Eigen::Vector3i(6, 7, 8);
+  region.scale = 1.5;
+  settings.magnify = {region};
   state.settings = settings;
   GroupMove m = lift_group(2, 0.25);
   m.pivot = Eigen::Vector3d(1, 2, 3);
@@ -142,7 +145,7 @@ TEST(EditHistoryTest, StoredBytesRoundTripAndCorruptionIsNamed) {
   EXPECT_EQ(back.settings->max_iterations, 7);
   EXPECT_EQ(back.settings->tolerance, 1e-6);
   ASSERT_EQ(back.settings->magnify.size(), 1u);
-  EXPECT_EQ(back.settings->magnify[0].vertices, (std::vector<int>{6, 7, 8}));
+  EXPECT_EQ(back.settings->magnify[0].vertices, Eigen::Vector3i(6, 7, 8));
   ASSERT_EQ(back.steps.size(), 2u);
   EXPECT_EQ(back.position, 1);
   EXPECT_TRUE(same_state(back.steps[1], state.steps[1]));

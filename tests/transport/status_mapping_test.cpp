@@ -2,7 +2,6 @@
 
 #include <gtest/gtest.h>
 
-#include <stdexcept>
 #include <string>
 
 namespace meshdeform::transport {
@@ -41,16 +40,6 @@ TEST(StatusMappingTest, MessagesAreTruncatedTo1KiB) {
   const std::string body = cut.substr(0, cut.size() - 3);
   EXPECT_NE(static_cast<unsigned char>(body.back()), 0xc3);
   EXPECT_TRUE(to_grpc_status(Status::success()).ok());
-}
-
-TEST(StatusMappingTest, RunGuardedTurnsExceptionsIntoStatuses) {
-  EXPECT_EQ(run_guarded("Test", []() -> Status { throw std::bad_alloc(); }).code(),
-            ErrorCode::ResourceExhausted);
-  EXPECT_EQ(run_guarded("Test", []() -> Status { throw std::runtime_error("boom"); }).code(),
-            ErrorCode::Internal);
-  EXPECT_EQ(run_guarded("Test", []() -> Result<int> { throw 7; }).status().code(),
-            ErrorCode::Internal);
-  EXPECT_EQ(*run_guarded("Test", []() -> Result<int> { return 3; }), 3);
 }
 
 }  // namespace
