@@ -19,21 +19,9 @@ done
 mkdir -p "$out"
 
 log=$(mktemp)
-pid=""
-cleanup() { [[ -n "$pid" ]] && kill "$pid" 2>/dev/null || true; rm -f "$log"; }
+source bench/one_server.sh  # start_server / stop_server: a fresh server per run, memory from zero
+cleanup() { stop_server_if_running; rm -f "$log"; }
 trap cleanup EXIT
-
-start_server() {  # fresh server per run: memory figures start from zero
-  "$server" --listen 127.0.0.1:0 "$@" 2>"$log" &
-  pid=$!
-  for _ in $(seq 1 100); do
-    port=$(grep -o '"event":"listening".*"port":[0-9]*' "$log" | grep -o '[0-9]*$' || true)
-    [[ -n "$port" ]] && return 0
-    sleep 0.1
-  done
-  echo "server did not start:" >&2; cat "$log" >&2; exit 1
-}
-stop_server() { kill -TERM "$pid"; wait "$pid" || true; pid=""; }
 
 run() {  # run NAME SERVER_FLAGS... -- LOADTEST_FLAGS...
   local name=$1; shift

@@ -19,8 +19,8 @@ done
 mkdir -p "$out"
 scratch=$(mktemp -d)
 log="$scratch/server.log"
-pid=""
-cleanup() { [[ -n "$pid" ]] && kill "$pid" 2>/dev/null || true; rm -rf "$scratch"; }
+source bench/one_server.sh  # start_server / stop_server
+cleanup() { stop_server_if_running; rm -rf "$scratch"; }
 trap cleanup EXIT
 
 python3 - "$scratch/spot187k.obj" <<'PY'
@@ -48,22 +48,11 @@ with open(sys.argv[1], "w") as f:
 print(f"spot: {len(V)} vertices, {len(F)} faces", file=sys.stderr)
 PY
 
-start_server() {
-  "$server" --listen 127.0.0.1:0 --max-message-mib 256 "$@" 2>"$log" &
-  pid=$!
-  for _ in $(seq 1 100); do
-    port=$(grep -o '"event":"listening".*"port":[0-9]*' "$log" | grep -o '[0-9]*$' || true)
-    [[ -n "$port" ]] && return 0
-    sleep 0.1
-  done
-  echo "server did not start:" >&2; cat "$log" >&2; exit 1
-}
-stop_server() { kill -TERM "$pid"; wait "$pid" || true; pid=""; }
 
 for variant in multires single; do
   flags=()
   [[ $variant == single ]] && flags=(--multires-above 0)
-  start_server "${flags[@]}"
+  start_server --max-message-mib 256 "${flags[@]}"
   echo "== $variant"
   "$loadtest" --server "127.0.0.1:$port" --mesh "$scratch/spot187k.obj" --sessions 1 --rate 10 \
     --iterations 1 --watchers 1 --duration "$seconds" --move-deadline-ms 60000 \
