@@ -496,7 +496,7 @@ int cmd_move(const mc::Client& client, const Args& args) {
     std::vector<mc::HandleGroup> groups;
     if (!edit.fixed.empty()) groups.push_back({mc::HandleRole::Fixed, edit.fixed});
     const int first_handle = static_cast<int>(groups.size());
-    for (const meshdeform::io::HandleGroup& h : edit.handles) {
+    for (const meshdeform::io::HandleMotion& h : edit.handles) {
       groups.push_back({mc::HandleRole::Handle, h.vertices});
     }
     if (edit.options.method) spec.method = method_or_usage(*edit.options.method);
@@ -509,7 +509,7 @@ int cmd_move(const mc::Client& client, const Args& args) {
                    "option; ignored\n";
     }
     for (std::size_t i = 0; i < edit.handles.size(); ++i) {
-      const meshdeform::io::HandleGroup& h = edit.handles[i];
+      const meshdeform::io::HandleMotion& h = edit.handles[i];
       const int g = first_handle + static_cast<int>(i);
       const std::string where = "--edit: handles[" + std::to_string(i) + "]";
       switch (h.form) {

@@ -123,10 +123,6 @@ struct HandleMotion {
   Positions targets;
 };
 
-/// The former name of HandleMotion, kept while client_cpp/cli/main.cpp still uses it (issue 14);
-/// new code uses HandleMotion.
-using HandleGroup = HandleMotion;
-
 /// Solver options carried by the spec (absent = solver default).
 struct EditOptions {
   std::optional<int> iterations;        ///< >= 1
