@@ -1,6 +1,14 @@
-# Sourced by the single-server bench scripts (run_loadtest.sh, run_multires_server.sh): one
-# fresh meshdeform-server on a loopback port at a time. The caller sets $server (the binary) and
-# $log (a file for its stderr) and traps `stop_server_if_running` on EXIT.
+# Sourced by the single-server bench scripts (run_loadtest.sh, run_multires_server.sh) from the
+# repository root with $build set: checks the binaries, sets $server, $loadtest and $out
+# (bench/results), and runs one fresh meshdeform-server on a loopback port at a time. The caller
+# sets $log (a file for the server's stderr) and traps `stop_server_if_running` on EXIT.
+server="$build/server/transport/meshdeform-server"
+loadtest="$build/client_cpp/loadtest/meshdeform-loadtest"
+out=bench/results
+for binary in "$server" "$loadtest"; do
+  [[ -x "$binary" ]] || { echo "missing $binary: run ./scripts/build.sh first" >&2; exit 2; }
+done
+mkdir -p "$out"
 pid=""
 port=""
 

@@ -10,16 +10,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 build="${1:-build}"
-server="$build/server/transport/meshdeform-server"
-loadtest="$build/client_cpp/loadtest/meshdeform-loadtest"
-out=bench/results
-for binary in "$server" "$loadtest"; do
-  [[ -x "$binary" ]] || { echo "missing $binary: run ./scripts/build.sh first" >&2; exit 2; }
-done
-mkdir -p "$out"
+source bench/one_server.sh  # $server, $loadtest, $out; start_server / stop_server
 
 log=$(mktemp)
-source bench/one_server.sh  # start_server / stop_server: a fresh server per run, memory from zero
+# start_server / stop_server (bench/one_server.sh): a fresh server per run, memory from zero
 cleanup() { stop_server_if_running; rm -f "$log"; }
 trap cleanup EXIT
 

@@ -10,16 +10,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 build="${1:-build}"
 seconds="${2:-90}"
-server="$build/server/transport/meshdeform-server"
-loadtest="$build/client_cpp/loadtest/meshdeform-loadtest"
-out=bench/results
-for binary in "$server" "$loadtest"; do
-  [[ -x "$binary" ]] || { echo "missing $binary: run ./scripts/build.sh first" >&2; exit 2; }
-done
-mkdir -p "$out"
+source bench/one_server.sh  # $server, $loadtest, $out; start_server / stop_server
 scratch=$(mktemp -d)
 log="$scratch/server.log"
-source bench/one_server.sh  # start_server / stop_server
 cleanup() { stop_server_if_running; rm -rf "$scratch"; }
 trap cleanup EXIT
 
