@@ -176,17 +176,7 @@ Status move_to_proto(const MoveSpec& spec, v1::MoveHandlesRequest* out) {
   if (spec.tolerance) out->set_tolerance(*spec.tolerance);
   out->set_editor(spec.editor);
   out->set_full_positions(spec.full_positions);
-  switch (spec.history) {
-    case HistoryAction::Record:
-      out->set_history(v1::HISTORY_ACTION_UNSPECIFIED);
-      break;
-    case HistoryAction::Undo:
-      out->set_history(v1::HISTORY_ACTION_UNDO);
-      break;
-    case HistoryAction::Redo:
-      out->set_history(v1::HISTORY_ACTION_REDO);
-      break;
-  }
+  out->set_history(wire::history_to_proto(spec.history));
   out->set_gesture(spec.gesture);
   out->set_keep_settings(spec.keep_settings);
   return Status::success();

@@ -93,6 +93,38 @@ std::optional<Role> role_from_proto(v1::HandleRole role) {
   return std::nullopt;
 }
 
+/// HistoryAction of either side (service::HistoryAction, client::HistoryAction: any enum with
+/// Record, Undo and Redo) -> v1::HistoryAction (Record is UNSPECIFIED, the default).
+template <typename Action>
+v1::HistoryAction history_to_proto(Action action) {
+  switch (action) {
+    case Action::Undo:
+      return v1::HISTORY_ACTION_UNDO;
+    case Action::Redo:
+      return v1::HISTORY_ACTION_REDO;
+    case Action::Record:
+      break;
+  }
+  return v1::HISTORY_ACTION_UNSPECIFIED;
+}
+
+/// @return the action (UNSPECIFIED is Record); nullopt for a value outside the enum.
+template <typename Action>
+std::optional<Action> history_from_proto(v1::HistoryAction action) {
+  switch (action) {
+    case v1::HISTORY_ACTION_UNSPECIFIED:
+      return Action::Record;
+    case v1::HISTORY_ACTION_UNDO:
+      return Action::Undo;
+    case v1::HISTORY_ACTION_REDO:
+      return Action::Redo;
+    case v1::HistoryAction_INT_MIN_SENTINEL_DO_NOT_USE_:
+    case v1::HistoryAction_INT_MAX_SENTINEL_DO_NOT_USE_:
+      break;
+  }
+  return std::nullopt;
+}
+
 // -------------------------------------------------------------------------------------- values
 
 Eigen::Vector3d vec_from_proto(const v1::Vec3& v);

@@ -66,6 +66,11 @@ EditStep merge_step(const EditStep& current, const std::vector<GroupMove>& moves
   return next;
 }
 
+void restart_history(EditState& state) {
+  state.steps.assign(1, EditStep{});
+  state.position = 0;
+}
+
 bool same_state(const EditStep& a, const EditStep& b) {
   return std::equal(a.moves.begin(), a.moves.end(), b.moves.begin(), b.moves.end(), same_move) &&
          std::equal(a.targets.begin(), a.targets.end(), b.targets.begin(), b.targets.end(),

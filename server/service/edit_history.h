@@ -31,6 +31,10 @@ EditStep merge_step(const EditStep& current, const std::vector<GroupMove>& moves
                     const std::vector<VertexTarget>& targets,
                     const std::vector<int>& vertex_group, std::uint64_t gesture);
 
+/// New anchors (set_handles): the history restarts at the state as set (one step, no moves);
+/// the settings stay.
+void restart_history(EditState& state);
+
 /// True when both steps give the same targets (equal moves and targets; gestures ignored).
 bool same_state(const EditStep& a, const EditStep& b);
 

@@ -340,8 +340,7 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
       for (std::size_t j = 0; j < constrained.size(); ++j)
         state.anchors.row(static_cast<Eigen::Index>(j)) = state.positions.row(constrained[j]);
       state.targets = state.anchors;
-      state.edit.steps.assign(1, EditStep{});
-      state.edit.position = 0;
+      restart_history(state.edit);
       MD_RETURN_IF_ERROR(shared_->commit(state, shared_version_, SharedLogEntry{}));
       ++shared_version_;
     }
@@ -355,9 +354,7 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
     anchors_ = anchors;
     targets_ = std::move(anchors);
     vertex_group_ = std::move(group_of);
-    // New anchors: older steps meant other targets. The settings stay.
-    edit_.steps.assign(1, EditStep{});
-    edit_.position = 0;
+    restart_history(edit_);  // new anchors: older steps meant other targets
   }
   persist();
   return info();

@@ -155,19 +155,12 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
         vertices.data(), static_cast<Eigen::Index>(vertices.size()));
     out.magnify.push_back(std::move(converted));
   }
-  switch (request.history()) {
-    case v1::HISTORY_ACTION_UNSPECIFIED:
-      out.history = service::HistoryAction::Record;
-      break;
-    case v1::HISTORY_ACTION_UNDO:
-      out.history = service::HistoryAction::Undo;
-      break;
-    case v1::HISTORY_ACTION_REDO:
-      out.history = service::HistoryAction::Redo;
-      break;
-    default:
-      return invalid("unknown history action " + std::to_string(static_cast<int>(request.history())));
+  const std::optional<service::HistoryAction> history =
+      wire::history_from_proto<service::HistoryAction>(request.history());
+  if (!history) {
+    return invalid("unknown history action " + std::to_string(static_cast<int>(request.history())));
   }
+  out.history = *history;
   out.gesture = request.gesture();
   out.keep_settings = request.keep_settings();
   out.editor = request.editor().substr(0, 256);

@@ -119,6 +119,17 @@ TEST(WireMappingTest, UnknownMeshFormatIsRejected) {
   EXPECT_EQ(read.status().message(), "unknown format 42");
 }
 
+TEST(WireMappingTest, EveryHistoryActionRoundTripsAndUnknownOnesAreRejected) {
+  for (const service::HistoryAction action : {service::HistoryAction::Record,
+                                              service::HistoryAction::Undo,
+                                              service::HistoryAction::Redo}) {
+    EXPECT_EQ(history_from_proto<service::HistoryAction>(history_to_proto(action)), action);
+  }
+  EXPECT_EQ(history_to_proto(service::HistoryAction::Record), v1::HISTORY_ACTION_UNSPECIFIED);
+  EXPECT_EQ(history_from_proto<service::HistoryAction>(static_cast<v1::HistoryAction>(9)),
+            std::nullopt);
+}
+
 TEST(WireMappingTest, EveryHandleRoleRoundTripsAndUnknownRolesAreRejected) {
   using service::HandleRole;
   for (const HandleRole role : {HandleRole::Fixed, HandleRole::Handle}) {

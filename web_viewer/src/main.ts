@@ -151,7 +151,6 @@ class App {
   /** Every applied group's move (identity for fixed groups), absolute from its anchors. */
   states: GroupStates = [];
   history = new UndoStack<GroupStates>([]);
-  moved = false; // a move was sent since the handles were set
   dirty = false; // the painted groups differ from the applied ones
   private keyCmd: KeyCommand | null = null;
   private iterationsValue = DEFAULT_ITERATIONS;
@@ -354,7 +353,6 @@ class App {
     const restored = historyFromEdit(info.edit, s.anchors.map((a) => (a.centroid ? (a.centroid.toArray() as Vec3) : null)));
     this.history.restore(restored.states, restored.index);
     this.states = cloneStates(this.history.current);
-    this.moved = restored.index > 0 || restored.states.length > 1;
     this.updateUndoButtons();
     this.updateMethodAvailability();
     this.recolor();
@@ -568,7 +566,6 @@ class App {
     const n = this.session?.groups.length ?? 0;
     this.states = identityStates(n);
     this.history.reset(identityStates(n));
-    this.moved = false;
     this.coalescer.reset();
     this.updateUndoButtons();
   }
@@ -636,7 +633,6 @@ class App {
     const s = this.session;
     if (!s || s.gone || this.handleIndices().length === 0 || s.role !== "edit") return;
     this.states = cloneStates(states);
-    this.moved = true;
     s.shapeAtRest = reset;
     // Undo and redo must each reach the server (its history moves one step per call).
     const barrier = history !== HistoryAction.UNSPECIFIED;
@@ -1059,7 +1055,7 @@ class App {
     s.selection.paint(ix, mode);
     if (mode === "magnify" || mode === "erase") {
       this.updateMethodAvailability();
-      this.resendIfMoved();
+      this.resolveWithSettings();
     }
     this.recolor();
   }
@@ -1098,7 +1094,7 @@ class App {
 
   /** A setting changed: solve again with it (the server also keeps it for the next page that
    * opens the session; an unchanged state adds no undo step). */
-  private resendIfMoved(): void {
+  private resolveWithSettings(): void {
     if (this.handleIndices().length > 0) this.submitMove(this.states, performance.now(), true);
   }
 
@@ -1177,11 +1173,11 @@ class App {
     radius();
     $in("iterations").addEventListener("input", () => this.checkIterations());
     $in("iterations").addEventListener("change", () => {
-      if (this.checkIterations()) this.resendIfMoved();
+      if (this.checkIterations()) this.resolveWithSettings();
     });
-    for (const id of ["method", "ora"]) $(id).addEventListener("change", () => this.resendIfMoved());
+    for (const id of ["method", "ora"]) $(id).addEventListener("change", () => this.resolveWithSettings());
     $in("rigidity").addEventListener("input", () => this.showRigidity());
-    $in("rigidity").addEventListener("change", () => this.resendIfMoved());  // re-solves live
+    $in("rigidity").addEventListener("change", () => this.resolveWithSettings());  // re-solves live
     $sel("method").addEventListener("change", () => {
       this.showRigidity();
       this.updateMethodAvailability();
@@ -1189,7 +1185,7 @@ class App {
     $in("magnify").addEventListener("input", () => ($("magnify-val").textContent = Number($in("magnify").value).toFixed(2)));
     $in("magnify").addEventListener("change", () => {
       if (this.session && !this.session.selection.hasMagnify) this.banner.message("Paint a “magnify region” first (Brush or Lasso, mode magnify region).");
-      this.resendIfMoved();
+      this.resolveWithSettings();
     });
     // View preferences are the person's, not the session's: kept in this browser.
     const prefs = loadPrefs(storage());
