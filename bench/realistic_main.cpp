@@ -20,6 +20,7 @@
 #include <optional>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <Eigen/Core>
@@ -68,8 +69,8 @@ struct Options {
   std::string out_dir = MESHDEFORM_BENCH_RESULTS_DIR;
   std::string stem = "realistic";
   std::string spot_path = std::string(MESHDEFORM_BENCH_SOURCE_DIR) + "/tests/data/spot.obj";
-  std::vector<std::string> methods = {"scale_aware", "scale_aware_anderson", "arap",
-                                      "arap_anderson", "cgal"};
+  std::vector<std::string> methods = {"scale_aware", "scale_aware_anderson",
+                                      "scale_aware_threads", "arap", "arap_anderson", "cgal"};
 };
 
 void print_usage(std::ostream& out) {
@@ -78,7 +79,8 @@ void print_usage(std::ostream& out) {
          "  --max-vertices N      skip models with more vertices (1000000)\n"
          "  --spot-levels a,b     Loop subdivision levels of Spot (2,3,4: ~47k, 187k, 750k)\n"
          "  --regular             also run the regular Table 1 models\n"
-         "  --methods a,b         scale_aware, scale_aware_anderson, arap, arap_anderson, cgal\n"
+         "  --methods a,b         scale_aware, scale_aware_anderson, scale_aware_threads (the\n"
+         "                        plain iteration on every core), arap, arap_anderson, cgal\n"
          "                        (default all)\n"
          "  --iterations N        outer-iteration budget of the timed runs (15)\n"
          "  --repeat N            rounds; timings are medians (3)\n"
@@ -131,8 +133,8 @@ Result<Options> parse_options(int argc, char** argv) {
   flags.text("--spot", o.spot_path);
   MD_RETURN_IF_ERROR(flags.parse(argc, argv));
   for (const auto& m : o.methods) {
-    if (m != "scale_aware" && m != "scale_aware_anderson" && m != "arap" &&
-        m != "arap_anderson" && m != "cgal") {
+    if (m != "scale_aware" && m != "scale_aware_anderson" && m != "scale_aware_threads" &&
+        m != "arap" && m != "arap_anderson" && m != "cgal") {
       return Error(ErrorCode::InvalidArgument, "unknown method '" + m + "'");
     }
   }
@@ -166,12 +168,14 @@ json history_json(const std::vector<core::IterationInfo>& history) {
 /// Both our solvers: create, a timed run without metrics (the timings), then reset and the same
 /// run with metrics (per-iteration E_theta / E_phi; deterministic, so the same iterates), and for
 /// ARAP a convergence run (tolerance 1e-4, the cap) timed the same way as CGAL's.
+/// `threads` overrides --threads when > 0 (scale_aware_threads: every core).
 template <typename Solver, typename Settings>
-json run_ours(const Model& model, const Options& options, bool is_arap, int anderson_window) {
+json run_ours(const Model& model, const Options& options, bool is_arap, int anderson_window,
+              int threads = 0) {
   const Positions& V0 = model.bench.mesh.V;
   const Triangles& F = model.bench.mesh.F;
   Settings settings;
-  settings.threads = options.threads;
+  settings.threads = threads > 0 ? threads : options.threads;
   json out;
   const auto start = std::chrono::steady_clock::now();
   auto created = Solver::create(V0, F, model.setup.constrained, settings);
@@ -499,6 +503,35 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
         << " |\n";
   }
 
+  bool any_threads = false;
+  for (const Row& row : rows) any_threads = any_threads || find(row, "scale_aware_threads");
+  if (any_threads) {
+    out << "\n## Both cores for one session (scale_aware_threads: the plain scale-aware run on "
+        << std::max(1, static_cast<int>(std::thread::hardware_concurrency()))
+        << " OpenMP threads, same run)\n\n";
+    out << "| model | #V | SA ms/it, " << options.threads << " thread(s) | SA ms/it, all cores | "
+           "speed-up | all cores / CGAL per-it | SA precompute s, " << options.threads
+        << " / all cores | SA MiB, " << options.threads << " / all cores |\n";
+    out << "|---|---:|---:|---:|---:|---|---|---|\n";
+    for (const Row& row : rows) {
+      const MethodResult* one = find(row, "scale_aware");
+      const MethodResult* all = find(row, "scale_aware_threads");
+      const MethodResult* cgal = find(row, "cgal");
+      if (!all) continue;
+      out << "| " << row.name << " | " << row.vertices << " | "
+          << (one ? fmt("%.1f", 1e3 * one->per_iteration_s) : "-") << " | "
+          << fmt("%.1f", 1e3 * all->per_iteration_s) << " | "
+          << (one ? fmt("%.2f", one->per_iteration_s / all->per_iteration_s) : "-") << " | "
+          << (cgal ? ratio_cell(all->per_iteration_s, cgal->per_iteration_s,
+                                kPerIterationRatioTarget)
+                   : "-")
+          << " | " << (one ? fmt("%.3f", one->precompute_s) : "-") << " / "
+          << fmt("%.3f", all->precompute_s) << " | "
+          << (one ? fmt("%.0f", one->peak_rss_mib) : "-") << " / "
+          << fmt("%.0f", all->peak_rss_mib) << " |\n";
+    }
+  }
+
   out << "\n## Scale-aware breakdown per outer iteration (timed run)\n\n";
   out << "| model | #V | ms/it | step one ms | assembly ms | linear (PCG) ms | PCG steps / it | "
          "ms / PCG step | sweeps / it | factorizations | E_theta | E_phi | area |\n";
@@ -798,6 +831,11 @@ Status run(int argc, char** argv) {
           if (method == "scale_aware") {
             return run_ours<core::ScaleAwareSolver, core::ScaleAwareSettings>(model, options, false,
                                                                               0);
+          }
+          if (method == "scale_aware_threads") {
+            return run_ours<core::ScaleAwareSolver, core::ScaleAwareSettings>(
+                model, options, false, 0,
+                std::max(1, static_cast<int>(std::thread::hardware_concurrency())));
           }
           if (method == "scale_aware_anderson") {
             return run_ours<core::ScaleAwareSolver, core::ScaleAwareSettings>(

@@ -454,6 +454,7 @@ Status ScaleAwareSolver::Impl::prepare_rigidity(double rigidity) {
     MD_RETURN_IF_ERROR(control.build(V0, F, topology, N0, constrained, settings.scale_pull,
                                      settings.scale_smooth_length));
     control.set_normal_tie(settings.scale_normal_tie);
+    control.set_threads(threads);
     scale_control.emplace(std::move(control));
   }
   if (settings.preconditioner == StepTwoPreconditioner::BlockTrace && trace_rigid_rho != rigidity) {
@@ -682,8 +683,16 @@ Eigen::VectorXd ScaleAwareSolver::Impl::precondition_joint(const Eigen::VectorXd
   const Eigen::Index n3 = 3 * static_cast<Eigen::Index>(nv);
   const Eigen::Index m = r.size() - n3;
   Eigen::VectorXd out(r.size());
-  out.head(n3) = precondition(r.head(n3));
-  out.tail(m) = scale_control->solve_scale_matrix(r.tail(m)) / rigidity;
+  // Two independent triangular solves (the x block's n x n factor with three right-hand sides,
+  // H's #F x #F factor): sequential by nature, but they can run side by side.
+  const bool side_by_side = threads > 1 && nv > 2000;
+#pragma omp parallel sections num_threads(2) if (side_by_side)
+  {
+#pragma omp section
+    out.head(n3) = precondition(r.head(n3));
+#pragma omp section
+    out.tail(m) = scale_control->solve_scale_matrix(r.tail(m)) / rigidity;
+  }
   return out;
 }
 
@@ -730,6 +739,8 @@ PcgOutcome ScaleAwareSolver::Impl::pcg_joint(const Eigen::VectorXd& b, Eigen::Ve
 RowPositions ScaleAwareSolver::Impl::normals_of(const Eigen::VectorXd& pos,
                                                 const RowPositions& fallback) const {
   RowPositions out(nf, 3);
+  const bool parallel = nv > 2000 && threads > 1;
+#pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
   for (int f = 0; f < nf; ++f) {
     const Eigen::Vector3d a = pos.segment<3>(3 * F(f, 0));
     const Eigen::Vector3d n =

@@ -150,12 +150,15 @@ void ScaleControl::set_frame(int f, const Eigen::Matrix3d& R) {
 
 void ScaleControl::update_rotations(const Eigen::VectorXd& x, const RowPositions& N) {
   tie_energy_ = 0;
+  const bool parallel = nf_ > 4000 && threads_ > 1;
   // Past ~1e6 the tie term swamps the fit in M and the in-plane angle is lost to round-off
   // (Horn's top eigenvalue becomes nearly double): such values are the exact tie in all but name.
   if (normal_tie_ < kExactTieAbove) {
     // A soft tie: R_f = argmax tr(R^T (s_f M3 + beta A_f N_f N0_f^T)) over SO(3), M3 = sum_k w_k
     // e_k e0_k^T (the fit is -2 s_f tr(R^T M3) + const, the tie -2 beta A_f tr(R^T N N0^T) +
     // const): the rotation of the polar decomposition.
+    per_face_.resize(nf_);
+#pragma omp parallel for schedule(static) num_threads(threads_) if (parallel)
     for (int f = 0; f < nf_; ++f) {
       Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
       for (int k = 0; k < 3; ++k) {
@@ -168,10 +171,12 @@ void ScaleControl::update_rotations(const Eigen::VectorXd& x, const RowPositions
       M = s_(f) * M + (normal_tie_ * area_(f)) * n * n0.transpose();
       const Eigen::Matrix3d R = closest_rotation(M);
       set_frame(f, R);
-      tie_energy_ += normal_tie_ * area_(f) * (R * n0 - n).squaredNorm();
+      per_face_[f] = normal_tie_ * area_(f) * (R * n0 - n).squaredNorm();
     }
+    for (int f = 0; f < nf_; ++f) tie_energy_ += per_face_[f];
     return;
   }
+#pragma omp parallel for schedule(static) num_threads(threads_) if (parallel)
   for (int f = 0; f < nf_; ++f) {
     Eigen::Vector3d p[3];
     for (int k = 0; k < 3; ++k) p[k] = x.segment<3>(3 * F_(f, k));
@@ -201,6 +206,8 @@ void ScaleControl::update_rotations(const Eigen::VectorXd& x, const RowPositions
 }
 
 void ScaleControl::update_scales(const Eigen::VectorXd& x) {
+  const bool parallel = nf_ > 4000 && threads_ > 1;
+#pragma omp parallel for schedule(static) num_threads(threads_) if (parallel)
   for (int f = 0; f < nf_; ++f) {
     double b = 0;
     for (int k = 0; k < 3; ++k) {
@@ -284,14 +291,20 @@ void ScaleControl::add_rhs(double rho, Eigen::VectorXd& b) const {
 }
 
 double ScaleControl::energy(const Eigen::VectorXd& x) const {
-  double fit = 0;
+  const bool parallel = nf_ > 4000 && threads_ > 1;
+  per_face_.resize(nf_);
+#pragma omp parallel for schedule(static) num_threads(threads_) if (parallel)
   for (int f = 0; f < nf_; ++f) {
+    double sum = 0;
     for (int k = 0; k < 3; ++k) {
       const size_t c = 3 * static_cast<size_t>(f) + k;
       const Eigen::Vector3d e = edge(x, f, k);
-      fit += weight_[c] * (e - s_(f) * frame_edge_[c]).squaredNorm();
+      sum += weight_[c] * (e - s_(f) * frame_edge_[c]).squaredNorm();
     }
+    per_face_[f] = sum;
   }
+  double fit = 0;
+  for (int f = 0; f < nf_; ++f) fit += per_face_[f];
   double smooth = 0;
   for (Eigen::Index e = 0; e < edge_faces_.rows(); ++e) {
     const double d = s_(edge_faces_(e, 0)) - s_(edge_faces_(e, 1));

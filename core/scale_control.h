@@ -70,6 +70,9 @@ class ScaleControl {
   /// beta >= 0 (or infinity, the default: R_f N0_f = N_f exactly): the frames' pull toward the
   /// step-one normals, beta A_f ||R_f N0_f - N_f||^2, added to the energy.
   void set_normal_tie(double beta) { normal_tie_ = beta; }
+  /// OpenMP threads of the per-face loops (rotation step, scale right-hand side, energy); the
+  /// results do not depend on it (per-face values are summed in face order). Default 1.
+  void set_threads(int threads) { threads_ = threads > 0 ? threads : 1; }
   /// Resets s = s_bar = 1, R = identity.
   void reset();
 
@@ -153,6 +156,8 @@ class ScaleControl {
   double normal_tie_ = std::numeric_limits<double>::infinity();
   double tie_energy_ = 0;  // beta sum_f A_f ||R_f N0_f - N_f||^2 at the last R-step
   Eigen::VectorXd fit_b_;  // #F: tr(R_f^T sum_k w_k e_k e0_k^T) at the last R-step
+  int threads_ = 1;
+  mutable std::vector<double> per_face_;  // #F scratch: per-face terms summed in face order
 };
 
 }  // namespace meshdeform::core

@@ -52,6 +52,8 @@ struct Flags {
   int refine_delay_ms = 150;
   int multires_above = 100'000;
   int multires_coarse_vertices = 10'000;
+  int solver_threads = 0;
+  int parallel_solve_above = 20'000;
   std::string http_listen;
   std::string web_root;
   std::vector<std::string> cors_origins;
@@ -98,6 +100,11 @@ constexpr const char* kUsage =
     "                              the background refinement converges the full mesh (default\n"
     "                              100000; 0 = always full resolution)\n"
     "  --multires-coarse-vertices N  the coarse level's size (default 10000)\n"
+    "  --solver-threads N          threads inside one solve of a session on a mesh of at least\n"
+    "                              --parallel-solve-above vertices (default 0 = one per core;\n"
+    "                              1 = every solve on one thread)\n"
+    "  --parallel-solve-above N    ... smaller sessions solve on one thread and share the cores\n"
+    "                              through the workers (default 20000)\n"
     "  --http-listen ADDR          also serve HTTP/1.1 on ADDR (e.g. 127.0.0.1:8080): the service\n"
     "                              over gRPC-Web (for browsers), GET /metrics (Prometheus text\n"
     "                              format), GET /healthz, and --web-root files (default: off)\n"
@@ -197,6 +204,8 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
   number("--refine-delay-ms", 0, 60'000, flags.refine_delay_ms);
   number("--multires-above", 0, 100'000'000, flags.multires_above);
   number("--multires-coarse-vertices", 100, 10'000'000, flags.multires_coarse_vertices);
+  number("--solver-threads", 0, 1024, flags.solver_threads);
+  number("--parallel-solve-above", 0, 100'000'000, flags.parallel_solve_above);
   text("--http-listen", flags.http_listen);
   text("--web-root", flags.web_root);
   command_line::add_checked(app, "--cors-origin", [&flags, check](const std::string& value) {
@@ -288,6 +297,8 @@ int main(int argc, char** argv) {
   options.refine_delay = std::chrono::milliseconds(flags.refine_delay_ms);
   options.multires_above = flags.multires_above;
   options.multires_coarse_vertices = flags.multires_coarse_vertices;
+  options.solver_threads = flags.solver_threads;
+  options.parallel_solve_above = flags.parallel_solve_above;
   options.memory_budget_bytes = static_cast<std::size_t>(flags.memory_budget_mib) << 20;
   options.state_dir = flags.state_dir;
   options.create_rate = {flags.create_rate, flags.create_burst};
@@ -392,7 +403,9 @@ int main(int argc, char** argv) {
                 .add("tls", tls.has_value())
                 .add("workers", service.stats().workers)
                 .add("refine_budget", flags.refine_budget)
-                .add("multires_above", flags.multires_above));
+                .add("multires_above", flags.multires_above)
+                .add("solver_threads", flags.solver_threads)
+                .add("parallel_solve_above", flags.parallel_solve_above));
 
   std::atomic<bool> serving{true};
   // Declared in this order so that the gateway and the files outlive the listener using them.

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <string>
+#include <thread>
 #include <unordered_map>
 
 #include "core/ora.h"
@@ -16,6 +17,13 @@
 
 namespace meshdeform::service {
 namespace {
+
+// ServiceOptions::solver_threads for a big session, one thread for the rest.
+int threads_for(const ServiceOptions& options, int vertices) {
+  if (vertices < options.parallel_solve_above) return 1;
+  if (options.solver_threads > 0) return options.solver_threads;
+  return std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+}
 
 std::string vec_str(const Eigen::Vector3d& v) {
   std::string out = "(";
@@ -105,7 +113,7 @@ Result<std::shared_ptr<Session>> Session::create(SessionId id, Token edit_token,
   session->topology_ = std::move(topology);
   session->rest_ = std::move(mesh);
   session->settings_ = settings;
-  session->settings_.threads = std::max(1, options.solver_threads);
+  session->settings_.threads = threads_for(options, static_cast<int>(session->rest_.V.rows()));
   session->settings_.multires_above = options.multires_above;
   session->settings_.multires_coarse_vertices = options.multires_coarse_vertices;
   session->options_ = options;

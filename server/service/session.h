@@ -188,6 +188,9 @@ class Session : public std::enable_shared_from_this<Session> {
   /// Edits queued or running (the store only evicts sessions with none).
   std::atomic<int>& inflight() { return inflight_; }
   int inflight_count() const { return inflight_.load(); }
+  /// OpenMP threads inside this session's solves (ServiceOptions::solver_threads when the mesh
+  /// has at least parallel_solve_above vertices, else 1).
+  int solve_threads() const { return settings_.threads; }
 
   /// How the strand's next step is to be scheduled on the pool.
   struct StrandStep {

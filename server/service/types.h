@@ -270,7 +270,12 @@ struct ServiceOptions {
   std::chrono::seconds idle_ttl{30 * 60};
   int kept_revisions = 4;          ///< GetMesh can read the newest K revisions
   int max_cached_deformers = 4;    ///< per session, least recently used dropped first
-  int solver_threads = 1;          ///< OpenMP threads inside one solve
+  /// OpenMP threads inside one solve of a session on a mesh of at least `parallel_solve_above`
+  /// vertices; 0 = one per core. Smaller sessions solve on one thread: many of them share the
+  /// cores through the worker pool, and a second thread does not pay on a small mesh when the
+  /// other core is busy (issue 13, measured in bench/results/realistic_threads.md).
+  int solver_threads = 0;
+  int parallel_solve_above = 20'000;
   /// Scale-aware sessions on meshes of more vertices than this move on a coarse level of a mesh
   /// hierarchy and refine at full resolution in the background (core::DeformerSettings::
   /// multires_above, issue 15); 0 = always full resolution.

@@ -11,6 +11,7 @@
 #include <optional>
 #include <stop_token>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "tests/support/mesh_factories.h"
@@ -101,6 +102,29 @@ TEST(SessionTest, CreateDescribesTheMeshAtRevisionZero) {
   EXPECT_FALSE(f.session->can_edit(Token{"view"}));
   EXPECT_TRUE(f.session->can_view(Token{"view"}));
   EXPECT_FALSE(f.session->can_view(Token{"other"}));
+}
+
+TEST(SessionTest, OnlyBigSessionsSolveOnSeveralThreads) {
+  Fixture f;  // 49 vertices
+  f.options.solver_threads = 2;
+  f.options.parallel_solve_above = 49;
+  f.create();
+  EXPECT_EQ(f.session->solve_threads(), 2);
+  f.options.parallel_solve_above = 50;
+  f.create();
+  EXPECT_EQ(f.session->solve_threads(), 1);
+  f.options.solver_threads = 0;  // one per core
+  f.options.parallel_solve_above = 10;
+  f.create();
+  EXPECT_EQ(f.session->solve_threads(),
+            std::max(1, static_cast<int>(std::thread::hardware_concurrency())));
+  // A big session still moves: the solve on two threads gives a result.
+  f.options.solver_threads = 2;
+  f.create();
+  f.set_columns();
+  const Result<DeformResult> moved = f.move(lift(0.2, core::Method::ScaleAware));
+  ASSERT_TRUE(moved.ok()) << moved.status().to_string();
+  EXPECT_GT(moved->revision, 0u);
 }
 
 TEST(SessionTest, CreateRefusesAMeshWithoutATopology) {
