@@ -4,12 +4,17 @@
 # by the load tester at 10 Hz with one outer iteration per move and one watcher, with the
 # multiresolution path (the default --multires-above 100000) and without it (--multires-above 0),
 # each against a fresh server on loopback. Writes bench/results/multires_server_{multires,single}
-# .{md,json}. Usage: bench/run_multires_server.sh [BUILD_DIR] [SECONDS] (default ./build, 90).
+# .{md,json} (with ENCODING float32 or meshopt: ..._{multires,single}_ENCODING.{md,json}, moves and
+# watch updates carrying compact positions). Usage:
+# bench/run_multires_server.sh [BUILD_DIR] [SECONDS] [ENCODING] (default ./build, 90, doubles).
 # Needs python3 (to subdivide). Run it on a quiet machine: the figures are latencies.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 build="${1:-build}"
 seconds="${2:-90}"
+encoding="${3:-doubles}"
+suffix=""
+[[ $encoding != doubles ]] && suffix="_$encoding"
 source bench/one_server.sh  # $server, $loadtest, $out; start_server / stop_server
 scratch=$(mktemp -d)
 log="$scratch/server.log"
@@ -49,8 +54,8 @@ for variant in multires single; do
   echo "== $variant"
   "$loadtest" --server "127.0.0.1:$port" --mesh "$scratch/spot187k.obj" --sessions 1 --rate 10 \
     --iterations 1 --watchers 1 --duration "$seconds" --move-deadline-ms 60000 \
-    --max-message-mib 256 --json "$out/multires_server_$variant.json" \
-    --markdown "$out/multires_server_$variant.md"
+    --max-message-mib 256 --encoding "$encoding" --json "$out/multires_server_$variant$suffix.json" \
+    --markdown "$out/multires_server_$variant$suffix.md"
   stop_server
 done
-echo "wrote $out/multires_server_{multires,single}.{md,json}"
+echo "wrote $out/multires_server_{multires,single}$suffix.{md,json}"

@@ -35,6 +35,18 @@
 namespace meshdeform::loadtest {
 namespace {
 
+v1::PositionEncoding encoding_to_proto(Encoding encoding) {
+  switch (encoding) {
+    case Encoding::Float32:
+      return v1::POSITION_ENCODING_FLOAT32;
+    case Encoding::Meshopt:
+      return v1::POSITION_ENCODING_MESHOPT;
+    case Encoding::Doubles:
+      break;
+  }
+  return v1::POSITION_ENCODING_UNSPECIFIED;
+}
+
 using Clock = std::chrono::steady_clock;
 
 // After --duration, moves still in flight get this long (their deadline is capped to it).
@@ -415,6 +427,7 @@ void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
     v1::WatchRequest request;
     request.set_session_id(session.session_id);
     request.set_token(session.view_token);  // a viewer, as in a shared editing session
+    request.set_encoding(encoding_to_proto(options_.encoding));
     const Clock::time_point started = Clock::now();
     std::unique_ptr<grpc::ClientReader<v1::DeformUpdate>> reader =
         session.stub->Watch(watcher.context.get(), request);
@@ -431,6 +444,7 @@ void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
         ++result.snapshots;
       } else {
         ++result.deltas;
+        result.delta_bytes += update.ByteSizeLong();
       }
       if (deform.refinement()) ++result.refinements;
       result.skipped_revisions += static_cast<std::int64_t>(update.skipped_revisions());
@@ -461,6 +475,7 @@ void LoadRun::send_move(SessionState& session, const ScriptedDrag& drag, double 
   request.set_token(session.edit_token);
   request.set_method(wire::method_to_proto(options_.method));
   request.set_max_iterations(static_cast<std::uint32_t>(options_.iterations));
+  request.set_encoding(encoding_to_proto(options_.encoding));
   request.set_editor("loadtest-" + std::to_string(result.index));
   v1::GroupMove* move = request.add_moves();
   move->set_group(session.handle_group);
@@ -488,6 +503,7 @@ void LoadRun::send_move(SessionState& session, const ScriptedDrag& drag, double 
     return;
   }
   ++result.moves_ok;
+  result.response_bytes += response.ByteSizeLong();
   const v1::DeformResult& deform = response.result();
   if (result.latencies_ms.size() < kMaxSamplesPerSession) {
     result.latencies_ms.push_back(ms_between(sent, returned));

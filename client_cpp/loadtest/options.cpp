@@ -92,6 +92,18 @@ std::string_view method_name(Method method) {
   return "scale_aware";
 }
 
+std::string_view encoding_name(Encoding encoding) {
+  switch (encoding) {
+    case Encoding::Doubles:
+      return "doubles";
+    case Encoding::Float32:
+      return "float32";
+    case Encoding::Meshopt:
+      return "meshopt";
+  }
+  return "doubles";
+}
+
 int Options::channel_count() const {
   return connections == 0 ? sessions : std::min(connections, sessions);
 }
@@ -123,6 +135,8 @@ std::string usage_text() {
          "  --watchers W           Watch streams per session (default 0)\n"
          "  --iterations K         max_iterations per move (default 2)\n"
          "  --method NAME          scale_aware, arap or laplacian (default scale_aware)\n"
+         "  --encoding NAME        positions in move responses and watch updates: doubles,\n"
+         "                         float32 or meshopt (default doubles)\n"
          "  --connections C        gRPC channels to spread the sessions over (default 0 = one per\n"
          "                         session); a session's watchers share its channel\n"
          "  --move-deadline-ms MS  deadline of each move (default 10000)\n"
@@ -190,6 +204,15 @@ ParseOutcome parse_options(const std::vector<std::string>& args, Options& option
   integer("--iterations", 1, 1000, options.iterations);
   command_line::add_checked(app, "--method", [&](const std::string& value) {
     return check(parse_method(value, options.method));
+  });
+  command_line::add_checked(app, "--encoding", [&](const std::string& value) {
+    for (Encoding e : {Encoding::Doubles, Encoding::Float32, Encoding::Meshopt}) {
+      if (value == encoding_name(e)) {
+        options.encoding = e;
+        return check(true);
+      }
+    }
+    return check(false);
   });
   text("--json", options.json_path);
   text("--markdown", options.markdown_path);

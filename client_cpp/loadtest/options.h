@@ -21,6 +21,12 @@ enum class Method { ScaleAware, Arap, Laplacian };
 /// "scale_aware", "arap" or "laplacian".
 std::string_view method_name(Method method);
 
+/// How moves and watch updates carry positions (PositionEncoding in the proto).
+enum class Encoding { Doubles, Float32, Meshopt };
+
+/// "doubles", "float32" or "meshopt".
+std::string_view encoding_name(Encoding encoding);
+
 /// Everything the command line configures. Defaults are the documented ones.
 struct Options {
   std::string server;               ///< gRPC target, e.g. "127.0.0.1:50051"
@@ -33,6 +39,7 @@ struct Options {
   int watchers = 0;                 ///< Watch streams per session
   int iterations = 2;               ///< MoveHandlesRequest.max_iterations
   Method method = Method::ScaleAware;
+  Encoding encoding = Encoding::Doubles;  ///< MoveHandlesRequest / WatchRequest.encoding
   std::string json_path;          ///< write the JSON report here (empty: do not)
   std::string markdown_path;      ///< write the Markdown summary here (empty: do not)
   int connections = 0;            ///< gRPC channels; 0 = one per session

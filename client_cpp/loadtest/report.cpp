@@ -129,6 +129,7 @@ Aggregate aggregate(const RunResult& run) {
   std::vector<double> setup, create, set_handles, latency, solve, per_session, delays, joins;
   std::vector<double> delays_after_send;
   std::int64_t iterations = 0;
+  std::uint64_t response_bytes = 0, delta_bytes = 0;
   const double phase = run.move_phase_seconds;
   for (const SessionResult& session : run.sessions) {
     if (session.is_set_up) {
@@ -155,6 +156,7 @@ Aggregate aggregate(const RunResult& run) {
     latency.insert(latency.end(), session.latencies_ms.begin(), session.latencies_ms.end());
     solve.insert(solve.end(), session.solve_ms.begin(), session.solve_ms.end());
     iterations += session.iterations;
+    response_bytes += session.response_bytes;
     totals.converged += session.converged;
     totals.built_deformer += session.built_deformer;
     totals.revision_gaps += session.revision_gaps;
@@ -168,6 +170,7 @@ Aggregate aggregate(const RunResult& run) {
       totals.watcher_updates += watcher.updates;
       totals.watcher_snapshots += watcher.snapshots;
       totals.watcher_deltas += watcher.deltas;
+      delta_bytes += watcher.delta_bytes;
       totals.watcher_refinements += watcher.refinements;
       totals.watcher_skipped_revisions += watcher.skipped_revisions;
       totals.watcher_seen_before_response += watcher.seen_before_response;
@@ -196,6 +199,12 @@ Aggregate aggregate(const RunResult& run) {
   }
   if (totals.moves_ok > 0) {
     totals.mean_iterations = static_cast<double>(iterations) / static_cast<double>(totals.moves_ok);
+    totals.mean_response_bytes =
+        static_cast<double>(response_bytes) / static_cast<double>(totals.moves_ok);
+  }
+  if (totals.watcher_deltas > 0) {
+    totals.mean_watcher_delta_bytes =
+        static_cast<double>(delta_bytes) / static_cast<double>(totals.watcher_deltas);
   }
   return totals;
 }
@@ -287,6 +296,7 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
                         {"watchers_per_session", o.watchers},
                         {"max_iterations", o.iterations},
                         {"method", std::string(method_name(o.method))},
+                        {"encoding", std::string(encoding_name(o.encoding))},
                         {"connections", o.channel_count()},
                         {"move_deadline_ms", o.move_deadline_ms},
                         {"one_move_in_flight", true}};
@@ -318,6 +328,7 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
                        {"latency_ms", summary_json(t.latency_ms)},
                        {"server_solve_ms", summary_json(t.solve_ms)},
                        {"mean_iterations", rounded(t.mean_iterations)},
+                       {"mean_response_bytes", rounded(t.mean_response_bytes)},
                        {"converged", t.converged},
                        {"built_deformer", t.built_deformer},
                        {"revision_gaps", t.revision_gaps}};
@@ -328,6 +339,7 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
            {"with_join_snapshot", t.watchers_with_join_snapshot},
            {"updates", t.watcher_updates},
            {"snapshots", t.watcher_snapshots},
+           {"mean_delta_bytes", rounded(t.mean_watcher_delta_bytes)},
            {"deltas", t.watcher_deltas},
            {"refinements", t.watcher_refinements},
            {"skipped_revisions", t.watcher_skipped_revisions},
@@ -437,6 +449,8 @@ std::string report_markdown(const RunResult& run, const Aggregate& t) {
     out << "| ticks / skipped ticks | " << t.ticks << " / " << t.skipped_ticks << " |\n";
   }
   out << "| mean outer iterations per move | " << format("%.2f", t.mean_iterations) << " |\n";
+  out << "| positions encoding | " << encoding_name(o.encoding) << " |\n";
+  out << "| mean bytes per move response | " << format("%.0f", t.mean_response_bytes) << " |\n";
   out << "| revisions between own moves (refinement) | " << t.revision_gaps << " |\n";
   if (t.watchers > 0) {
     out << "| watcher streams (with join snapshot) | " << t.watchers << " ("
@@ -446,6 +460,8 @@ std::string report_markdown(const RunResult& run, const Aggregate& t) {
     out << "| watcher updates/s, total (per watcher) | " << rate_text(t.watcher_updates_per_second)
         << " (" << rate_text(t.watcher_updates_per_second_each) << ") |\n";
     out << "| watcher skipped revisions | " << t.watcher_skipped_revisions << " |\n";
+    out << "| mean bytes per watcher delta update | "
+        << format("%.0f", t.mean_watcher_delta_bytes) << " |\n";
   }
   out << "\n## Latency (ms)\n\n";
   out << "| | count | p50 | p95 | p99 | max |\n|---|---:|---:|---:|---:|---:|\n";

@@ -35,6 +35,7 @@ struct Aggregate {
   Summary latency_ms;                ///< OK moves, client side
   Summary solve_ms;                  ///< OK moves, the server's solve_seconds
   double mean_iterations = 0.0;
+  double mean_response_bytes = 0.0;  ///< serialized MoveHandles response, OK moves
   std::int64_t converged = 0;
   std::int64_t built_deformer = 0;
   std::int64_t revision_gaps = 0;  ///< revisions the editors did not commit (refinements)
@@ -47,6 +48,7 @@ struct Aggregate {
   std::int64_t watcher_deltas = 0;
   std::int64_t watcher_refinements = 0;
   std::int64_t watcher_skipped_revisions = 0;
+  double mean_watcher_delta_bytes = 0.0;  ///< serialized non-snapshot Watch update
   std::int64_t watcher_seen_before_response = 0;
   double watcher_updates_per_second = 0.0;  ///< all watchers, join snapshots excluded
   double watcher_updates_per_second_each = 0.0;

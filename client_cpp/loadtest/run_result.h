@@ -41,6 +41,7 @@ struct WatcherResult {
   std::int64_t refinements = 0;        ///< DeformResult.refinement (server background refinement)
   std::int64_t skipped_revisions = 0;  ///< sum of DeformUpdate.skipped_revisions
   std::uint64_t last_revision = 0;
+  std::uint64_t delta_bytes = 0;  ///< serialized size of the non-snapshot updates, summed
   /// Watcher receipt minus the editor's MoveHandles response, for each revision the editor
   /// committed and this watcher saw (ms; negative when the watcher saw it first).
   std::vector<double> delays_ms;
@@ -74,6 +75,7 @@ struct SessionResult {
   std::map<std::string, std::string> first_error;      ///< the first message per code
   std::vector<double> latencies_ms;                    ///< OK moves, send to response, client side
   std::vector<double> solve_ms;                        ///< OK moves, DeformResult.solve_seconds
+  std::uint64_t response_bytes = 0;                    ///< serialized size of OK responses, summed
   std::int64_t iterations = 0;                         ///< sum of DeformResult.iterations
   std::int64_t converged = 0;
   std::int64_t built_deformer = 0;

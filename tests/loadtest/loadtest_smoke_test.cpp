@@ -10,6 +10,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <sstream>
@@ -179,6 +180,36 @@ TEST_F(LoadtestTest, SmokeRunCompletesEveryMoveWithWatchers) {
   EXPECT_NE(markdown.find("| moves OK | 10 |"), std::string::npos) << markdown;
 }
 
+TEST_F(LoadtestTest, CompactEncodingsShrinkResponsesAndUpdates) {
+  // The same scripted drag with each PositionEncoding: every move lands, and the compact ones
+  // carry fewer bytes per move response and per watcher delta than doubles.
+  const auto server = start_server();
+  ASSERT_NE(server, nullptr);
+  std::map<std::string, json> reports;
+  for (const std::string encoding : {"doubles", "float32", "meshopt"}) {
+    SCOPED_TRACE(encoding);
+    const fs::path json_path = dir_ / ("report_" + encoding + ".json");
+    const ChildResult run = run_loadtest(
+        {"--server", server->address(), "--sessions", "1", "--moves", "4", "--rate", "0",
+         "--watchers", "1", "--sample", "cylinder_small", "--duration", "30", "--encoding",
+         encoding, "--json", json_path.string()});
+    ASSERT_FALSE(run.is_timed_out) << run.out << run.err;
+    ASSERT_EQ(run.exit_code, kExitOk) << run.out << run.err;
+    const json report = json::parse(read_text(json_path));
+    EXPECT_EQ(report["config"]["encoding"], encoding);
+    EXPECT_EQ(report["moves"]["ok"], 4);
+    EXPECT_GT(report["moves"]["mean_response_bytes"].get<double>(), 0.0);
+    reports[encoding] = report;
+  }
+  const double doubles = reports["doubles"]["moves"]["mean_response_bytes"].get<double>();
+  EXPECT_LT(reports["float32"]["moves"]["mean_response_bytes"].get<double>(), 0.7 * doubles);
+  EXPECT_LT(reports["meshopt"]["moves"]["mean_response_bytes"].get<double>(), 0.7 * doubles);
+  const double delta = reports["doubles"]["watchers"]["mean_delta_bytes"].get<double>();
+  if (delta > 0) {  // the watcher saw a delta (not only its join snapshot)
+    EXPECT_LT(reports["float32"]["watchers"]["mean_delta_bytes"].get<double>(), 0.7 * delta);
+  }
+}
+
 TEST_F(LoadtestTest, RemoteTargetIsRefusedWithoutAllowRemote) {
   // Nothing listens there; a refusal must come before any connection attempt.
   const ChildResult run = run_loadtest(
@@ -195,6 +226,7 @@ TEST_F(LoadtestTest, BadFlagsAreUsageErrors) {
            {"--server", "127.0.0.1:1", "--bogus", "1"},
            {"--server", "127.0.0.1:1", "--sessions", "0"},
            {"--server", "127.0.0.1:1", "--method", "nope"},
+           {"--server", "127.0.0.1:1", "--encoding", "float16"},
            {"--server", "127.0.0.1:1", "--rate", "-1"},
            {"--server", "127.0.0.1:1", "--sample", "bar", "--mesh", "x.obj"},
            {"--sessions", "1"}}) {
