@@ -75,7 +75,8 @@ Status SessionStore::insert(std::shared_ptr<Session> session) {
                  "memory budget exceeded: the session needs about " + std::to_string(bytes) +
                      " bytes, " + std::to_string(total_bytes_locked()) + " of " +
                      std::to_string(options_.memory_budget_bytes) +
-                     " are used by sessions that are busy");
+                     " are used by sessions that are busy (the budget is the server's "
+                     "--memory-budget-mib)");
   }
   session->touch(now);
   sessions_.emplace(session->id(), std::move(session));
@@ -121,7 +122,8 @@ Status SessionStore::reserve(std::size_t bytes, const Session& requester) {
     return Error(ErrorCode::ResourceExhausted,
                  "memory budget exceeded: a new factorization needs about " +
                      std::to_string(bytes) + " bytes, " + std::to_string(total_bytes_locked()) +
-                     " of " + std::to_string(options_.memory_budget_bytes) + " are in use");
+                     " of " + std::to_string(options_.memory_budget_bytes) +
+                     " are in use (the budget is the server's --memory-budget-mib)");
   }
   return Status::success();
 }

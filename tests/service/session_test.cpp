@@ -3,6 +3,7 @@
 #include "server/service/session.h"
 
 #include <gtest/gtest.h>
+#include <malloc.h>
 
 #include <chrono>
 #include <cmath>
@@ -126,6 +127,32 @@ TEST(SessionTest, OnlyBigSessionsSolveOnSeveralThreads) {
   ASSERT_TRUE(moved.ok()) << moved.status().to_string();
   EXPECT_GT(moved->revision, 0u);
 }
+
+#if defined(__GLIBC__)
+TEST(SessionTest, TheDeformerChargeCoversTheScaleAwareDeformersHeap) {
+  // The memory budget is only as good as the estimate: a built and solved scale-aware deformer
+  // (the largest method) must not hold more heap than a cached deformer is charged.
+  Fixture f;
+  f.mesh = test::make_grid(100, 0.05);  // 10,201 vertices
+  f.create();
+  const int v = static_cast<int>(f.mesh.V.rows()), faces = static_cast<int>(f.mesh.F.rows());
+  const std::size_t charge =
+      estimate_session_bytes(v, faces, 1, 0) - estimate_session_bytes(v, faces, 0, 0);
+  const auto heap = [] {
+    const struct mallinfo2 info = mallinfo2();
+    return info.uordblks + info.hblkhd;
+  };
+  const std::size_t before = heap();
+  f.set_columns(core::Method::ScaleAware);
+  const Result<DeformResult> moved = f.move(lift(0.2, core::Method::ScaleAware));
+  ASSERT_TRUE(moved.ok()) << moved.status().to_string();
+  const std::size_t after = heap();
+  ASSERT_GT(after, before);
+  EXPECT_LE(after - before, charge) << "heap grew by " << (after - before) << " bytes, charged "
+                                    << charge;
+  EXPECT_GT(after - before, charge / 4) << "the charge is far above what a deformer holds";
+}
+#endif
 
 TEST(SessionTest, CreateRefusesAMeshWithoutATopology) {
   Fixture f;
