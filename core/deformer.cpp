@@ -1,8 +1,10 @@
 #include "core/deformer.h"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <optional>
 #include <string>
 #include <utility>
@@ -74,9 +76,33 @@ class MultiresScaleAwareDeformer final : public Deformer {
   const Eigen::VectorXi& constrained() const override { return constrained_; }
   void reset() override { multires_.reset(); }
 
+  bool needs_background_build() const override { return multires_.needs_fine_solver(); }
+  BackgroundBuild background_build() override {
+    std::optional<MultiresDeformer::FineSolverInputs> inputs = multires_.fine_solver_inputs();
+    if (!inputs) return {};
+    auto shared = std::make_shared<const MultiresDeformer::FineSolverInputs>(std::move(*inputs));
+    return [shared, id = id_](std::stop_token stop) -> Result<Installer> {
+      MD_ASSIGN_OR_RETURN(ScaleAwareSolver built,
+                          MultiresDeformer::build_fine_solver(*shared, std::move(stop)));
+      // std::function needs a copyable callable: the solver travels in a shared_ptr.
+      auto solver = std::make_shared<ScaleAwareSolver>(std::move(built));
+      return Installer([solver, id](Deformer& deformer) {
+        auto* target = dynamic_cast<MultiresScaleAwareDeformer*>(&deformer);
+        if (target == nullptr || target->id_ != id) return;  // not the deformer it was built for
+        target->multires_.install_fine_solver(std::move(*solver));
+      });
+    };
+  }
+
  private:
   MultiresDeformer multires_;
   Eigen::VectorXi constrained_;
+  // Tells a background build's installer which deformer it was built for (addresses get reused).
+  const std::uint64_t id_ = next_id();
+  static std::uint64_t next_id() {
+    static std::atomic<std::uint64_t> counter{0};
+    return ++counter;
+  }
 };
 
 // Laplacian editing is one direct solve: no iterations, no start, nothing to warm.

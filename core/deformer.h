@@ -6,6 +6,7 @@
 /// handle set by make_deformer() and solved per target set, with the same options, progress and
 /// cancellation.
 
+#include <functional>
 #include <memory>
 #include <stop_token>
 #include <string_view>
@@ -94,6 +95,19 @@ class Deformer {
   virtual const Eigen::VectorXi& constrained() const = 0;
   /// Forgets the previous result: positions() is the rest mesh again.
   virtual void reset() = 0;
+
+  /// Hands a part of the precompute that a later kind of solve needs to another thread, while
+  /// this deformer keeps solving: the multiresolution deformer's full-resolution solver (seconds
+  /// at 10^5 vertices; moves run on the coarse level meanwhile, and full-resolution solves build
+  /// it in place if it is not there yet). The task copies what it needs, may run on any thread
+  /// concurrently with solve(), and returns an installer to call on the thread that owns this
+  /// deformer (a no-op if the part got built meanwhile, or on any other deformer). Empty when
+  /// nothing is pending.
+  using Installer = std::function<void(Deformer&)>;
+  using BackgroundBuild = std::function<Result<Installer>(std::stop_token)>;
+  [[nodiscard]] virtual BackgroundBuild background_build() { return {}; }
+  /// Whether background_build() would return a task (cheap: copies nothing).
+  [[nodiscard]] virtual bool needs_background_build() const { return false; }
 };
 
 /// Builds a deformer: validates the mesh and the constrained set and factors the method's

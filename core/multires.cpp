@@ -727,23 +727,44 @@ Result<MultiresMove> MultiresDeformer::move(const Positions& targets, const Solv
   return move;
 }
 
-Status MultiresDeformer::prepare_refinement(const BuildProgress& progress, std::stop_token stop) {
-  Impl& s = *impl_;
-  if (s.fine) return Status::success();
+std::optional<MultiresDeformer::FineSolverInputs> MultiresDeformer::fine_solver_inputs() const {
+  const Impl& s = *impl_;
+  if (s.fine) return std::nullopt;
   const MeshLevel& fine = s.hierarchy.level(0);
-  if (progress) progress("fine_precompute", 0.0);
+  FineSolverInputs inputs;
+  inputs.V = fine.V;
+  inputs.F = fine.F;
   // The fine solver takes the constrained vertices in the caller's order (targets' rows).
-  Eigen::VectorXi constrained(fine.constrained.size());
+  inputs.constrained.resize(fine.constrained.size());
   for (Eigen::Index j = 0; j < fine.constrained.size(); ++j) {
-    constrained(fine.constrained_rows(j)) = fine.constrained(j);
+    inputs.constrained(fine.constrained_rows(j)) = fine.constrained(j);
   }
   // Refinement always starts from the prolonged move: the Laplacian guess is built only if ever
   // asked for (a refine before any move).
-  ScaleAwareSettings fine_settings = s.settings.solver;
-  fine_settings.lazy_laplacian_guess = true;
-  MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(fine.V, fine.F, constrained,
-                                                                        fine_settings, stop));
-  s.fine.emplace(std::move(solver));
+  inputs.settings = s.settings.solver;
+  inputs.settings.lazy_laplacian_guess = true;
+  return inputs;
+}
+
+Result<ScaleAwareSolver> MultiresDeformer::build_fine_solver(const FineSolverInputs& inputs,
+                                                             std::stop_token stop) {
+  return ScaleAwareSolver::create(inputs.V, inputs.F, inputs.constrained, inputs.settings,
+                                  std::move(stop));
+}
+
+bool MultiresDeformer::needs_fine_solver() const { return !impl_->fine.has_value(); }
+
+void MultiresDeformer::install_fine_solver(ScaleAwareSolver solver) {
+  Impl& s = *impl_;
+  if (!s.fine) s.fine.emplace(std::move(solver));
+}
+
+Status MultiresDeformer::prepare_refinement(const BuildProgress& progress, std::stop_token stop) {
+  std::optional<FineSolverInputs> inputs = fine_solver_inputs();
+  if (!inputs) return Status::success();
+  if (progress) progress("fine_precompute", 0.0);
+  MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, build_fine_solver(*inputs, std::move(stop)));
+  install_fine_solver(std::move(solver));
   if (progress) progress("fine_precompute", 1.0);
   return Status::success();
 }

@@ -53,6 +53,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <stop_token>
 #include <string_view>
 #include <vector>
@@ -248,6 +249,25 @@ class MultiresDeformer {
   /// does nothing when it exists. Reports phase "fine_precompute".
   [[nodiscard]] Status prepare_refinement(const BuildProgress& progress = {},
                                           std::stop_token stop = {});
+
+  /// What building the full-resolution solver needs, copied: build_fine_solver can then run on
+  /// another thread while this deformer keeps moving on its coarse level (seconds at 187k
+  /// vertices that a drag need not wait for), and install_fine_solver hands the result over.
+  struct FineSolverInputs {
+    Positions V;
+    Triangles F;
+    Eigen::VectorXi constrained;  ///< in the order of the targets' rows
+    ScaleAwareSettings settings;
+  };
+  /// True until the fine solver is built or installed.
+  [[nodiscard]] bool needs_fine_solver() const;
+  /// The inputs, or nothing when the fine solver exists.
+  [[nodiscard]] std::optional<FineSolverInputs> fine_solver_inputs() const;
+  /// ScaleAwareSolver::create on the inputs; touches no deformer (any thread).
+  [[nodiscard]] static Result<ScaleAwareSolver> build_fine_solver(const FineSolverInputs& inputs,
+                                                                  std::stop_token stop = {});
+  /// Installs a solver from build_fine_solver(fine_solver_inputs()); a no-op when one exists.
+  void install_fine_solver(ScaleAwareSolver solver);
 
   /// Full-resolution solve toward the same kind of targets. With options.start Auto or
   /// Previous it starts from positions() once a move or a refinement has run (Auto before that:

@@ -538,6 +538,14 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
         [this, session] {
           // An edit queued meanwhile runs first and schedules refinement again after itself.
           if (session->has_queued_edits() || shutdown_.stop_requested()) return;
+          // Precompute refinement needs (the full-resolution solver of a multiresolution
+          // session) is built off the strand, so moves keep running on the coarse level;
+          // refinement resumes once it is installed.
+          if (session->background_build_running()) return;
+          if (std::optional<Session::BackgroundBuild> build = session->take_background_build()) {
+            run_background_build(session, std::move(*build));
+            return;
+          }
           const Result<std::optional<DeformResult>> refined = run_guarded(
               "refinement", [&]() -> Result<std::optional<DeformResult>> {
                 const CallStop slice({}, shutdown_.get_token());
@@ -555,6 +563,35 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
                           .add("solve_seconds", r.solve_seconds));
           }
           if (refined.ok()) schedule_refinement(session, /*after_move=*/false);
+        },
+        /*is_refinement=*/true);
+  });
+}
+
+void DeformationService::run_background_build(const std::shared_ptr<Session>& session,
+                                              Session::BackgroundBuild build) {
+  pool_.submit_background([this, session, build = std::move(build)] {
+    const auto start = std::chrono::steady_clock::now();
+    const CallStop stop(session->background_build_stop(), shutdown_.get_token());
+    Result<core::Deformer::Installer> installer = run_guarded(
+        "background build",
+        [&]() -> Result<core::Deformer::Installer> { return build.task(stop.token()); });
+    const double seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    auto shared_installer =
+        std::make_shared<Result<core::Deformer::Installer>>(std::move(installer));
+    post(
+        session,
+        [this, session, key = build.key, shared_installer, seconds] {
+          const Status status = shared_installer->status();
+          const bool installed = session->finish_background_build(key, std::move(*shared_installer));
+          log_event(status.ok() ? LogLevel::Debug : LogLevel::Warn, "background_build",
+                    LogFields()
+                        .add("session", session->id().value)
+                        .add("installed", installed)
+                        .add("seconds", seconds)
+                        .add("message", status.ok() ? std::string() : status.message()));
+          schedule_refinement(session, /*after_move=*/false);
         },
         /*is_refinement=*/true);
   });

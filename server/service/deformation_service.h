@@ -175,6 +175,10 @@ class DeformationService {
   /// edit of any session waits) and, after it, the next.
   /// `after_move`: wait for ServiceOptions::refine_delay of rest first.
   void schedule_refinement(const std::shared_ptr<Session>& session, bool after_move);
+  /// Runs a session's background build (Session::take_background_build) on the pool's background
+  /// class, off the strand, then installs it on the strand and resumes refinement.
+  void run_background_build(const std::shared_ptr<Session>& session,
+                            Session::BackgroundBuild build);
 
   ServiceOptions options_;
   std::shared_ptr<ServiceCounters> counters_;

@@ -635,6 +635,42 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
   return DeformResult(*result);
 }
 
+std::optional<Session::BackgroundBuild> Session::take_background_build() {
+  if (!refine_ || background_build_running_ || is_closed()) return std::nullopt;
+  std::vector<int> constrained;
+  {
+    std::lock_guard lock(state_mutex_);
+    constrained = constrained_;
+  }
+  DeformerCache::Entry* entry = deformers_->find(refine_->method, constrained);
+  if (entry == nullptr || !entry->deformer->needs_background_build()) return std::nullopt;
+  BackgroundBuild build{entry->deformer->background_build(), entry->deformer.get()};
+  if (!build.task) return std::nullopt;
+  background_build_running_ = true;
+  return build;
+}
+
+bool Session::finish_background_build(const core::Deformer* key,
+                                      Result<core::Deformer::Installer> installer) {
+  background_build_running_ = false;
+  if (!installer.ok() || is_closed()) return false;
+  std::vector<int> constrained;
+  {
+    std::lock_guard lock(state_mutex_);
+    constrained = constrained_;
+  }
+  // The deformer it was built for, if the cache still holds it (the installer itself also
+  // refuses any other deformer).
+  for (core::Method method : {core::Method::ScaleAware, core::Method::Arap, core::Method::Laplacian}) {
+    DeformerCache::Entry* entry = deformers_->find(method, constrained);
+    if (entry != nullptr && entry->deformer.get() == key) {
+      (*installer)(*entry->deformer);
+      return !entry->deformer->needs_background_build();
+    }
+  }
+  return false;
+}
+
 Result<std::optional<DeformResult>> Session::refine(std::stop_source slice) {
   if (!refine_ || is_closed() || !is_fresh()) {
     refine_.reset();
@@ -814,6 +850,7 @@ void Session::close() {
     closed_.store(true);
     watchers.swap(watchers_);
   }
+  background_stop_.request_stop();
   for (const auto& watcher : watchers) watcher->close();
 }
 

@@ -156,6 +156,26 @@ class Session : public std::enable_shared_from_this<Session> {
   /// True when edits are queued behind the running one (any thread).
   bool has_queued_edits();
 
+  /// Refinement's precompute off the strand (core::Deformer::background_build: the
+  /// multiresolution deformer's full-resolution solver). Before this, the first refinement slice
+  /// built it on the strand, every move preempted the build, and the next idle moment started it
+  /// again: at 187k vertices a drag paid seconds of wasted builds and waited for their phases.
+  struct BackgroundBuild {
+    core::Deformer::BackgroundBuild task;
+    const core::Deformer* key = nullptr;  ///< the deformer it is for
+  };
+  /// When refinement waits for such a build that is not running yet: marks it running and
+  /// returns it (run it on any thread, then finish_background_build on the strand). Strand only.
+  [[nodiscard]] std::optional<BackgroundBuild> take_background_build();
+  /// True while a taken build has not finished. Strand only.
+  bool background_build_running() const { return background_build_running_; }
+  /// Installs a finished build into its deformer if that is still cached. Strand only.
+  /// @return whether it was installed.
+  bool finish_background_build(const core::Deformer* key,
+                               Result<core::Deformer::Installer> installer);
+  /// Stops a running build: requested by close() (any thread).
+  std::stop_token background_build_stop() const { return background_stop_.get_token(); }
+
   SessionInfo info() const;
   /// Positions at `revision` (default: the current one). Revision 0, the rest mesh, is always
   /// kept (a late watcher or a reopened link compares against it); of the others the newest
@@ -260,6 +280,8 @@ class Session : public std::enable_shared_from_this<Session> {
   // Touched only by the strand (edits), except the cache's size and bytes.
   std::unique_ptr<DeformerCache> deformers_;  ///< set by create()
   std::optional<RefineState> refine_;
+  bool background_build_running_ = false;
+  std::stop_source background_stop_;  ///< requested by close()
 
   // Guarded by state_mutex_.
   mutable std::mutex state_mutex_;

@@ -14,6 +14,7 @@
 #include <string_view>
 #include <tuple>
 #include <utility>
+#include <thread>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -602,6 +603,55 @@ TEST(MultiresThroughMakeDeformer, CoarseMovesThenFullResolutionRefinement) {
 
   (*deformer)->reset();
   EXPECT_EQ((*deformer)->positions(), cactus.mesh.V);
+}
+
+TEST(MultiresThroughMakeDeformer, FullResolutionSolverBuildsOnAnotherThreadWhileMovesRun) {
+  const Edit cactus = edit_of(make_cactus(2));  // 1,329 vertices
+  DeformerSettings settings;
+  settings.multires_above = 1000;
+  settings.multires_coarse_vertices = 500;
+  auto make = [&] {
+    return make_deformer(Method::ScaleAware, cactus.mesh.V, cactus.mesh.F,
+                         cactus.setup.constrained, settings);
+  };
+  auto deformer = make();
+  auto in_place = make();  // builds its full-resolution solver inside the first refinement
+  ASSERT_TRUE(deformer.ok() && in_place.ok());
+  ASSERT_TRUE((*deformer)->needs_background_build());
+  Deformer::BackgroundBuild build = (*deformer)->background_build();
+  ASSERT_TRUE(build);
+
+  // The build runs on its own thread while this one keeps moving on the coarse level.
+  SolveOptions options;
+  options.track_metrics = false;
+  options.max_iterations = 2;
+  Result<Deformer::Installer> installer = Error(ErrorCode::Internal, "not run");
+  std::thread builder([&] { installer = build({}); });
+  Result<SolveReport> moves[3] = {Error(ErrorCode::Internal, ""), Error(ErrorCode::Internal, ""),
+                                  Error(ErrorCode::Internal, "")};
+  for (auto& move : moves) move = (*deformer)->solve(cactus.setup.targets, options);
+  builder.join();
+  for (const auto& move : moves) ASSERT_TRUE(move.ok()) << move.status().to_string();
+  ASSERT_TRUE(installer.ok()) << installer.status().to_string();
+  EXPECT_TRUE((*deformer)->needs_background_build()) << "nothing is installed behind its back";
+
+  // The installer refuses any other deformer, then installs into its own.
+  (*installer)(**in_place);
+  EXPECT_TRUE((*in_place)->needs_background_build());
+  (*installer)(**deformer);
+  EXPECT_FALSE((*deformer)->needs_background_build());
+  EXPECT_FALSE((*deformer)->background_build());
+
+  // Refinement with the installed solver is the refinement with one built in place.
+  for (int k = 0; k < 3; ++k) ASSERT_TRUE((*in_place)->solve(cactus.setup.targets, options).ok());
+  SolveOptions refine = options;
+  refine.full_resolution = true;
+  refine.max_iterations = 5;
+  auto installed = (*deformer)->solve(cactus.setup.targets, refine);
+  auto built_here = (*in_place)->solve(cactus.setup.targets, refine);
+  ASSERT_TRUE(installed.ok() && built_here.ok());
+  EXPECT_EQ(installed->V, built_here->V);
+  EXPECT_FALSE((*in_place)->needs_background_build());
 }
 
 TEST(MultiresThroughMakeDeformer, SmallMeshesAndOtherMethodsStaySingleLevel) {
