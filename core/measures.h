@@ -24,7 +24,10 @@ struct Measures {
 Positions face_normals(const Positions& V, const Triangles& F);
 
 /// Computes Omega (and areas) of the mesh (V, F).
-Measures compute_measures(const Positions& V, const Triangles& F, const MeshTopology& topology);
+/// @param[in] threads  OpenMP threads of the per-face and per-edge loops (the same values at any
+///                     count: every entry is written by one iteration).
+Measures compute_measures(const Positions& V, const Triangles& F, const MeshTopology& topology,
+                          int threads = 1);
 
 /// E_theta, E_phi (RMS radians, paper Section 5.1) and the RMS of log(area'/area) over faces.
 struct AngleErrors {

@@ -567,7 +567,7 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
   result->changed_positions.resize(static_cast<Eigen::Index>(result->changed.size()), 3);
   for (std::size_t j = 0; j < result->changed.size(); ++j)
     result->changed_positions.row(static_cast<Eigen::Index>(j)) = V.row(result->changed[j]);
-  const core::Measures measures = core::compute_measures(V, rest_.F, topology_);
+  const core::Measures measures = core::compute_measures(V, rest_.F, topology_, settings_.threads);
   const core::AngleErrors errors = core::angle_errors(rest_measures_, measures);
   result->e_theta = errors.e_theta;
   result->e_phi = errors.e_phi;

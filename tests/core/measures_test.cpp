@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 #include <Eigen/Geometry>
 
 #include "core/topology.h"
@@ -86,6 +88,20 @@ TEST(Measures, AreInvariantUnderSimilarity) {
   const Distortion d = local_distortion(a, b, m.F, *topo);
   EXPECT_LT(d.per_vertex.maxCoeff(), 1e-12);
   EXPECT_LT(d.per_face.maxCoeff(), 1e-12);
+}
+
+TEST(Measures, SeveralThreadsGiveTheSameValues) {
+  // 101 x 101 bumpy grid, 20,000 faces: above the size where the loops go parallel.
+  MeshData mesh = test::make_grid(100, 0.05);
+  for (Eigen::Index v = 0; v < mesh.V.rows(); ++v) mesh.V(v, 2) += 0.01 * std::sin(7.0 * v);
+  const MeshTopology topology = *build_topology(mesh.F, static_cast<int>(mesh.V.rows()));
+  const Measures one = compute_measures(mesh.V, mesh.F, topology);
+  const Measures two = compute_measures(mesh.V, mesh.F, topology, 2);
+  EXPECT_EQ(one.theta, two.theta);
+  EXPECT_EQ(one.ratio, two.ratio);
+  EXPECT_EQ(one.area, two.area);
+  EXPECT_EQ(one.phi, two.phi);
+  EXPECT_GT(one.phi.cwiseAbs().maxCoeff(), 0.0);
 }
 
 TEST(Measures, LocalDistortionLocatesTheChange) {
