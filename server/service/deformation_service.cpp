@@ -585,7 +585,8 @@ void DeformationService::run_background_build(const std::shared_ptr<Session>& se
         [this, session, key = build.key, shared_installer, seconds] {
           const Status status = shared_installer->status();
           const bool installed = session->finish_background_build(key, std::move(*shared_installer));
-          log_event(status.ok() ? LogLevel::Debug : LogLevel::Warn, "background_build",
+          const bool quiet = status.ok() || status.code() == ErrorCode::Cancelled;
+          log_event(quiet ? LogLevel::Debug : LogLevel::Warn, "background_build",
                     LogFields()
                         .add("session", session->id().value)
                         .add("installed", installed)

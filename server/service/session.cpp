@@ -96,7 +96,6 @@ std::size_t estimate_session_bytes(int vertices, int faces, int cached_deformers
   // per-face arrays), multiresolution 1.0 KB while moving on the coarse level and 4.6 KB once the
   // background refinement built its full-resolution solver, ARAP 1.0 KB, Laplacian 1.7 KB. The
   // faces are in it (a closed mesh has two per vertex).
-  (void)f;
   const std::size_t per_deformer = v * 5200;
   return base + per_deformer * static_cast<std::size_t>(std::max(cached_deformers, 0));
 }
@@ -653,7 +652,12 @@ std::optional<Session::BackgroundBuild> Session::take_background_build() {
 bool Session::finish_background_build(const core::Deformer* key,
                                       Result<core::Deformer::Installer> installer) {
   background_build_running_ = false;
-  if (!installer.ok() || is_closed()) return false;
+  if (!installer.ok() || is_closed()) {
+    // A failed (or stopped) build ends refinement, as a failed refinement solve does: trying
+    // again would fail again.
+    refine_.reset();
+    return false;
+  }
   std::vector<int> constrained;
   {
     std::lock_guard lock(state_mutex_);

@@ -169,7 +169,8 @@ class Session : public std::enable_shared_from_this<Session> {
   [[nodiscard]] std::optional<BackgroundBuild> take_background_build();
   /// True while a taken build has not finished. Strand only.
   bool background_build_running() const { return background_build_running_; }
-  /// Installs a finished build into its deformer if that is still cached. Strand only.
+  /// Installs a finished build into its deformer if that is still cached; a failed one ends
+  /// refinement (wants_refinement() turns false). Strand only.
   /// @return whether it was installed.
   bool finish_background_build(const core::Deformer* key,
                                Result<core::Deformer::Installer> installer);

@@ -163,6 +163,42 @@ TEST(SessionTest, TheDeformerChargeCoversTheScaleAwareDeformersHeap) {
 }
 #endif
 
+TEST(SessionTest, RefinementBuildsTheFullResolutionSolverOffTheStrandOnce) {
+  Fixture f;
+  f.mesh = test::make_grid(30, 0.05);  // 961 vertices: multiresolution above 500
+  f.options.multires_above = 500;
+  f.options.multires_coarse_vertices = 200;
+  f.options.refine_budget = 10;
+  f.create();
+  f.set_columns(core::Method::ScaleAware);
+  ASSERT_TRUE(f.move(lift(0.2, core::Method::ScaleAware)).ok());
+  ASSERT_TRUE(f.session->wants_refinement()) << "a coarse move leaves work for refinement";
+
+  // A failed build ends refinement instead of being retried for ever.
+  std::optional<Session::BackgroundBuild> failing = f.session->take_background_build();
+  ASSERT_TRUE(failing.has_value());
+  EXPECT_TRUE(f.session->background_build_running());
+  EXPECT_FALSE(f.session->take_background_build().has_value()) << "one build at a time";
+  EXPECT_FALSE(f.session->finish_background_build(
+      failing->key, Error(ErrorCode::NumericalFailure, "injected")));
+  EXPECT_FALSE(f.session->background_build_running());
+  EXPECT_FALSE(f.session->wants_refinement());
+
+  // The next move wants refinement again; its build runs (here on this thread) and installs.
+  ASSERT_TRUE(f.move(lift(0.3, core::Method::ScaleAware)).ok());
+  ASSERT_TRUE(f.session->wants_refinement());
+  std::optional<Session::BackgroundBuild> build = f.session->take_background_build();
+  ASSERT_TRUE(build.has_value());
+  Result<core::Deformer::Installer> installer = build->task(f.session->background_build_stop());
+  ASSERT_TRUE(installer.ok()) << installer.status().to_string();
+  EXPECT_TRUE(f.session->finish_background_build(build->key, std::move(installer)));
+  EXPECT_FALSE(f.session->take_background_build().has_value()) << "built once, not again";
+  Result<std::optional<DeformResult>> refined = f.session->refine(std::stop_source());
+  ASSERT_TRUE(refined.ok()) << refined.status().to_string();
+  ASSERT_TRUE(refined->has_value());
+  EXPECT_TRUE((*refined)->refinement);
+}
+
 TEST(SessionTest, CreateRefusesAMeshWithoutATopology) {
   Fixture f;
   // Three triangles on one edge: not a manifold.
