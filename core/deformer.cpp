@@ -77,8 +77,9 @@ class MultiresScaleAwareDeformer final : public Deformer {
   void reset() override { multires_.reset(); }
 
   bool needs_background_build() const override { return multires_.needs_fine_solver(); }
-  BackgroundBuild background_build() override {
-    std::optional<MultiresDeformer::FineSolverInputs> inputs = multires_.fine_solver_inputs();
+  BackgroundBuild background_build(const SolveOptions& next) override {
+    std::optional<MultiresDeformer::FineSolverInputs> inputs =
+        multires_.fine_solver_inputs(next.rigidity);
     if (!inputs) return {};
     auto shared = std::make_shared<const MultiresDeformer::FineSolverInputs>(std::move(*inputs));
     return [shared, id = id_](std::stop_token stop) -> Result<Installer> {

@@ -103,9 +103,13 @@ class Deformer {
   /// concurrently with solve(), and returns an installer to call on the thread that owns this
   /// deformer (a no-op if the part got built meanwhile, or on any other deformer). Empty when
   /// nothing is pending.
+  /// `next`: the options of the solves it is for (their rigidity's setup is built too).
   using Installer = std::function<void(Deformer&)>;
   using BackgroundBuild = std::function<Result<Installer>(std::stop_token)>;
-  [[nodiscard]] virtual BackgroundBuild background_build() { return {}; }
+  [[nodiscard]] virtual BackgroundBuild background_build(const SolveOptions& next) {
+    (void)next;
+    return {};
+  }
   /// Whether background_build() would return a task (cheap: copies nothing).
   [[nodiscard]] virtual bool needs_background_build() const { return false; }
 };

@@ -727,7 +727,8 @@ Result<MultiresMove> MultiresDeformer::move(const Positions& targets, const Solv
   return move;
 }
 
-std::optional<MultiresDeformer::FineSolverInputs> MultiresDeformer::fine_solver_inputs() const {
+std::optional<MultiresDeformer::FineSolverInputs> MultiresDeformer::fine_solver_inputs(
+    double rigidity) const {
   const Impl& s = *impl_;
   if (s.fine) return std::nullopt;
   const MeshLevel& fine = s.hierarchy.level(0);
@@ -743,13 +744,22 @@ std::optional<MultiresDeformer::FineSolverInputs> MultiresDeformer::fine_solver_
   // asked for (a refine before any move).
   inputs.settings = s.settings.solver;
   inputs.settings.lazy_laplacian_guess = true;
+  inputs.rigidity = rigidity;
   return inputs;
 }
 
 Result<ScaleAwareSolver> MultiresDeformer::build_fine_solver(const FineSolverInputs& inputs,
                                                              std::stop_token stop) {
-  return ScaleAwareSolver::create(inputs.V, inputs.F, inputs.constrained, inputs.settings,
-                                  std::move(stop));
+  MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver,
+                      ScaleAwareSolver::create(inputs.V, inputs.F, inputs.constrained,
+                                               inputs.settings, stop));
+  if (inputs.rigidity >= 0) {
+    if (stop.stop_requested()) {
+      return Error(ErrorCode::Cancelled, "precompute cancelled (deadline or client)");
+    }
+    MD_RETURN_IF_ERROR(solver.prepare(inputs.rigidity));
+  }
+  return solver;
 }
 
 bool MultiresDeformer::needs_fine_solver() const { return !impl_->fine.has_value(); }

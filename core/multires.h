@@ -258,11 +258,15 @@ class MultiresDeformer {
     Triangles F;
     Eigen::VectorXi constrained;  ///< in the order of the targets' rows
     ScaleAwareSettings settings;
+    /// The rigidity the first refinement will solve at: its setup (ScaleAwareSolver::prepare)
+    /// is built with the solver; negative: none.
+    double rigidity = -1;
   };
   /// True until the fine solver is built or installed.
   [[nodiscard]] bool needs_fine_solver() const;
   /// The inputs, or nothing when the fine solver exists.
-  [[nodiscard]] std::optional<FineSolverInputs> fine_solver_inputs() const;
+  /// @param[in] rigidity  what the first refinement will solve at (negative: unknown).
+  [[nodiscard]] std::optional<FineSolverInputs> fine_solver_inputs(double rigidity = -1) const;
   /// ScaleAwareSolver::create on the inputs; touches no deformer (any thread).
   [[nodiscard]] static Result<ScaleAwareSolver> build_fine_solver(const FineSolverInputs& inputs,
                                                                   std::stop_token stop = {});

@@ -801,6 +801,14 @@ Status ScaleAwareSolver::set_positions(const Positions& V) {
   return Status::success();
 }
 
+Status ScaleAwareSolver::prepare(double rigidity) {
+  if (!(rigidity >= 0) || !std::isfinite(rigidity)) {
+    return Error(ErrorCode::InvalidArgument,
+                 "rigidity must be a finite number >= 0, got " + std::to_string(rigidity));
+  }
+  return impl_->prepare_rigidity(rigidity);
+}
+
 Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const SolveOptions& options,
                                             const ProgressCallback& progress,
                                             std::stop_token stop) {

@@ -107,6 +107,12 @@ class ScaleAwareSolver {
   /// @param[in] V  #V x 3 finite positions.
   /// @return InvalidArgument for a wrong shape or a non-finite coordinate (the solver unchanged).
   [[nodiscard]] Status set_positions(const Positions& V);
+  /// Builds now what the first solve at `rigidity` would build (the scale term and the
+  /// preconditioner factor of that rigidity), e.g. on another thread before the solver is
+  /// handed over (core/multires.h); results are the same either way.
+  /// @return InvalidArgument for a rigidity that is negative or not finite; NumericalFailure if
+  ///         a factorization fails.
+  [[nodiscard]] Status prepare(double rigidity);
 
   ScaleAwareSolver(ScaleAwareSolver&&) noexcept;
   ScaleAwareSolver& operator=(ScaleAwareSolver&&) noexcept;

@@ -643,7 +643,9 @@ std::optional<Session::BackgroundBuild> Session::take_background_build() {
   }
   DeformerCache::Entry* entry = deformers_->find(refine_->method, constrained);
   if (entry == nullptr || !entry->deformer->needs_background_build()) return std::nullopt;
-  BackgroundBuild build{entry->deformer->background_build(), entry->deformer.get()};
+  core::SolveOptions next;  // what refine() will solve with: its rigidity's setup comes along
+  next.rigidity = refine_->rigidity;
+  BackgroundBuild build{entry->deformer->background_build(next), entry->deformer.get()};
   if (!build.task) return std::nullopt;
   background_build_running_ = true;
   return build;

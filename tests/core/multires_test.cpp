@@ -618,7 +618,7 @@ TEST(MultiresThroughMakeDeformer, FullResolutionSolverBuildsOnAnotherThreadWhile
   auto in_place = make();  // builds its full-resolution solver inside the first refinement
   ASSERT_TRUE(deformer.ok() && in_place.ok());
   ASSERT_TRUE((*deformer)->needs_background_build());
-  Deformer::BackgroundBuild build = (*deformer)->background_build();
+  Deformer::BackgroundBuild build = (*deformer)->background_build(SolveOptions{});
   ASSERT_TRUE(build);
 
   // The build runs on its own thread while this one keeps moving on the coarse level.
@@ -640,7 +640,7 @@ TEST(MultiresThroughMakeDeformer, FullResolutionSolverBuildsOnAnotherThreadWhile
   EXPECT_TRUE((*in_place)->needs_background_build());
   (*installer)(**deformer);
   EXPECT_FALSE((*deformer)->needs_background_build());
-  EXPECT_FALSE((*deformer)->background_build());
+  EXPECT_FALSE((*deformer)->background_build(SolveOptions{}));
 
   // Refinement with the installed solver is the refinement with one built in place.
   for (int k = 0; k < 3; ++k) ASSERT_TRUE((*in_place)->solve(cactus.setup.targets, options).ok());

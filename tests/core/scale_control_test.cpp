@@ -247,6 +247,23 @@ TEST(ScaleControl, TwoThreadsGiveTheSameResultBitForBit) {
   EXPECT_EQ(reports[0].pcg_iterations, reports[1].pcg_iterations);
 }
 
+TEST(ScaleControl, PreparingARigidityAheadChangesNothing) {
+  const std::vector<SuiteEdit> edits = small_suite_edits();
+  const SuiteEdit& edit = edits[1];  // the cylinder bend
+  SolveOptions options;
+  options.rigidity = 30.0;
+  options.max_iterations = 4;
+  auto prepared = ScaleAwareSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained);
+  auto fresh = ScaleAwareSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained);
+  ASSERT_TRUE(prepared.ok() && fresh.ok());
+  ASSERT_TRUE(prepared->prepare(options.rigidity).ok());
+  EXPECT_EQ(prepared->prepare(-1.0).code(), ErrorCode::InvalidArgument);
+  auto a = prepared->solve(edit.setup.targets, options);
+  auto b = fresh->solve(edit.setup.targets, options);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_EQ(a->V, b->V);
+}
+
 TEST(ScaleControl, OraAndMagnificationStillApply) {
   const std::vector<SuiteEdit> edits = small_suite_edits();
   const SuiteEdit& edit = edits[3];  // the cactus bend
