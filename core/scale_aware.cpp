@@ -42,6 +42,15 @@ Eigen::Matrix3d rodrigues(const Eigen::Vector3d& n, double c, double s) {
   return c * Eigen::Matrix3d::Identity() + s * K + (1.0 - c) * n * n.transpose();
 }
 
+// The one range check of a rigidity (solve() and prepare()).
+Status check_rigidity(double rigidity) {
+  if (!(rigidity >= 0) || !std::isfinite(rigidity)) {
+    return Error(ErrorCode::InvalidArgument,
+                 "rigidity must be a finite number >= 0, got " + std::to_string(rigidity));
+  }
+  return Status::success();
+}
+
 // Step two's conjugate-gradient iteration preconditioned by a (possibly lagged) factor.
 struct PcgOutcome {
   int iterations = 0;
@@ -802,10 +811,7 @@ Status ScaleAwareSolver::set_positions(const Positions& V) {
 }
 
 Status ScaleAwareSolver::prepare(double rigidity) {
-  if (!(rigidity >= 0) || !std::isfinite(rigidity)) {
-    return Error(ErrorCode::InvalidArgument,
-                 "rigidity must be a finite number >= 0, got " + std::to_string(rigidity));
-  }
+  MD_RETURN_IF_ERROR(check_rigidity(rigidity));
   return impl_->prepare_rigidity(rigidity);
 }
 
@@ -834,10 +840,7 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
       }
     }
   }
-  if (!(options.rigidity >= 0) || !std::isfinite(options.rigidity)) {
-    return Error(ErrorCode::InvalidArgument,
-                 "rigidity must be a finite number >= 0, got " + std::to_string(options.rigidity));
-  }
+  MD_RETURN_IF_ERROR(check_rigidity(options.rigidity));
   if (options.lambda != s.settings.lambda) {
     return Error(ErrorCode::InvalidArgument,
                  "lambda is fixed when the solver is created (" + std::to_string(s.settings.lambda) +

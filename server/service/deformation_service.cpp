@@ -580,11 +580,14 @@ void DeformationService::run_background_build(const std::shared_ptr<Session>& se
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     auto shared_installer =
         std::make_shared<Result<core::Deformer::Installer>>(std::move(installer));
+    // The task (and the mesh copy it holds) is done: only which deformer it was for travels on.
+    const Session::BackgroundBuild done{{}, build.method, build.key};
     post(
         session,
-        [this, session, key = build.key, shared_installer, seconds] {
+        [this, session, done, shared_installer, seconds] {
           const Status status = shared_installer->status();
-          const bool installed = session->finish_background_build(key, std::move(*shared_installer));
+          const bool installed =
+              session->finish_background_build(done, std::move(*shared_installer));
           const bool quiet = status.ok() || status.code() == ErrorCode::Cancelled;
           log_event(quiet ? LogLevel::Debug : LogLevel::Warn, "background_build",
                     LogFields()

@@ -634,24 +634,29 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
   return DeformResult(*result);
 }
 
-std::optional<Session::BackgroundBuild> Session::take_background_build() {
-  if (!refine_ || background_build_running_ || is_closed()) return std::nullopt;
+DeformerCache::Entry* Session::cached_deformer(core::Method method) {
   std::vector<int> constrained;
   {
     std::lock_guard lock(state_mutex_);
     constrained = constrained_;
   }
-  DeformerCache::Entry* entry = deformers_->find(refine_->method, constrained);
+  return deformers_->find(method, constrained);
+}
+
+std::optional<Session::BackgroundBuild> Session::take_background_build() {
+  if (!refine_ || background_build_running_ || is_closed()) return std::nullopt;
+  DeformerCache::Entry* entry = cached_deformer(refine_->method);
   if (entry == nullptr || !entry->deformer->needs_background_build()) return std::nullopt;
   core::SolveOptions next;  // what refine() will solve with: its rigidity's setup comes along
   next.rigidity = refine_->rigidity;
-  BackgroundBuild build{entry->deformer->background_build(next), entry->deformer.get()};
+  BackgroundBuild build{entry->deformer->background_build(next), refine_->method,
+                        entry->deformer.get()};
   if (!build.task) return std::nullopt;
   background_build_running_ = true;
   return build;
 }
 
-bool Session::finish_background_build(const core::Deformer* key,
+bool Session::finish_background_build(const BackgroundBuild& build,
                                       Result<core::Deformer::Installer> installer) {
   background_build_running_ = false;
   if (!installer.ok() || is_closed()) {
@@ -660,21 +665,12 @@ bool Session::finish_background_build(const core::Deformer* key,
     refine_.reset();
     return false;
   }
-  std::vector<int> constrained;
-  {
-    std::lock_guard lock(state_mutex_);
-    constrained = constrained_;
-  }
   // The deformer it was built for, if the cache still holds it (the installer itself also
   // refuses any other deformer).
-  for (core::Method method : {core::Method::ScaleAware, core::Method::Arap, core::Method::Laplacian}) {
-    DeformerCache::Entry* entry = deformers_->find(method, constrained);
-    if (entry != nullptr && entry->deformer.get() == key) {
-      (*installer)(*entry->deformer);
-      return !entry->deformer->needs_background_build();
-    }
-  }
-  return false;
+  DeformerCache::Entry* entry = cached_deformer(build.method);
+  if (entry == nullptr || entry->deformer.get() != build.key) return false;
+  (*installer)(*entry->deformer);
+  return !entry->deformer->needs_background_build();
 }
 
 Result<std::optional<DeformResult>> Session::refine(std::stop_source slice) {

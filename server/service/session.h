@@ -162,7 +162,8 @@ class Session : public std::enable_shared_from_this<Session> {
   /// again: at 187k vertices a drag paid seconds of wasted builds and waited for their phases.
   struct BackgroundBuild {
     core::Deformer::BackgroundBuild task;
-    const core::Deformer* key = nullptr;  ///< the deformer it is for
+    core::Method method = core::Method::ScaleAware;  ///< ... of this method
+    const core::Deformer* key = nullptr;             ///< the deformer it is for
   };
   /// When refinement waits for such a build that is not running yet: marks it running and
   /// returns it (run it on any thread, then finish_background_build on the strand). Strand only.
@@ -172,7 +173,7 @@ class Session : public std::enable_shared_from_this<Session> {
   /// Installs a finished build into its deformer if that is still cached; a failed one ends
   /// refinement (wants_refinement() turns false). Strand only.
   /// @return whether it was installed.
-  bool finish_background_build(const core::Deformer* key,
+  bool finish_background_build(const BackgroundBuild& build,
                                Result<core::Deformer::Installer> installer);
   /// Stops a running build: requested by close() (any thread).
   std::stop_token background_build_stop() const { return background_stop_.get_token(); }
@@ -280,6 +281,8 @@ class Session : public std::enable_shared_from_this<Session> {
 
   // Touched only by the strand (edits), except the cache's size and bytes.
   std::unique_ptr<DeformerCache> deformers_;  ///< set by create()
+  /// The cached deformer of `method` for the current constrained set, or null. Strand only.
+  DeformerCache::Entry* cached_deformer(core::Method method);
   std::optional<RefineState> refine_;
   bool background_build_running_ = false;
   std::stop_source background_stop_;  ///< requested by close()

@@ -180,7 +180,7 @@ TEST(SessionTest, RefinementBuildsTheFullResolutionSolverOffTheStrandOnce) {
   EXPECT_TRUE(f.session->background_build_running());
   EXPECT_FALSE(f.session->take_background_build().has_value()) << "one build at a time";
   EXPECT_FALSE(f.session->finish_background_build(
-      failing->key, Error(ErrorCode::NumericalFailure, "injected")));
+      *failing, Error(ErrorCode::NumericalFailure, "injected")));
   EXPECT_FALSE(f.session->background_build_running());
   EXPECT_FALSE(f.session->wants_refinement());
 
@@ -191,7 +191,7 @@ TEST(SessionTest, RefinementBuildsTheFullResolutionSolverOffTheStrandOnce) {
   ASSERT_TRUE(build.has_value());
   Result<core::Deformer::Installer> installer = build->task(f.session->background_build_stop());
   ASSERT_TRUE(installer.ok()) << installer.status().to_string();
-  EXPECT_TRUE(f.session->finish_background_build(build->key, std::move(installer)));
+  EXPECT_TRUE(f.session->finish_background_build(*build, std::move(installer)));
   EXPECT_FALSE(f.session->take_background_build().has_value()) << "built once, not again";
   Result<std::optional<DeformResult>> refined = f.session->refine(std::stop_source());
   ASSERT_TRUE(refined.ok()) << refined.status().to_string();
