@@ -156,6 +156,7 @@ struct Options {
   double smooth_length = core::ScaleAwareSettings{}.scale_smooth_length;
   double normal_tie = core::ScaleAwareSettings{}.scale_normal_tie;
   int rigid_start_iterations = core::SolveOptions{}.rigid_start_iterations;
+  double rigid_start_tolerance = core::SolveOptions{}.rigid_start_tolerance;
   int iterations = core::SolveOptions{}.max_iterations;
   core::StartFrom start = core::StartFrom::Auto;
   double tolerance = core::SolveOptions{}.tolerance;
@@ -251,6 +252,7 @@ Result<Row> run_edit(const Edit& edit, const Options& options) {
     core::SolveOptions o;  // the defaults a user gets, except the swept value
     o.rigidity = rigidity;
     o.rigid_start_iterations = options.rigid_start_iterations;
+    o.rigid_start_tolerance = options.rigid_start_tolerance;
     o.max_iterations = options.iterations;
     o.start = options.start;
     o.tolerance = options.tolerance;
@@ -321,10 +323,12 @@ std::string markdown(const MachineInfo& machine, const Options& options,
       << "; source: git " << machine.git_revision << "\n";
   out << "- scale-aware: SolveOptions defaults except rigidity (max_iterations "
       << options.iterations << ", tolerance " << options.tolerance << ", start "
-      << (options.start == core::StartFrom::Auto ? "auto (the Laplacian guess)"
-                                                  : core::start_name(options.start))
-      << ", rigid start " << options.rigid_start_iterations
-      << " ARAP iterations when used); scale_pull " << options.pull << ", scale_smooth_length "
+      << (options.start == core::StartFrom::Auto
+              ? "auto (the rigid start at rigidity > 0, the Laplacian guess at 0)"
+              : core::start_name(options.start))
+      << ", rigid start: ARAP to relative energy change " << options.rigid_start_tolerance
+      << " or " << options.rigid_start_iterations << " iterations); scale_pull " << options.pull
+      << ", scale_smooth_length "
       << options.smooth_length << "; default rigidity " << core::kDefaultRigidity << "\n";
   out << "- ARAP: core::Method::Arap (cotangent, handles pinned) to relative energy change < "
       << options.arap_tolerance << " or " << options.arap_max_iterations << " iterations\n";
@@ -672,6 +676,7 @@ Result<Options> parse_options(int argc, char** argv) {
   });
   number("--pull", options.pull);
   count("--rigid-start-iterations", options.rigid_start_iterations);
+  number("--rigid-start-tolerance", options.rigid_start_tolerance);
   count("--iterations", options.iterations);
   flags.value("--start", [&](const std::string& value) -> Status {
     MD_ASSIGN_OR_RETURN(options.start, core::parse_start(value));
@@ -704,6 +709,7 @@ void print_usage(std::ostream& out) {
          "  --smooth-length X   ScaleAwareSettings::scale_smooth_length (study only)\n"
          "  --normal-tie X      ScaleAwareSettings::scale_normal_tie (study only; default 0.3)\n"
          "  --rigid-start-iterations K  SolveOptions::rigid_start_iterations\n"
+         "  --rigid-start-tolerance T   SolveOptions::rigid_start_tolerance\n"
          "  --iterations N      SolveOptions::max_iterations of the scale-aware runs (default 15)\n"
          "  --tolerance T       SolveOptions::tolerance of the scale-aware runs (default 1e-4)\n"
          "  --start S           auto (default), laplacian, rigid or propagated\n";

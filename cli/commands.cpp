@@ -61,7 +61,7 @@ Method:
   --method NAME             scale_aware (default), arap or laplacian (an edit spec may set it)
   --ora                     optimal rigidity approximation after the solve (scale-aware only)
   --rigidity X              scale control, X >= 0 (scale-aware only): 0 is the paper's method,
-                            larger keeps local scale closer to the handles' (default 100;
+                            larger keeps local scale closer to the handles' (default 30;
                             an edit spec may set it)
 Solver:
   --iterations N            outer iterations, the budget (default 15; an edit spec may set it)
@@ -69,9 +69,12 @@ Solver:
   --inner-iterations K      step-one sweeps per outer iteration (default 5)
   --anderson M              Anderson acceleration of the outer iteration: mix the last M
                             updates (default 6; 0 = the plain iteration)
-  --start laplacian|previous|rigid|propagated  starting guess (default: laplacian, the
-                            paper's initialisation; rigid: a few ARAP iterations first;
-                            propagated: the handles' rotations spread over the surface)
+  --start auto|laplacian|previous|rigid|propagated  starting guess (default auto: with
+                            scale control (--rigidity > 0) the rigid start, at --rigidity 0
+                            laplacian; laplacian: the paper's initialisation; rigid: ARAP run
+                            to convergence first (relative change 1e-6, at most 1000
+                            iterations); propagated: the handles' rotations spread over the
+                            surface)
   --lambda L                handle weight (default 100)
   --threads N               solver threads, 0 = all (default 1)
 Output control:

@@ -239,6 +239,7 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
                   {"threads", run.settings.threads},
                   {"rigidity", run.options.rigidity},
                   {"rigid_start_iterations", run.options.rigid_start_iterations},
+                  {"rigid_start_tolerance", run.options.rigid_start_tolerance},
                   {"anderson_window", run.options.anderson_window}};
   if (!input.magnify.empty()) {
     json regions = json::array();

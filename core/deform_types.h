@@ -4,6 +4,7 @@
 /// baselines added later), so callers switch methods without changing code.
 
 #include <functional>
+#include <string_view>
 #include <vector>
 
 #include <Eigen/Core>
@@ -14,14 +15,20 @@ namespace meshdeform::core {
 
 /// Where an iterative solve starts.
 enum class StartFrom {
-  Auto,       ///< the previous result when there is one, else the Laplacian-editing guess
+  /// The previous result when there is one; else, for the scale-aware method with scale control
+  /// (rigidity > 0), the Rigid start (ARAP to convergence: measured in
+  /// bench/results/rigidity_sweep.md, the issue-12 targets on 12 of 12 edits against 9 of 12 from
+  /// the Laplacian guess, whose basin is worse on 135-degree twists), and at rigidity 0 and for
+  /// the other methods the Laplacian-editing guess (the paper's start: rigidity 0 stays the
+  /// paper's method).
+  Auto,
   Laplacian,  ///< always the Laplacian-editing guess (paper Section 5.2)
   Previous,   ///< the previous result (the rest mesh before the first solve)
-  /// Scale-aware only (other methods treat it as Laplacian): a rotation-aware start, the ARAP
-  /// result after SolveOptions::rigid_start_iterations iterations from ARAP's own Laplacian guess
-  /// (docs/algorithm.md section 8: the Laplacian guess is poor for large twists). Measured in
-  /// bench/results/rigidity_rigid_start/: it avoids the twisted bar's folds, but creases the bent
-  /// cylinders, so Auto does not use it.
+  /// Scale-aware only (other methods treat it as Laplacian): a rotation-aware start, ARAP from
+  /// its own Laplacian guess until its relative energy change falls below
+  /// SolveOptions::rigid_start_tolerance, at most rigid_start_iterations iterations
+  /// (docs/algorithm.md section 8: the Laplacian guess is poor for large twists). The bent
+  /// cylinders keep some of converged ARAP's creases (4-5 folded edges; ARAP's own: 6).
   Rigid,
   /// Scale-aware only (other methods treat it as Laplacian): the handles' rotations propagated
   /// harmonically over the surface, then ARAP's global step with them (core/rotation_start.h;
@@ -31,9 +38,19 @@ enum class StartFrom {
   Propagated,
 };
 
+/// Progress of a precompute (building a solver or a hierarchy), called on the building thread: a
+/// phase name and the fraction of that phase done, in [0, 1]. Every phase reports 0 when it starts
+/// and 1 when it ends; long phases report fractions in between. Phase names: "validate" (mesh
+/// checks, topology, rest measures), "rigid_start" (the ARAP factorization of the scale-aware
+/// solver's default start), "step_two" (the scale-aware solver's step-two matrix), "factorize"
+/// (ARAP's and Laplacian editing's factorizations), and for a multiresolution deformer (core/
+/// multires.h) "decimate", "prolongation", "coarse_precompute", "fine_precompute".
+using BuildProgress = std::function<void(std::string_view phase, double fraction)>;
+
 /// Default SolveOptions::rigidity, chosen from bench/results/rigidity_sweep.md (with the default
-/// ScaleAwareSettings::scale_normal_tie 0.3: all three targets of issue 12 on 9 of its 12 edits).
-inline constexpr double kDefaultRigidity = 100.0;
+/// ScaleAwareSettings::scale_normal_tie 0.3 and Auto's rigid start: all three targets of issue 12
+/// on 12 of its 12 edits; 100 meets 11, the bar's E_phi 1.02x ARAP's).
+inline constexpr double kDefaultRigidity = 30.0;
 
 /// Per-solve options. Defaults follow docs/algorithm.md.
 struct SolveOptions {
@@ -78,8 +95,13 @@ struct SolveOptions {
   /// every value. The handle weight becomes lambda (1 + rho). Per solve: a new value refactors
   /// only the n x n block-trace preconditioner (cached for the last value).
   double rigidity = kDefaultRigidity;
-  /// ARAP iterations of the Rigid start (>= 0; 0 is ARAP's Laplacian guess with hard handles).
-  int rigid_start_iterations = 5;
+  /// Most ARAP iterations of the Rigid start (>= 0; 0 is ARAP's Laplacian guess with hard
+  /// handles). 1000 lets the 135-degree twists converge (ARAP needs 140-540 iterations there).
+  int rigid_start_iterations = 1000;
+  /// The Rigid start stops when ARAP's relative energy change falls below this (>= 0; 0 runs all
+  /// rigid_start_iterations). 1e-6 by measurement: 1e-5 leaves the twisted bar's E_phi above
+  /// converged ARAP's (bench/results/rigidity_sweep.md's notes).
+  double rigid_start_tolerance = 1e-6;
   /// Multiresolution deformers only (DeformerSettings::multires_above): solve at full
   /// resolution (a refinement) instead of on the coarse level. Other deformers ignore it.
   bool full_resolution = false;

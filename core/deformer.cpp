@@ -229,10 +229,14 @@ Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& 
                                                 const Triangles& F,
                                                 const Eigen::VectorXi& constrained,
                                                 const DeformerSettings& settings,
-                                                std::stop_token stop) {
+                                                std::stop_token stop,
+                                                const BuildProgress& progress) {
   if (stop.stop_requested()) {
     return Error(ErrorCode::Cancelled, "precompute cancelled (deadline or client)");
   }
+  const auto report = [&progress](std::string_view phase, double fraction) {
+    if (progress) progress(phase, fraction);
+  };
   switch (method) {
     case Method::ScaleAware: {
       ScaleAwareSettings s;
@@ -248,25 +252,29 @@ Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& 
         // Big handle regions would keep the coarse level large: only their borders are kept.
         multires.hierarchy.constraint_levels = ConstraintLevels::KeepBorders;
         MD_ASSIGN_OR_RETURN(MultiresDeformer built,
-                            MultiresDeformer::create(V0, F, constrained, multires, {}, stop));
+                            MultiresDeformer::create(V0, F, constrained, multires, progress, stop));
         return std::unique_ptr<Deformer>(
             std::make_unique<MultiresScaleAwareDeformer>(std::move(built), constrained));
       }
-      MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(V0, F, constrained, s, stop));
+      MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(V0, F, constrained, s, stop, progress));
       return std::unique_ptr<Deformer>(std::make_unique<ScaleAwareDeformer>(std::move(solver)));
     }
     case Method::Arap: {
       ArapSettings s;
       s.threads = settings.threads;
+      report("factorize", 0.0);
       MD_ASSIGN_OR_RETURN(ArapSolver solver, ArapSolver::create(V0, F, constrained, s));
+      report("factorize", 1.0);
       return std::unique_ptr<Deformer>(std::make_unique<ArapDeformer>(std::move(solver)));
     }
     case Method::Laplacian: {
+      report("factorize", 0.0);
       MD_RETURN_IF_ERROR(validate_triangle_mesh(V0, F));
       MD_ASSIGN_OR_RETURN(MeshTopology topology, build_topology(F, static_cast<int>(V0.rows())));
       MD_ASSIGN_OR_RETURN(LaplacianEditor editor,
                           LaplacianEditor::create(V0, F, topology, constrained,
                                                   settings.laplacian_weights, settings.lambda));
+      report("factorize", 1.0);
       return std::unique_ptr<Deformer>(std::make_unique<LaplacianDeformer>(
           std::move(editor), V0, F, std::move(topology), constrained, settings.lambda));
     }

@@ -128,10 +128,14 @@ class Deformer {
 ///         refactor_cost_ratio not positive, for the methods that use them); NumericalFailure if
 ///         a factorization fails; Cancelled when `stop` is requested before or between the
 ///         precompute's phases (a running factorization itself finishes).
+/// @param[in] progress     the precompute's phases (BuildProgress: scale-aware "validate",
+///                         "rigid_start", "step_two", or the multiresolution phases; ARAP and
+///                         Laplacian "factorize"), on this thread; may be empty.
 [[nodiscard]] Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& V0,
                                                               const Triangles& F,
                                                               const Eigen::VectorXi& constrained,
                                                               const DeformerSettings& settings = {},
-                                                              std::stop_token stop = {});
+                                                              std::stop_token stop = {},
+                                                              const BuildProgress& progress = {});
 
 }  // namespace meshdeform::core

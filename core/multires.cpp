@@ -368,6 +368,7 @@ Result<MeshHierarchy> MeshHierarchy::build_checked(const Positions& V, const Tri
                              : 0;
     size_t done = 0;
     std::vector<MeshLevel> coarse;
+    if (progress) progress("decimate", 0.0);
     for (size_t k = 0; k < settings.level_vertices.size(); ++k) {
       const auto target = static_cast<size_t>(settings.level_vertices[k]);
       if (alive > target) {

@@ -103,9 +103,8 @@ struct MultiresSettings {
   double boundary_weight = 100.0;
 };
 
-/// Called during a build, on the building thread: a phase name ("decimate", "validate",
-/// "prolongation", "coarse_precompute", "fine_precompute") and the fraction of it done, in [0, 1].
-using BuildProgress = std::function<void(std::string_view phase, double fraction)>;
+// BuildProgress (core/deform_types.h) phases of a multiresolution build: "decimate", "validate",
+// "prolongation", "coarse_precompute", "fine_precompute".
 
 /// One level of a hierarchy.
 struct MeshLevel {

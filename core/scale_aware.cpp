@@ -78,7 +78,7 @@ struct ScaleAwareSolver::Impl {
   int threads = 1;
   std::optional<LaplacianEditor> laplacian;
   std::optional<RigidityStitcher> stitcher;  // built on the first ORA / magnification request
-  std::optional<ArapSolver> rigid_start;     // built on the first Rigid start
+  std::optional<ArapSolver> rigid_start;     // built at create, or on the first rigid start if lazy
   std::optional<RotationPropagationStart> propagated_start;  // built on the first Propagated start
 
   // Step two: A(N) = G^T G + lambda C^T C in a fixed 3x3-block pattern (full symmetric storage,
@@ -122,7 +122,16 @@ struct ScaleAwareSolver::Impl {
   bool rotations_warm = false;
 
   Status build(const Positions& V0_in, const Triangles& F_in, const Eigen::VectorXi& constrained_in,
-               const ScaleAwareSettings& settings_in, const std::stop_token& stop);
+               const ScaleAwareSettings& settings_in, const std::stop_token& stop,
+               const BuildProgress& progress);
+  /// The ARAP solver of the rigid start (factors ARAP's reduced cotangent Laplacian).
+  Status build_rigid_start() {
+    ArapSettings arap_settings;
+    arap_settings.threads = settings.threads;
+    MD_ASSIGN_OR_RETURN(ArapSolver built, ArapSolver::create(V0, F, constrained, arap_settings));
+    rigid_start.emplace(std::move(built));
+    return Status::success();
+  }
   void build_pattern();
   void assemble(const RowPositions& normals, double rigidity = 0.0);
   SparseMatrix block_trace_matrix(double rigidity) const;
@@ -155,7 +164,11 @@ struct ScaleAwareSolver::Impl {
 Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_in,
                                      const Eigen::VectorXi& constrained_in,
                                      const ScaleAwareSettings& settings_in,
-                                     const std::stop_token& stop) {
+                                     const std::stop_token& stop,
+                                     const BuildProgress& progress) {
+  const auto report = [&progress](std::string_view phase, double fraction) {
+    if (progress) progress(phase, fraction);
+  };
   const auto check_stop = [&stop]() -> Status {
     if (!stop.stop_requested()) return Status::success();
     return Error(ErrorCode::Cancelled, "precompute cancelled (deadline or client)");
@@ -173,6 +186,7 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
                  "scale_pull and scale_smooth_length must be finite and >= 0, scale_normal_tie "
                  ">= 0 (infinity allowed)");
   }
+  report("validate", 0.0);
   MD_RETURN_IF_ERROR(validate_triangle_mesh(V0_in, F_in));
   MD_ASSIGN_OR_RETURN(topology, build_topology(F_in, static_cast<int>(V0_in.rows())));
   MD_RETURN_IF_ERROR(check_constrained(constrained_in, topology, 2));
@@ -194,16 +208,19 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   corner_sin = rest.theta.array().sin();
   corner_ratio = rest.ratio;
   N0 = face_normals(V0_in, F_in);
+  report("validate", 1.0);
 
   MD_RETURN_IF_ERROR(check_stop());
   if (!settings.lazy_laplacian_guess) {
-    MD_ASSIGN_OR_RETURN(LaplacianEditor editor,
-                        LaplacianEditor::create(V0_in, F_in, topology, constrained,
-                                                LaplacianWeights::Cotangent, settings.lambda));
-    laplacian.emplace(std::move(editor));
+    // The default start's factor (Auto at rigidity > 0: the rigid start). The Laplacian guess
+    // (a denser bi-Laplacian factor) is built by the first solve that starts from it.
+    report("rigid_start", 0.0);
+    MD_RETURN_IF_ERROR(build_rigid_start());
+    report("rigid_start", 1.0);
     MD_RETURN_IF_ERROR(check_stop());
   }
 
+  report("step_two", 0.0);
   build_pattern();
   // The rest normals give the first numeric factor; later systems reuse it as a preconditioner.
   assemble(N0);
@@ -235,6 +252,7 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   rotations.assign(nv, Eigen::Quaterniond::Identity());
   has_previous = false;
   rotations_warm = true;  // identity is exact at rest
+  report("step_two", 1.0);
   return Status::success();
 }
 
@@ -773,9 +791,10 @@ ScaleAwareSolver::~ScaleAwareSolver() = default;
 Result<ScaleAwareSolver> ScaleAwareSolver::create(const Positions& V0, const Triangles& F,
                                                   const Eigen::VectorXi& constrained,
                                                   const ScaleAwareSettings& settings,
-                                                  std::stop_token stop) {
+                                                  std::stop_token stop,
+                                                  const BuildProgress& progress) {
   auto impl = std::make_unique<Impl>();
-  MD_RETURN_IF_ERROR(impl->build(V0, F, constrained, settings, stop));
+  MD_RETURN_IF_ERROR(impl->build(V0, F, constrained, settings, stop, progress));
   return ScaleAwareSolver(std::move(impl));
 }
 
@@ -821,10 +840,12 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
   Impl& s = *impl_;
   const auto start = Clock::now();
   if (options.max_iterations < 0 || options.inner_iterations < 1 || !(options.tolerance >= 0) ||
-      !(options.pcg_tolerance > 0) || options.rigid_start_iterations < 0) {
+      !(options.pcg_tolerance > 0) || options.rigid_start_iterations < 0 ||
+      !(options.rigid_start_tolerance >= 0)) {
     return Error(ErrorCode::InvalidArgument,
                  "solve options out of range: max_iterations >= 0, inner_iterations >= 1, "
-                 "tolerance >= 0, pcg_tolerance > 0 and rigid_start_iterations >= 0 are required");
+                 "tolerance >= 0, pcg_tolerance > 0, rigid_start_iterations >= 0 and "
+                 "rigid_start_tolerance >= 0 are required");
   }
   MD_RETURN_IF_ERROR(check_targets(targets, s.constrained, s.topology, s.bbox_diagonal, true));
   if (options.face_scale.size() != 0) {
@@ -856,23 +877,19 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
   std::vector<Eigen::Quaterniond> rotations = s.rotations;
   bool rotations_warm = s.rotations_warm;
 
-  // Auto starts from the Laplacian guess at every rigidity. The rotation-aware start is an
-  // option: measured (bench/results/rigidity_rigid_start/) it removes the twisted bar's folds but
-  // creases the bent cylinders and lifts E_theta on the cylinder and the bar.
-  const bool from_rigid = options.start == StartFrom::Rigid;
-  const bool from_laplacian =
-      options.start == StartFrom::Laplacian || (options.start == StartFrom::Auto && !s.has_previous);
+  // Auto's cold start: with scale control (rigidity > 0) ARAP run to convergence, whose basin the
+  // scale-aware energy then refines (bench/results/rigidity_sweep.md: all three targets of issue
+  // 12 on 12 of 12 edits at the default rigidity, against 9 of 12 from the Laplacian guess, which
+  // leaves the 135-degree twists in a worse basin); at rigidity 0 the paper's own start, the
+  // Laplacian guess (Section 5.2), so that rigidity 0 stays the paper's method.
+  const bool cold = options.start == StartFrom::Auto && !s.has_previous;
+  const bool from_rigid = options.start == StartFrom::Rigid || (cold && rho > 0);
+  const bool from_laplacian = options.start == StartFrom::Laplacian || (cold && rho == 0);
   if (from_rigid) {
-    if (!s.rigid_start) {
-      ArapSettings arap_settings;
-      arap_settings.threads = s.settings.threads;
-      MD_ASSIGN_OR_RETURN(ArapSolver built,
-                          ArapSolver::create(s.V0, s.F, s.constrained, arap_settings));
-      s.rigid_start.emplace(std::move(built));
-    }
+    if (!s.rigid_start) MD_RETURN_IF_ERROR(s.build_rigid_start());
     SolveOptions arap_options;
     arap_options.max_iterations = options.rigid_start_iterations;
-    arap_options.tolerance = 0;
+    arap_options.tolerance = options.rigid_start_tolerance;
     arap_options.start = StartFrom::Laplacian;
     arap_options.track_metrics = false;
     MD_ASSIGN_OR_RETURN(const SolveReport guess, s.rigid_start->solve(targets, arap_options, {}, stop));

@@ -57,10 +57,12 @@ struct ScaleAwareSettings {
   /// (ARAP's rotation: area and E_theta fall, E_phi rises above ARAP's). 0.3 by measurement
   /// (bench/results/rigidity_sweep.md, README "Scale control").
   double scale_normal_tie = 0.3;
-  /// Build the Laplacian-editing guess (a factorization of the bi-Laplacian system, the largest
-  /// one the solver holds) on the first solve that starts from it instead of at create. For
-  /// solvers always seeded with set_positions (the full-resolution solver of a multiresolution
-  /// deformer) it is then never built: less precompute and memory.
+  /// Build the default cold start's factorization (the rigid start's ARAP solver, see
+  /// StartFrom::Auto) on the first solve that starts from it instead of at create. For solvers
+  /// always seeded with set_positions (the full-resolution solver of a multiresolution deformer)
+  /// it is then never built: less precompute and memory. (The name is older than the rigid
+  /// start; the Laplacian-editing guess, a denser bi-Laplacian factorization, is always built by
+  /// the first solve that starts from it: StartFrom::Laplacian, or Auto at rigidity 0.)
   bool lazy_laplacian_guess = false;
 };
 
@@ -77,10 +79,13 @@ class ScaleAwareSolver {
   ///         the message names the component and one of its vertices); NumericalFailure if a
   ///         factorization fails; Cancelled when `stop` is requested (checked between the
   ///         precompute's phases: a CHOLMOD factorization itself runs to its end).
+  /// @param[in] progress     phases "validate", "rigid_start" (unless lazy) and "step_two"
+  ///                         (see BuildProgress); may be empty.
   [[nodiscard]] static Result<ScaleAwareSolver> create(const Positions& V0, const Triangles& F,
                                                        const Eigen::VectorXi& constrained,
                                                        const ScaleAwareSettings& settings = {},
-                                                       std::stop_token stop = {});
+                                                       std::stop_token stop = {},
+                                                       const BuildProgress& progress = {});
 
   /// Deforms toward #C x 3 targets (row j for constrained(j)).
   /// With options.rigidity > 0 the scale term of core/scale_control.h joins the energy (built on

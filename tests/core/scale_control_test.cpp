@@ -204,7 +204,7 @@ TEST(ScaleControl, ChangingRigidityPerSolveEqualsAFreshSolver) {
   options.rigidity = 1.0;
   ASSERT_TRUE(reused->solve(edit.setup.targets, options).ok());
   options.rigidity = 5.0;
-  options.start = StartFrom::Laplacian;  // what a fresh solver's Auto start is
+  options.start = StartFrom::Rigid;  // what a fresh solver's Auto start is at rigidity > 0
   auto changed = reused->solve(edit.setup.targets, options);
   ASSERT_TRUE(changed.ok()) << changed.status().to_string();
 
