@@ -84,6 +84,52 @@ struct Client::Impl {
     const grpc::Status status = ((*stub).*method)(&context, request, response);
     return from_grpc(rpc, status);
   }
+
+  /// Runs a *WithProgress call (a server stream of Event: progress, then the response) like
+  /// unary(): call.on_progress hears every progress event, `response` gets the last event's.
+  /// Falls back to the unary `plain` method when the server does not know the streaming one.
+  template <typename Event, typename Request, typename Response, typename StreamMethod,
+            typename Method>
+  Status with_progress(const char* rpc, const CallOptions& call, const std::string* session_id,
+                       StreamMethod stream_method, Method plain, const Request& request,
+                       Response* response) const {
+    if (!call.on_progress) return unary(rpc, call, session_id, plain, request, response);
+    MD_RETURN_IF_ERROR(check_timeout(call));
+    if (session_id) MD_RETURN_IF_ERROR(check_session_id(*session_id));
+    if (call.stop.stop_requested()) {
+      return Error(ErrorCode::Cancelled, std::string(rpc) + ": cancelled before it was sent");
+    }
+    bool heard = false, answered = false;
+    grpc::Status status;
+    {
+      grpc::ClientContext context;
+      context.set_deadline(deadline_after(timeout_of(call)));
+      if (session_id) context.AddMetadata(kSessionIdHeader, *session_id);
+      const std::stop_callback on_stop(call.stop, [&context] { context.TryCancel(); });
+      std::unique_ptr<grpc::ClientReader<Event>> reader = ((*stub).*stream_method)(&context, request);
+      Event event;
+      while (reader->Read(&event)) {
+        heard = true;
+        if (event.has_response()) {
+          *response = std::move(*event.mutable_response());
+          answered = true;
+        } else if (event.has_progress() && !answered) {
+          Progress progress;
+          progress.phase = event.progress().phase();
+          progress.fraction = event.progress().fraction();
+          progress.elapsed_seconds = event.progress().elapsed_seconds();
+          call.on_progress(progress);
+        }
+      }
+      status = reader->Finish();
+    }
+    if (status.error_code() == grpc::StatusCode::UNIMPLEMENTED && !heard) {
+      return unary(rpc, call, session_id, plain, request, response);
+    }
+    MD_RETURN_IF_ERROR(from_grpc(rpc, status));
+    if (!answered) return malformed(rpc, "the progress stream ended without a response");
+    return Status::success();
+  }
 };
 
 Result<Client> Client::connect(const ClientOptions& options) {
@@ -177,9 +223,9 @@ Result<Session> Client::create_session_from_bytes(std::string bytes, io::MeshFor
   if (create.lambda) request.set_lambda(*create.lambda);
   if (create.rigidity) request.set_rigidity(*create.rigidity);
   v1::CreateSessionResponse response;
-  MD_RETURN_IF_ERROR(impl_->unary("CreateSession", call, nullptr,
-                                  &v1::DeformationService::Stub::CreateSession, request,
-                                  &response));
+  MD_RETURN_IF_ERROR(impl_->with_progress<v1::CreateSessionEvent>(
+      "CreateSession", call, nullptr, &v1::DeformationService::Stub::CreateSessionWithProgress,
+      &v1::DeformationService::Stub::CreateSession, request, &response));
   return detail::session_from_proto(response);
 }
 
@@ -192,9 +238,9 @@ Result<Session> Client::create_session_from_sample(const std::string& name,
   if (create.lambda) request.set_lambda(*create.lambda);
   if (create.rigidity) request.set_rigidity(*create.rigidity);
   v1::CreateSessionResponse response;
-  MD_RETURN_IF_ERROR(impl_->unary("CreateSession", call, nullptr,
-                                  &v1::DeformationService::Stub::CreateSession, request,
-                                  &response));
+  MD_RETURN_IF_ERROR(impl_->with_progress<v1::CreateSessionEvent>(
+      "CreateSession", call, nullptr, &v1::DeformationService::Stub::CreateSessionWithProgress,
+      &v1::DeformationService::Stub::CreateSession, request, &response));
   return detail::session_from_proto(response);
 }
 
@@ -207,8 +253,9 @@ Result<SessionInfo> Client::set_handles(const SessionRef& session,
   MD_RETURN_IF_ERROR(detail::groups_to_proto(groups, request.mutable_groups()));
   request.set_prepare(wire::method_to_proto(prepare));
   v1::SetHandlesResponse response;
-  MD_RETURN_IF_ERROR(impl_->unary("SetHandles", call, &session.id,
-                                  &v1::DeformationService::Stub::SetHandles, request, &response));
+  MD_RETURN_IF_ERROR(impl_->with_progress<v1::SetHandlesEvent>(
+      "SetHandles", call, &session.id, &v1::DeformationService::Stub::SetHandlesWithProgress,
+      &v1::DeformationService::Stub::SetHandles, request, &response));
   return detail::info_from_proto(response.info(), "SetHandles");
 }
 

@@ -76,12 +76,28 @@ struct ClientOptions {
 };
 
 /// Per-call overrides.
+/// A phase of the server's work on a CreateSession or SetHandles call (meshdeform.v1.Progress:
+/// "queued", "parse", "session", "validate", "rigid_start", "step_two", "factorize",
+/// "decimate", "prolongation", "coarse_precompute", ...). Each phase is reported at fraction 0
+/// and 1, long ones also in between; every phase arrives, fractions a slow reader could not take
+/// may be skipped.
+struct Progress {
+  std::string phase;
+  double fraction = 0;         ///< of the phase, in [0, 1]
+  double elapsed_seconds = 0;  ///< since the server admitted the call
+};
+
 struct CallOptions {
   /// This call's deadline instead of the client's default; > 0 when set.
   std::optional<std::chrono::milliseconds> timeout;
   /// Requesting a stop cancels the call (ClientContext::TryCancel): the server stops a running
   /// solve and commits nothing; the call returns Cancelled.
   std::stop_token stop;
+  /// create_session_* and set_handles only: when set, the call uses its streaming form
+  /// (CreateSessionWithProgress / SetHandlesWithProgress) and calls this on the calling thread
+  /// for every Progress event before it returns; results and errors are the plain call's. A
+  /// server without the streaming form (UNIMPLEMENTED before any event) gets the plain call.
+  std::function<void(const Progress&)> on_progress;
 };
 
 // ------------------------------------------------------------------------------- domain types

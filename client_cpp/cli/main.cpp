@@ -59,10 +59,13 @@ Global options (anywhere on the line):
 
 Commands (the token may also come from the MESHDEFORM_TOKEN environment variable, which keeps
 it out of the process list):
-  create (--mesh FILE [--weld] | --sample NAME) [--lambda X] [--rigidity X]
+  create (--mesh FILE [--weld] | --sample NAME) [--lambda X] [--rigidity X] [--progress]
       Creates a session; prints {"session_id", "edit_token", "view_token", ...,
       "suggested_groups"}. The mesh format comes from the extension (obj off ply stl glb gltf).
+      --progress: one JSON line per phase of the server's work on stderr ({"phase", "fraction",
+      "elapsed_seconds"}; phases in deformation.proto's Progress), for big meshes.
   handles --session ID --token T (--sel FILE | --groups JSON|FILE) [--prepare METHOD]
+          [--progress]
       Sets the handle groups. A .sel file gives one role per vertex (0 fixed, 1 free, 2 handle):
       group 0 = fixed, group 1 = handle. --groups takes
       [{"role":"fixed","vertices":[...]},{"role":"handle","vertices":[...]}] inline or in a file
@@ -75,7 +78,7 @@ it out of the process list):
       spec (see core/io/deform_spec.h) sets its own groups (fixed first, then one per handle
       entry) when they differ from the session's. METHOD: scale_aware, arap, laplacian.
       --rigidity X: scale control of the scale-aware method, 0..10000 (0 = the paper's pure
-      method; default: the session's, set by create --rigidity, else 100).
+      method; default: the session's, set by create --rigidity, else 30).
   watch --session ID --token T [--max-updates N] [--seconds S]
       Prints one JSON line per committed revision (the first is a snapshot) until the session
       closes, N updates were printed or S seconds passed.
@@ -123,7 +126,8 @@ const std::map<std::string, std::set<std::string>> kCommandValues = {
     {"stats", {}},
 };
 const std::map<std::string, std::set<std::string>> kCommandFlags = {
-    {"create", {"weld"}},
+    {"create", {"weld", "progress"}},
+    {"handles", {"progress"}},
     {"move", {"ora"}},
 };
 
@@ -340,6 +344,20 @@ int server_error(const std::string& command, const Status& status) {
 
 // ----------------------------------------------------------------------------------- commands
 
+/// With --progress: the call reports the server's phases as JSON lines on stderr.
+mc::CallOptions progress_call(const Args& args) {
+  mc::CallOptions call;
+  if (args.flags.count("progress") > 0) {
+    call.on_progress = [](const mc::Progress& p) {
+      std::cerr << json{{"phase", p.phase}, {"fraction", p.fraction},
+                        {"elapsed_seconds", p.elapsed_seconds}}
+                       .dump()
+                << "\n";
+    };
+  }
+  return call;
+}
+
 int cmd_create(const mc::Client& client, const Args& args) {
   const bool has_mesh = args.has("mesh"), has_sample = args.has("sample");
   if (has_mesh == has_sample) throw UsageError{"'create' needs exactly one of --mesh and --sample"};
@@ -354,10 +372,11 @@ int cmd_create(const mc::Client& client, const Args& args) {
     const std::string path = *args.get("mesh");
     const meshdeform::io::MeshFormat format =
         value_or_usage(meshdeform::io::format_from_path(path));
-    session = client.create_session_from_bytes(read_text_file(path), format, create);
+    session =
+        client.create_session_from_bytes(read_text_file(path), format, create, progress_call(args));
   } else {
     if (create.weld) throw UsageError{"--weld applies to --mesh only"};
-    session = client.create_session_from_sample(*args.get("sample"), create);
+    session = client.create_session_from_sample(*args.get("sample"), create, progress_call(args));
   }
   if (!session.ok()) return server_error("create", session.status());
   json out = {{"session_id", session->id},
@@ -436,7 +455,7 @@ int cmd_handles(const mc::Client& client, const Args& args) {
   } else {
     groups = groups_from_json(inline_or_file(*args.get("groups")));
   }
-  Result<mc::SessionInfo> info = client.set_handles(ref, groups, prepare);
+  Result<mc::SessionInfo> info = client.set_handles(ref, groups, prepare, progress_call(args));
   if (!info.ok()) return server_error("handles", info.status());
   json out = info_json(*info);
   out.erase("groups");  // echoing every index adds nothing

@@ -2,10 +2,13 @@
 
 #include <unistd.h>
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <condition_variable>
 #include <cstdio>
 #include <future>
+#include <string_view>
 #include <utility>
 
 #include "core/procedural.h"
@@ -17,6 +20,36 @@
 
 namespace meshdeform::service {
 namespace {
+
+/// Turns phase reports into ProgressEvents timed from its construction (the admission of the
+/// call). Empty function: reports nothing. Copies share the start time.
+class PhaseReporter {
+ public:
+  explicit PhaseReporter(ProgressFn fn) : fn_(std::move(fn)) {}
+  void operator()(std::string_view phase, double fraction) const {
+    if (!fn_) return;
+    ProgressEvent event;
+    event.phase = std::string(phase);
+    event.fraction = std::clamp(std::isfinite(fraction) ? fraction : 0.0, 0.0, 1.0);
+    event.elapsed_seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+    fn_(event);
+  }
+  /// For a callee that reports its own phases: events keep this reporter's start time.
+  ProgressFn fn() const {
+    if (!fn_) return {};
+    return [self = *this](const ProgressEvent& event) { self(event.phase, event.fraction); };
+  }
+  /// The same, as core's precompute callback.
+  core::BuildProgress build_progress() const {
+    if (!fn_) return {};
+    return [self = *this](std::string_view phase, double fraction) { self(phase, fraction); };
+  }
+
+ private:
+  ProgressFn fn_;
+  std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now();
+};
 
 constexpr std::size_t kSessionIdBytes = 16;
 constexpr std::size_t kTokenBytes = 32;
@@ -149,7 +182,9 @@ std::vector<std::string> DeformationService::sample_names() {
 }
 
 Result<CreatedSession> DeformationService::create_session(const CreateSessionRequest& request,
-                                                          std::stop_token stop) {
+                                                          std::stop_token stop,
+                                                          const ProgressFn& progress_fn) {
+  const PhaseReporter progress(progress_fn);
   return run_guarded("CreateSession", [&]() -> Result<CreatedSession> {
     const bool has_bytes = !request.mesh_bytes.empty(), has_sample = !request.sample.empty();
     if (has_bytes == has_sample) {
@@ -165,6 +200,7 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
     }
     CreatedSession created;
     MeshData mesh;
+    progress("parse", 0.0);
     if (has_sample) {
       MD_ASSIGN_OR_RETURN(Sample sample, make_sample(request.sample));
       MD_RETURN_IF_ERROR(core::validate_triangle_mesh(sample.mesh.V, sample.mesh.F));
@@ -180,6 +216,7 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
       created.welded_vertices = loaded.report.welded_vertices;
       created.dropped_unreferenced = loaded.report.dropped_unreferenced;
     }
+    progress("parse", 1.0);
     if (mesh.V.rows() > options_.max_vertices) {
       return Error(ErrorCode::ResourceExhausted,
                    "mesh has " + std::to_string(mesh.V.rows()) + " vertices, the limit is " +
@@ -192,6 +229,7 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
     created.id = SessionId{random_hex(kSessionIdBytes)};
     created.edit_token = Token{random_hex(kTokenBytes)};
     created.view_token = Token{random_hex(kTokenBytes)};
+    progress("session", 0.0);
     SessionStore* store = &store_;
     MD_ASSIGN_OR_RETURN(
         std::shared_ptr<Session> session,
@@ -214,31 +252,36 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
     }
     MD_RETURN_IF_ERROR(store_.insert(session));
     created.info = session->info();
+    progress("session", 1.0);
     return created;
   });
 }
 
 void DeformationService::create_session_async(CreateSessionRequest request, std::stop_token stop,
-                                              std::function<void(Result<CreatedSession>)> done) {
+                                              std::function<void(Result<CreatedSession>)> done,
+                                              ProgressFn progress_fn) {
   Result<HeavyWorkAdmission::Ticket> admitted = heavy_.admit(request.client, "CreateSession");
   if (!admitted.ok()) {
     done(admitted.status());
     return;
   }
+  PhaseReporter progress(std::move(progress_fn));
+  progress("queued", 0.0);
   // std::function needs a copyable callable: the ticket travels in a shared_ptr.
   auto ticket = std::make_shared<HeavyWorkAdmission::Ticket>(std::move(admitted).value());
   std::string client = request.client;  // read before `request` moves into the task
   pool_.submit(
-      [this, ticket, request = std::move(request), stop = std::move(stop),
-       done = std::move(done)] {
+      [this, ticket, request = std::move(request), stop = std::move(stop), done = std::move(done),
+       progress = std::move(progress)] {
         if (stop.stop_requested() || shutdown_.stop_requested()) {
           ticket->release();
           uploads_cancelled_.fetch_add(1);
           done(Error(ErrorCode::Cancelled, "create_session cancelled before it started"));
           return;
         }
+        progress("queued", 1.0);
         const CallStop call_stop(stop, shutdown_.get_token());
-        Result<CreatedSession> created = create_session(request, call_stop.token());
+        Result<CreatedSession> created = create_session(request, call_stop.token(), progress.fn());
         ticket->release();  // before done: a client that retries at once is admitted
         if (!created.ok() && created.status().code() == ErrorCode::Cancelled) {
           uploads_cancelled_.fetch_add(1);
@@ -451,7 +494,8 @@ void DeformationService::post(const std::shared_ptr<Session>& session, std::func
 
 void DeformationService::set_handles_async(const SessionId& id, const Token& edit_token,
                                            SetHandlesRequest request, std::stop_token stop,
-                                           std::function<void(Result<SessionInfo>)> done) {
+                                           std::function<void(Result<SessionInfo>)> done,
+                                           ProgressFn progress_fn) {
   Result<std::shared_ptr<Session>> found = find_for_edit(id, edit_token);
   if (!found.ok()) {
     done(found.status());
@@ -464,17 +508,20 @@ void DeformationService::set_handles_async(const SessionId& id, const Token& edi
     return;
   }
   auto ticket = std::make_shared<HeavyWorkAdmission::Ticket>(std::move(admitted).value());
+  PhaseReporter progress(std::move(progress_fn));
+  progress("queued", 0.0);
   Session::StrandStep step{TaskClass::Heavy, request.client};  // before `request` moves
   post(
       session,
       [this, session, ticket, request = std::move(request), stop = std::move(stop),
-       done = std::move(done)] {
+       done = std::move(done), progress = std::move(progress)] {
         Result<SessionInfo> result = run_guarded("SetHandles", [&]() -> Result<SessionInfo> {
           if (stop.stop_requested() || shutdown_.stop_requested()) {
             return Error(ErrorCode::Cancelled, "set_handles cancelled before it started");
           }
+          progress("queued", 1.0);
           const CallStop call_stop(stop, shutdown_.get_token());
-          return session->set_handles(request, call_stop.token());
+          return session->set_handles(request, call_stop.token(), progress.build_progress());
         });
         ticket->release();
         if (!result.ok() && result.status().code() == ErrorCode::Cancelled) {
@@ -487,11 +534,12 @@ void DeformationService::set_handles_async(const SessionId& id, const Token& edi
 
 Result<SessionInfo> DeformationService::set_handles(const SessionId& id, const Token& edit_token,
                                                     SetHandlesRequest request,
-                                                    std::stop_token stop) {
+                                                    std::stop_token stop, ProgressFn progress) {
   std::promise<Result<SessionInfo>> promise;
   std::future<Result<SessionInfo>> future = promise.get_future();
-  set_handles_async(id, edit_token, std::move(request), std::move(stop),
-                    [&promise](Result<SessionInfo> r) { promise.set_value(std::move(r)); });
+  set_handles_async(
+      id, edit_token, std::move(request), std::move(stop),
+      [&promise](Result<SessionInfo> r) { promise.set_value(std::move(r)); }, std::move(progress));
   return future.get();
 }
 

@@ -69,30 +69,37 @@ class DeformationService {
   ///         an unknown sample (listing the known ones) or a bad mesh (naming the element);
   ///         ResourceExhausted for a mesh over max_vertices (naming both counts), max_sessions
   ///         open sessions, or a memory budget that eviction of idle sessions cannot meet.
+  /// `progress` (may be empty) hears the phases "parse" and "session" (see ProgressEvent).
   [[nodiscard]] Result<CreatedSession> create_session(const CreateSessionRequest& request,
-                                                      std::stop_token stop = {});
+                                                      std::stop_token stop = {},
+                                                      const ProgressFn& progress = {});
   /// create_session on the worker pool as heavy work (parsing a large upload can take a while: it
   /// must not hold a transport thread, nor the workers that serve moves). Admission control first:
   /// ResourceExhausted (at once, nothing queued) when request.client already has
   /// ServiceOptions::heavy_work.per_client uploads/precomputes admitted or the server has
   /// heavy_work.total. Cancelled if `stop` is requested before it starts or mid-parse (the worker
   /// is freed within a few thousand parse steps). `done` runs on a worker thread, or on the
-  /// caller's thread when refused.
+  /// caller's thread when refused. `progress` (may be empty) hears "queued" when admitted (on the
+  /// caller's thread) and when started, then create_session's phases, all before `done`.
   void create_session_async(CreateSessionRequest request, std::stop_token stop,
-                            std::function<void(Result<CreatedSession>)> done);
+                            std::function<void(Result<CreatedSession>)> done,
+                            ProgressFn progress = {});
 
   /// Sets the handle groups on the worker pool as heavy work (its precompute factors matrices);
   /// see Session::set_handles for the errors, plus NotFound (unknown/expired/closed session),
   /// PermissionDenied (not the edit token), ResourceExhausted from admission control as for
   /// create_session_async (request.client), and Cancelled if `stop` is requested before it
   /// starts or between the precompute's phases. `done` runs on a worker thread, or on the
-  /// caller's thread when refused.
+  /// caller's thread when refused. `progress` (may be empty) hears "queued" when admitted and
+  /// when started, then the precompute's phases (see ProgressEvent), all before `done`.
   void set_handles_async(const SessionId& id, const Token& edit_token, SetHandlesRequest request,
-                         std::stop_token stop, std::function<void(Result<SessionInfo>)> done);
+                         std::stop_token stop, std::function<void(Result<SessionInfo>)> done,
+                         ProgressFn progress = {});
   /// Blocking set_handles_async.
   [[nodiscard]] Result<SessionInfo> set_handles(const SessionId& id, const Token& edit_token,
                                                 SetHandlesRequest request,
-                                                std::stop_token stop = {});
+                                                std::stop_token stop = {},
+                                                ProgressFn progress = {});
 
   /// Moves handles and solves on the worker pool; see Session::move for the errors, plus
   /// NotFound and PermissionDenied. `stop` (tied by the transport to client cancellation),

@@ -24,7 +24,8 @@ void DeformerCache::touch(Entry& entry) { entry.last_used = ++tick_; }
 
 Result<DeformerCache::Found> DeformerCache::get_or_build(core::Method method,
                                                          const std::vector<int>& constrained,
-                                                         std::stop_token stop) {
+                                                         std::stop_token stop,
+                                                         const core::BuildProgress& progress) {
   if (Entry* cached = find(method, constrained)) {
     touch(*cached);
     return Found{cached, false};
@@ -34,7 +35,7 @@ Result<DeformerCache::Found> DeformerCache::get_or_build(core::Method method,
   const Eigen::VectorXi idx = Eigen::Map<const Eigen::VectorXi>(
       constrained.data(), static_cast<Eigen::Index>(constrained.size()));
   MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
-                      build_(method, idx, std::move(stop)));
+                      build_(method, idx, std::move(stop), progress));
   entries_.push_back(Entry{method, constrained, std::move(deformer), 0, ++tick_});
   size_.store(static_cast<int>(entries_.size()));
   return Found{&entries_.back(), true};

@@ -40,7 +40,8 @@ class DeformerCache {
 
   /// Builds the deformer of `method` for the constrained vertices (core::make_deformer).
   using BuildFn = std::function<Result<std::unique_ptr<core::Deformer>>(
-      core::Method method, const Eigen::VectorXi& constrained, std::stop_token stop)>;
+      core::Method method, const Eigen::VectorXi& constrained, std::stop_token stop,
+      const core::BuildProgress& progress)>;
   /// Asks for `bytes` more memory budget before a build; an error refuses the build.
   using ReserveFn = std::function<Status(std::size_t bytes)>;
 
@@ -66,8 +67,10 @@ class DeformerCache {
   /// @return the entry; the reserve function's error (e.g. ResourceExhausted) or the build's
   ///         (InvalidArgument, NumericalFailure, Cancelled when `stop` is requested), and then
   ///         nothing is added (an entry dropped to make room stays dropped).
+  /// @param[in] progress  handed to the build (its phases); not called when the entry is cached.
   [[nodiscard]] Result<Found> get_or_build(core::Method method, const std::vector<int>& constrained,
-                                           std::stop_token stop = {});
+                                           std::stop_token stop = {},
+                                           const core::BuildProgress& progress = {});
   /// Drops the least recently used entry (none when empty).
   void evict_lru();
 

@@ -18,6 +18,9 @@
 namespace meshdeform::service {
 namespace {
 
+/// Most ARAP iterations of an interactive move's rigid start (see Session::move).
+constexpr int kMoveRigidStartIterations = 30;
+
 // ServiceOptions::solver_threads for a big session, one thread for the rest.
 int threads_for(const ServiceOptions& options, int vertices) {
   if (vertices < options.parallel_solve_above) return 1;
@@ -292,10 +295,11 @@ void Session::init_deformer_cache() {
   const std::size_t per_deformer = estimate_session_bytes(v, f, 1, 0) - estimate_session_bytes(v, f, 0, 0);
   // The session owns the cache, so the cache's functions may hold `this`.
   DeformerCache::BuildFn build = [this](core::Method method, const Eigen::VectorXi& constrained,
-                                        std::stop_token stop)
+                                        std::stop_token stop, const core::BuildProgress& progress)
       -> Result<std::unique_ptr<core::Deformer>> {
     MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
-                        core::make_deformer(method, rest_.V, rest_.F, constrained, settings_, stop));
+                        core::make_deformer(method, rest_.V, rest_.F, constrained, settings_, stop,
+                                            progress));
     counters_->deformer_constructions.fetch_add(1);
     return deformer;
   };
@@ -305,7 +309,8 @@ void Session::init_deformer_cache() {
                                                std::move(build), std::move(reserve));
 }
 
-Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::stop_token stop) {
+Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::stop_token stop,
+                                         const core::BuildProgress& progress) {
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
   if (!is_fresh()) return stale_copy(id_);  // never overwrite a newer revision of another replica
   if (shared_ != nullptr) MD_RETURN_IF_ERROR(begin_shared_edit(shared_->lease_wait(), stop));
@@ -339,7 +344,8 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
   }
   std::sort(constrained.begin(), constrained.end());
   MD_RETURN_IF_ERROR(check_pinnable(request.prepare, constrained));
-  MD_RETURN_IF_ERROR(deformers_->get_or_build(request.prepare, constrained, stop).status());
+  MD_RETURN_IF_ERROR(
+      deformers_->get_or_build(request.prepare, constrained, stop, progress).status());
 
   {
     std::unique_lock shared_lock(shared_mutex_, std::defer_lock);
@@ -520,6 +526,12 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   options.ora = request.ora;
   options.face_scale = face_scale;
   options.rigidity = rigidity;
+  // A cold move (the first after SetHandles, a method switch) starts from ARAP (StartFrom::Auto);
+  // run to convergence toward far targets that could take seconds at 10^5 vertices, so a move
+  // runs at most this many ARAP iterations and background refinement goes on from there. A drag
+  // starts near rest, where ARAP converges in a few.
+  options.rigid_start_iterations =
+      std::min(options.rigid_start_iterations, kMoveRigidStartIterations);
   // commit() measures E_theta / E_phi once; per-iteration tracking would measure the mesh three
   // more times per interactive move (rest, guess, each iteration).
   options.track_metrics = false;

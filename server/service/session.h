@@ -116,8 +116,10 @@ class Session : public std::enable_shared_from_this<Session> {
   ///         and Laplacian one); ResourceExhausted over the memory budget; NotFound once closed;
   ///         NumericalFailure if the factorization fails; Cancelled when `stop` is requested
   ///         (before or between the precompute's phases; nothing changes).
+  /// @param[in] progress  the precompute's phases (core::BuildProgress); none when cached.
   [[nodiscard]] Result<SessionInfo> set_handles(const SetHandlesRequest& request,
-                                                std::stop_token stop = {});
+                                                std::stop_token stop = {},
+                                                const core::BuildProgress& progress = {});
 
   /// Applies a move and solves, warm-starting the cached deformer of (method, constrained set)
   /// from its last result (a deformer whose last result is not the current revision, e.g. after

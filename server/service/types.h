@@ -203,6 +203,24 @@ struct SessionInfo {
   std::string view_token;
 };
 
+/// Progress of heavy work (create_session's parse, set_handles' precompute), so that a client of a
+/// big mesh sees phases instead of a silent wait. Every phase reports fraction 0 when it starts
+/// and 1 when it ends; long ones (decimation) report fractions between. Phases, in order:
+///  - "queued": admitted, waiting for a worker (fraction 0) or started (1);
+///  - create_session: "parse" (reading, cleaning and checking the upload, or making the sample),
+///    "session" (the rest measures and the session's own setup);
+///  - set_handles: the precompute's phases (core::BuildProgress): "validate", "rigid_start",
+///    "step_two" (scale-aware), "factorize" (ARAP, Laplacian), or for a multiresolution session
+///    "decimate", "validate", "prolongation", "coarse_precompute". None when the factorization
+///    is cached.
+struct ProgressEvent {
+  std::string phase;
+  double fraction = 0;         ///< of the phase, in [0, 1]
+  double elapsed_seconds = 0;  ///< since the call was admitted
+};
+/// Receives ProgressEvents on the worker doing the work (must not block for long).
+using ProgressFn = std::function<void(const ProgressEvent&)>;
+
 /// CreateSession input: exactly one of mesh bytes or a built-in sample name.
 struct CreateSessionRequest {
   std::string mesh_bytes;                     ///< whole file contents

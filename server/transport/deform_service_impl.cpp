@@ -1,6 +1,7 @@
 #include "server/transport/deform_service_impl.h"
 
 #include <chrono>
+#include <deque>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -227,11 +228,149 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
   std::shared_ptr<WatchReactor> self_;
 };
 
-class FailedWriteReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
+template <typename Message>
+class FailedWriteReactor final : public grpc::ServerWriteReactor<Message> {
  public:
-  explicit FailedWriteReactor(const grpc::Status& status) { Finish(status); }
+  explicit FailedWriteReactor(const grpc::Status& status) { this->Finish(status); }
   void OnDone() override { delete this; }
 };
+
+/// Streams the progress of heavy work, then its response (CreateSessionWithProgress,
+/// SetHandlesWithProgress). Progress events wait in a queue that keeps one event per phase in a
+/// row (a newer event of the phase at its tail replaces it): a slow reader skips fractions, never
+/// a phase, and the queue stays as short as the list of phases. The response, or the error
+/// status, comes last. Cancellation requests the
+/// work's stop; the call finishes when the work reports (the service always does). Owned by
+/// itself (self_) until OnDone and by the work's callbacks, which may outlive the call: after
+/// OnDone they find it finished and do nothing.
+template <typename Event>
+class ProgressStreamReactor final : public grpc::ServerWriteReactor<Event> {
+ public:
+  static std::shared_ptr<ProgressStreamReactor> start(CallRecord call) {
+    auto reactor = std::shared_ptr<ProgressStreamReactor>(new ProgressStreamReactor(std::move(call)));
+    reactor->self_ = reactor;
+    return reactor;
+  }
+
+  std::stop_token stop_token() const { return stop_.get_token(); }
+
+  /// A progress event (any thread); replaces a queued one of the same phase at the tail.
+  void progress(Event event) {
+    {
+      const std::lock_guard lock(mutex_);
+      if (result_ || is_finished_) return;
+      if (!pending_.empty() && pending_.back().progress().phase() == event.progress().phase()) {
+        pending_.back() = std::move(event);
+      } else {
+        pending_.push_back(std::move(event));
+      }
+    }
+    pump();
+  }
+
+  /// The end of the work (any thread, once): `last` is written before an OK status.
+  void finish(const Status& status, std::optional<Event> last) {
+    {
+      const std::lock_guard lock(mutex_);
+      if (result_) return;
+      result_ = status;
+      last_ = std::move(last);
+    }
+    pump();
+  }
+
+  void OnWriteDone(bool ok) override {
+    {
+      const std::lock_guard lock(mutex_);
+      is_writing_ = false;
+      if (!ok) is_broken_ = true;  // the client is gone: write nothing more
+    }
+    if (!ok) stop_.request_stop();
+    pump();
+  }
+
+  void OnCancel() override {
+    {
+      const std::lock_guard lock(mutex_);
+      is_broken_ = true;
+    }
+    stop_.request_stop();
+    pump();
+  }
+
+  void OnDone() override {
+    std::shared_ptr<ProgressStreamReactor> keep;
+    {
+      const std::lock_guard lock(mutex_);
+      is_finished_ = true;
+      keep = std::move(self_);
+    }
+    // `keep` releases this object, unless the work's callbacks still hold it.
+  }
+
+ private:
+  explicit ProgressStreamReactor(CallRecord call) : call_(std::move(call)) {}
+
+  /// Starts the next write or the finish if no write is in flight; gRPC calls outside the lock.
+  /// The response is an ordinary write and Finish follows its OnWriteDone, as Watch does: with
+  /// StartWriteAndFinish the response did not reach clients of the gRPC-Web gateway (the viewer
+  /// saw the stream end without it; GrpcWebTest.ProgressStreamsCarryEveryPhaseAndEndWithTheResponse
+  /// hung), while native clients got it.
+  void pump() {
+    enum class Next { Nothing, Write, Finish } next = Next::Nothing;
+    grpc::Status status;
+    {
+      const std::lock_guard lock(mutex_);
+      if (is_finished_ || is_writing_) return;
+      if (!pending_.empty() && !is_broken_) {
+        message_ = std::move(pending_.front());
+        pending_.pop_front();
+        next = Next::Write;
+      } else if (result_ && result_->ok() && last_ && !is_broken_) {
+        message_ = std::move(*last_);
+        last_.reset();
+        next = Next::Write;
+      } else if (result_) {
+        status = call_.finish(*result_);
+        next = Next::Finish;
+        is_finished_ = true;
+      }
+      if (next == Next::Write) is_writing_ = true;
+    }
+    switch (next) {
+      case Next::Nothing:
+        break;
+      case Next::Write:
+        this->StartWrite(&message_);
+        break;
+      case Next::Finish:
+        this->Finish(status);
+        break;
+    }
+  }
+
+  std::mutex mutex_;
+  std::stop_source stop_;
+  std::deque<Event> pending_;
+  std::optional<Status> result_;
+  std::optional<Event> last_;
+  Event message_;  // owned by gRPC while a write is in flight
+  bool is_writing_ = false;
+  bool is_broken_ = false;
+  bool is_finished_ = false;
+  CallRecord call_;
+  std::shared_ptr<ProgressStreamReactor> self_;
+};
+
+/// The progress callback of a ProgressStreamReactor<Event> (Event has a `progress` field).
+template <typename Event>
+service::ProgressFn stream_progress(const std::shared_ptr<ProgressStreamReactor<Event>>& reactor) {
+  return [reactor](const service::ProgressEvent& progress) {
+    Event event;
+    progress_to_proto(progress, event.mutable_progress());
+    reactor->progress(std::move(event));
+  };
+}
 
 }  // namespace
 
@@ -309,6 +448,67 @@ grpc::ServerUnaryReactor* DeformServiceImpl::SetHandles(grpc::CallbackServerCont
   });
 }
 
+grpc::ServerWriteReactor<v1::CreateSessionEvent>* DeformServiceImpl::CreateSessionWithProgress(
+    grpc::CallbackServerContext* context, const v1::CreateSessionRequest* request) {
+  const CallRecord call(service_, "CreateSessionWithProgress", {});
+  if (Status admitted = admit_call(service_, context, identity_,
+                                   service::RateLimitedCall::CreateSession);
+      !admitted.ok()) {
+    return new FailedWriteReactor<v1::CreateSessionEvent>(call.finish(admitted));
+  }
+  using Reactor = ProgressStreamReactor<v1::CreateSessionEvent>;
+  const std::shared_ptr<Reactor> reactor = Reactor::start(call);
+  const Status started = service::run_guarded(call.rpc(), [&]() -> Status {
+    MD_ASSIGN_OR_RETURN(service::CreateSessionRequest converted,
+                        create_request_from_proto(*request));
+    converted.client = client_identity(*context, identity_);
+    service_.create_session_async(
+        std::move(converted), reactor->stop_token(),
+        [reactor, rpc = call.rpc()](Result<service::CreatedSession> result) {
+          std::optional<v1::CreateSessionEvent> last;
+          const Status status = service::run_guarded(rpc, [&]() -> Status {
+            if (!result.ok()) return result.status();
+            last.emplace();
+            created_to_proto(result.value(), last->mutable_response());
+            return Status::success();
+          });
+          reactor->finish(status, std::move(last));
+        },
+        stream_progress(reactor));
+    return Status::success();
+  });
+  if (!started.ok()) reactor->finish(started, std::nullopt);
+  return reactor.get();
+}
+
+grpc::ServerWriteReactor<v1::SetHandlesEvent>* DeformServiceImpl::SetHandlesWithProgress(
+    grpc::CallbackServerContext* context, const v1::SetHandlesRequest* request) {
+  const CallRecord call(service_, "SetHandlesWithProgress", request->session_id());
+  using Reactor = ProgressStreamReactor<v1::SetHandlesEvent>;
+  const std::shared_ptr<Reactor> reactor = Reactor::start(call);
+  const Status started = service::run_guarded(call.rpc(), [&]() -> Status {
+    MD_ASSIGN_OR_RETURN(service::SetHandlesRequest converted, set_handles_from_proto(*request));
+    converted.client = client_identity(*context, identity_);
+    service_.set_handles_async(
+        service::SessionId{request->session_id()}, service::Token{request->token()},
+        std::move(converted), reactor->stop_token(),
+        [reactor, rpc = call.rpc()](Result<service::SessionInfo> result) {
+          std::optional<v1::SetHandlesEvent> last;
+          const Status status = service::run_guarded(rpc, [&]() -> Status {
+            if (!result.ok()) return result.status();
+            last.emplace();
+            session_info_to_proto(result.value(), last->mutable_response()->mutable_info());
+            return Status::success();
+          });
+          reactor->finish(status, std::move(last));
+        },
+        stream_progress(reactor));
+    return Status::success();
+  });
+  if (!started.ok()) reactor->finish(started, std::nullopt);
+  return reactor.get();
+}
+
 grpc::ServerUnaryReactor* DeformServiceImpl::MoveHandles(grpc::CallbackServerContext* context,
                                                          const v1::MoveHandlesRequest* request,
                                                          v1::MoveHandlesResponse* response) {
@@ -339,13 +539,15 @@ grpc::ServerWriteReactor<v1::DeformUpdate>* DeformServiceImpl::Watch(
   (void)context;
   CallRecord call(service_, "Watch", request->session_id());
   const Result<v1::PositionEncoding> encoding = encoding_from_proto(request->encoding());
-  if (!encoding.ok()) return new FailedWriteReactor(call.finish(encoding.status()));
+  if (!encoding.ok()) {
+    return new FailedWriteReactor<v1::DeformUpdate>(call.finish(encoding.status()));
+  }
   Result<service::Subscription> subscription = service::run_guarded("Watch", [&] {
     return service_.watch(service::SessionId{request->session_id()},
                           service::Token{request->token()});
   });
   if (!subscription.ok()) {
-    return new FailedWriteReactor(call.finish(subscription.status()));
+    return new FailedWriteReactor<v1::DeformUpdate>(call.finish(subscription.status()));
   }
   return WatchReactor::start(std::move(subscription).value(), *encoding, std::move(call));
 }

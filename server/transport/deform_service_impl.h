@@ -45,6 +45,11 @@ class DeformServiceImpl final : public v1::DeformationService::CallbackService {
   grpc::ServerUnaryReactor* SetHandles(grpc::CallbackServerContext* context,
                                        const v1::SetHandlesRequest* request,
                                        v1::SetHandlesResponse* response) override;
+  /// The same work as CreateSession / SetHandles, streaming the service's ProgressEvents first.
+  grpc::ServerWriteReactor<v1::CreateSessionEvent>* CreateSessionWithProgress(
+      grpc::CallbackServerContext* context, const v1::CreateSessionRequest* request) override;
+  grpc::ServerWriteReactor<v1::SetHandlesEvent>* SetHandlesWithProgress(
+      grpc::CallbackServerContext* context, const v1::SetHandlesRequest* request) override;
   grpc::ServerUnaryReactor* MoveHandles(grpc::CallbackServerContext* context,
                                         const v1::MoveHandlesRequest* request,
                                         v1::MoveHandlesResponse* response) override;

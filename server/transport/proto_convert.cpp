@@ -255,6 +255,12 @@ void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* ou
   wire::rows_to_proto(info.group_anchors, out->mutable_group_anchors());
 }
 
+void progress_to_proto(const service::ProgressEvent& event, v1::Progress* out) {
+  out->set_phase(event.phase);
+  out->set_fraction(event.fraction);
+  out->set_elapsed_seconds(event.elapsed_seconds);
+}
+
 void created_to_proto(const service::CreatedSession& created, v1::CreateSessionResponse* out) {
   out->set_session_id(created.id.value);
   out->set_edit_token(created.edit_token.value);

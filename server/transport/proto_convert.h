@@ -47,6 +47,7 @@ void pack_positions(const Positions& rows, v1::PositionEncoding encoding, std::s
 
 void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* out);
 void created_to_proto(const service::CreatedSession& created, v1::CreateSessionResponse* out);
+void progress_to_proto(const service::ProgressEvent& event, v1::Progress* out);
 /// @param[in] full_positions  also fill out->positions with all #V x 3 positions.
 /// @param[in] encoding        UNSPECIFIED: doubles in the repeated fields; FLOAT32 / MESHOPT:
 ///                            the same positions in the packed_* bytes (see pack_positions),

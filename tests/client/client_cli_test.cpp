@@ -19,6 +19,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <set>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -272,6 +273,36 @@ TEST_F(ClientCliTest, MoveWithAJsonEditSpecSetsItsOwnGroups) {
   const CliRun stats = run({"stats"});
   ASSERT_EQ(stats.exit_code, 0) << describe(stats);
   EXPECT_GE(parse(stats)["sessions"].get<int>(), 1);
+}
+
+TEST_F(ClientCliTest, ProgressPrintsThePhasesOnStderrAndKeepsStdoutJson) {
+  const CliRun created = run({"create", "--sample", "cylinder_small", "--progress"});
+  ASSERT_EQ(created.exit_code, 0) << describe(created);
+  const json session = parse(created);  // stdout stays the one JSON object
+  EXPECT_EQ(session["vertices"], 420);
+  auto phases_of = [](const std::string& err) {
+    std::vector<std::string> phases;
+    std::istringstream lines(err);
+    for (std::string line; std::getline(lines, line);) {
+      if (line.empty() || line[0] != '{') continue;  // server log lines are not ours
+      const json j = json::parse(line, nullptr, false);
+      if (!j.is_object() || !j.contains("phase")) continue;
+      EXPECT_GE(j["fraction"].get<double>(), 0.0);
+      EXPECT_LE(j["fraction"].get<double>(), 1.0);
+      const std::string phase = j["phase"];
+      if (phases.empty() || phases.back() != phase) phases.push_back(phase);
+    }
+    return phases;
+  };
+  EXPECT_EQ(phases_of(created.err), (std::vector<std::string>{"queued", "parse", "session"}));
+
+  const fs::path groups = write_file("progress_groups.json", created.out);
+  const std::string id = session.value("session_id", ""), edit = session.value("edit_token", "");
+  const CliRun handles = run({"handles", "--session", id, "--token", edit, "--groups",
+                              groups.string(), "--prepare", "arap", "--progress"});
+  ASSERT_EQ(handles.exit_code, 0) << describe(handles);
+  EXPECT_EQ(parse(handles)["revision"], 0);
+  EXPECT_EQ(phases_of(handles.err), (std::vector<std::string>{"queued", "factorize"}));
 }
 
 TEST_F(ClientCliTest, CreateFromAMeshFile) {

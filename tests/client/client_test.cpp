@@ -227,6 +227,43 @@ TEST_F(ClientTest, CreatesFromSampleWithSuggestedGroups) {
   EXPECT_EQ(info->revision, 0u);
 }
 
+TEST_F(ClientTest, OnProgressHearsThePhasesOfCreateAndSetHandles) {
+  std::vector<std::string> create_phases, set_phases;
+  auto collect = [](std::vector<std::string>& into) {
+    return [&into](const Progress& p) {
+      EXPECT_GE(p.fraction, 0.0);
+      EXPECT_LE(p.fraction, 1.0);
+      EXPECT_GE(p.elapsed_seconds, 0.0);
+      if (into.empty() || into.back() != p.phase) into.push_back(p.phase);
+    };
+  };
+  CallOptions create_call;
+  create_call.on_progress = collect(create_phases);
+  Result<Session> session = client().create_session_from_sample("cylinder_small", {}, create_call);
+  ASSERT_TRUE(session.ok()) << message_of(session);
+  EXPECT_EQ(session->info.vertices, 420);
+  EXPECT_EQ(create_phases, (std::vector<std::string>{"queued", "parse", "session"}));
+
+  CallOptions set_call;
+  set_call.on_progress = collect(set_phases);
+  Result<SessionInfo> info =
+      client().set_handles(session->edit(), session->suggested_groups, core::Method::Arap, set_call);
+  ASSERT_TRUE(info.ok()) << message_of(info);
+  EXPECT_EQ(info->groups, session->suggested_groups);
+  EXPECT_EQ(set_phases, (std::vector<std::string>{"queued", "factorize"}));
+
+  // Errors are the plain call's.
+  std::vector<std::string> refused_phases;
+  CallOptions refused_call;
+  refused_call.on_progress = collect(refused_phases);
+  expect_code(client()
+                  .set_handles(session->view(), session->suggested_groups, core::Method::Arap,
+                               refused_call)
+                  .status(),
+              ErrorCode::PermissionDenied);
+  EXPECT_TRUE(refused_phases.empty());
+}
+
 // --- move ---------------------------------------------------------------------------------------
 
 TEST_F(ClientTest, MoveMatchesTheCoreSolveAndReportsExactDeltas) {

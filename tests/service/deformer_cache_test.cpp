@@ -43,7 +43,7 @@ struct Fixture {
     cache = std::make_unique<DeformerCache>(
         capacity, kBytesPerDeformer,
         [this](core::Method method, const Eigen::VectorXi& constrained,
-               std::stop_token stop) -> Result<std::unique_ptr<core::Deformer>> {
+               std::stop_token stop, const core::BuildProgress&) -> Result<std::unique_ptr<core::Deformer>> {
           if (stop.stop_requested()) return Error(ErrorCode::Cancelled, "stopped");
           if (!build_answer.ok()) return build_answer;
           ++builds;
@@ -119,7 +119,7 @@ TEST(DeformerCacheTest, BudgetSeesTheNetGrowth) {
   cache = std::make_unique<DeformerCache>(
       1, kBytesPerDeformer,
       [](core::Method method, const Eigen::VectorXi& constrained,
-         std::stop_token) -> Result<std::unique_ptr<core::Deformer>> {
+         std::stop_token, const core::BuildProgress&) -> Result<std::unique_ptr<core::Deformer>> {
         return std::unique_ptr<core::Deformer>(new FakeDeformer(method, constrained));
       },
       [&](std::size_t) {

@@ -11,6 +11,7 @@
 #include <grpcpp/security/credentials.h>
 #include <grpcpp/security/server_credentials.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -1147,6 +1148,162 @@ TEST_F(DeformServiceTest, UndoRedoAndTheEditStateOverTheWire) {
   ASSERT_TRUE(move(redo, &response).ok());
   ASSERT_TRUE(info(created.session_id(), created.view_token(), &info_now).ok());
   EXPECT_EQ(info_now.edit().position(), 1u);
+}
+
+// --- progress streams (issue 15) ---------------------------------------------------------------
+
+namespace progress_streams {
+
+/// Reads a *WithProgress stream to its end: the phases in first-seen order, whether the last
+/// event held the response (and how many events followed it), and the final status.
+template <typename Event>
+struct Read {
+  std::vector<std::string> phases;
+  int progress_events = 0;
+  int responses = 0;
+  bool response_last = false;
+  Event last;
+  grpc::Status status;
+};
+
+template <typename Event>
+Read<Event> read_all(grpc::ClientReader<Event>& reader) {
+  Read<Event> out;
+  Event event;
+  for (int i = 0; i < 100000 && reader.Read(&event); ++i) {
+    if (event.has_progress()) {
+      ++out.progress_events;
+      out.response_last = false;
+      const std::string& phase = event.progress().phase();
+      if (std::find(out.phases.begin(), out.phases.end(), phase) == out.phases.end())
+        out.phases.push_back(phase);
+      EXPECT_GE(event.progress().fraction(), 0.0);
+      EXPECT_LE(event.progress().fraction(), 1.0);
+    } else if (event.has_response()) {
+      ++out.responses;
+      out.response_last = true;
+      out.last = event;
+    }
+  }
+  out.status = reader.Finish();
+  return out;
+}
+
+}  // namespace progress_streams
+
+TEST_F(DeformServiceTest, CreateAndSetHandlesWithProgressStreamPhasesThenTheResponse) {
+  using progress_streams::read_all;
+  grpc::ClientContext create_context;
+  bound(create_context);
+  auto create_reader =
+      stub_->CreateSessionWithProgress(&create_context, sample_request("cylinder_small"));
+  const auto created = read_all(*create_reader);
+  ASSERT_TRUE(created.status.ok()) << describe(created.status);
+  EXPECT_EQ(created.responses, 1);
+  EXPECT_TRUE(created.response_last);
+  EXPECT_EQ(created.phases, (std::vector<std::string>{"queued", "parse", "session"}));
+  const v1::CreateSessionResponse& session = created.last.response();
+  EXPECT_EQ(session.info().vertices(), 420u);
+  ASSERT_EQ(session.suggested_groups_size(), 2);
+
+  v1::SetHandlesRequest handles;
+  handles.set_session_id(session.session_id());
+  handles.set_token(session.edit_token());
+  *handles.mutable_groups() = session.suggested_groups();
+  grpc::ClientContext set_context;
+  bound(set_context);
+  auto set_reader = stub_->SetHandlesWithProgress(&set_context, handles);
+  const auto set = read_all(*set_reader);
+  ASSERT_TRUE(set.status.ok()) << describe(set.status);
+  EXPECT_EQ(set.responses, 1);
+  EXPECT_TRUE(set.response_last);
+  EXPECT_EQ(set.phases,
+            (std::vector<std::string>{"queued", "validate", "rigid_start", "step_two"}));
+  EXPECT_EQ(set.last.response().info().groups_size(), 2);
+
+  // The session works as if set with the unary call.
+  v1::MoveHandlesResponse moved;
+  const grpc::Status move_status = move(bend_request(session, 20), &moved);
+  ASSERT_TRUE(move_status.ok()) << describe(move_status);
+  EXPECT_EQ(moved.result().revision(), 1u);
+}
+
+TEST_F(DeformServiceTest, ProgressStreamsEndWithTheUnaryCallsErrors) {
+  using progress_streams::read_all;
+  {  // A bad mesh: INVALID_ARGUMENT after the parse began, and no response.
+    v1::CreateSessionRequest bad;
+    bad.set_mesh_bytes("v 0 0 0\nf 1 2 3\n");
+    bad.set_format(v1::MESH_FORMAT_OBJ);
+    grpc::ClientContext context;
+    bound(context);
+    auto reader = stub_->CreateSessionWithProgress(&context, bad);
+    const auto read = read_all(*reader);
+    EXPECT_EQ(read.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << describe(read.status);
+    EXPECT_EQ(read.responses, 0);
+  }
+  const v1::CreateSessionResponse s = create_with_handles("cylinder_small");
+  v1::SetHandlesRequest handles;
+  handles.set_session_id(s.session_id());
+  *handles.mutable_groups() = s.suggested_groups();
+  {  // The view token cannot set handles: PERMISSION_DENIED before any work.
+    handles.set_token(s.view_token());
+    grpc::ClientContext context;
+    bound(context);
+    auto reader = stub_->SetHandlesWithProgress(&context, handles);
+    const auto read = read_all(*reader);
+    EXPECT_EQ(read.status.error_code(), grpc::StatusCode::PERMISSION_DENIED);
+    EXPECT_EQ(read.progress_events, 0);
+    EXPECT_EQ(read.responses, 0);
+  }
+  {  // An unknown session: NOT_FOUND.
+    handles.set_session_id("0123456789abcdef0123456789abcdef");
+    handles.set_token(s.edit_token());
+    grpc::ClientContext context;
+    bound(context);
+    auto reader = stub_->SetHandlesWithProgress(&context, handles);
+    EXPECT_EQ(read_all(*reader).status.error_code(), grpc::StatusCode::NOT_FOUND);
+  }
+  {  // A vertex out of range: INVALID_ARGUMENT.
+    handles.set_session_id(s.session_id());
+    handles.mutable_groups(1)->add_vertices(1'000'000);
+    grpc::ClientContext context;
+    bound(context);
+    auto reader = stub_->SetHandlesWithProgress(&context, handles);
+    EXPECT_EQ(read_all(*reader).status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  }
+}
+
+TEST_F(DeformServiceTest, ACancelledProgressStreamEndsAndTheSessionStillServes) {
+  using progress_streams::read_all;
+  v1::CreateSessionResponse created;
+  ASSERT_TRUE(create(sample_request("cylinder"), &created).ok());
+  v1::SetHandlesRequest handles;
+  handles.set_session_id(created.session_id());
+  handles.set_token(created.edit_token());
+  *handles.mutable_groups() = created.suggested_groups();
+  {
+    grpc::ClientContext context;
+    bound(context);
+    auto reader = stub_->SetHandlesWithProgress(&context, handles);
+    v1::SetHandlesEvent first;
+    ASSERT_TRUE(reader->Read(&first));  // "queued", sent when the call was admitted
+    ASSERT_TRUE(first.has_progress());
+    EXPECT_EQ(first.progress().phase(), "queued");
+    context.TryCancel();
+    const auto rest = read_all(*reader);
+    // Cancelled, unless the precompute finished before the cancel reached it.
+    EXPECT_TRUE(rest.status.error_code() == grpc::StatusCode::CANCELLED || rest.status.ok())
+        << describe(rest.status);
+  }
+  grpc::ClientContext again;
+  bound(again);
+  auto reader = stub_->SetHandlesWithProgress(&again, handles);
+  const auto read = read_all(*reader);
+  ASSERT_TRUE(read.status.ok()) << describe(read.status);
+  EXPECT_EQ(read.responses, 1);
+  v1::MoveHandlesResponse moved;
+  const grpc::Status status = move(bend_request(created, 20), &moved);
+  EXPECT_TRUE(status.ok()) << describe(status);
 }
 
 }  // namespace

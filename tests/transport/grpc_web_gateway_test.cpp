@@ -1042,5 +1042,42 @@ TEST_F(GrpcWebTest, RateLimitsCountEachBrowserByItsOwnAddress) {
   EXPECT_EQ(create_from(0x7F000002), 0);  // 127.0.0.2: another browser, its own bucket
 }
 
+TEST_F(GrpcWebTest, ProgressStreamsCarryEveryPhaseAndEndWithTheResponse) {
+  // Issue 15: the *WithProgress streams through the gateway, as the viewer calls them. Every
+  // round must end with the response event and an OK trailer (bounded: 8 sessions; each
+  // precompute runs, nothing is cached).
+  start();
+  for (int round = 0; round < 8; ++round) {
+    SCOPED_TRACE("round " + std::to_string(round));
+    v1::CreateSessionRequest create;
+    create.set_sample(round % 2 == 0 ? "cylinder_small" : "cylinder");
+    const Frames created = parse_frames(call("CreateSessionWithProgress", create).body);
+    ASSERT_TRUE(created.is_valid);
+    ASSERT_EQ(created.status(), 0);
+    ASSERT_GE(created.messages.size(), 2u);
+    v1::CreateSessionEvent last_create;
+    ASSERT_TRUE(last_create.ParseFromString(created.messages.back()));
+    ASSERT_TRUE(last_create.has_response());
+
+    const Frames set =
+        parse_frames(call("SetHandlesWithProgress", set_handles_request(last_create.response())).body);
+    ASSERT_TRUE(set.is_valid);
+    ASSERT_EQ(set.status(), 0);
+    std::vector<std::string> phases;
+    for (std::size_t i = 0; i + 1 < set.messages.size(); ++i) {
+      v1::SetHandlesEvent event;
+      ASSERT_TRUE(event.ParseFromString(set.messages[i]));
+      ASSERT_TRUE(event.has_progress()) << "message " << i;
+      if (phases.empty() || phases.back() != event.progress().phase())
+        phases.push_back(event.progress().phase());
+    }
+    EXPECT_EQ(phases, (std::vector<std::string>{"queued", "validate", "rigid_start", "step_two"}));
+    v1::SetHandlesEvent last;
+    ASSERT_TRUE(last.ParseFromString(set.messages.back()));
+    ASSERT_TRUE(last.has_response()) << "the stream ended without the response";
+    EXPECT_EQ(last.response().info().groups_size(), 2);
+  }
+}
+
 }  // namespace
 }  // namespace meshdeform::transport

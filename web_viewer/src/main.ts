@@ -4,9 +4,10 @@ import { create, toBinary } from "@bufbuild/protobuf";
 import { Code, ConnectError, createContextValues } from "@connectrpc/connect";
 import {
   DeformUpdateSchema, HandleGroupSchema, HandleRole, HistoryAction, MagnifyRegionSchema, MeshFormat, Method, VertexTargetsSchema,
-  type DeformUpdate, type HandleGroup, type MoveHandlesResponse, type SessionInfo,
+  type CreateSessionResponse, type DeformUpdate, type HandleGroup, type MoveHandlesResponse, type SessionInfo, type SetHandlesResponse,
 } from "./gen/meshdeform/v1/deformation_pb";
 import { kSessionId, makeClient } from "./client";
+import { progressText, readWithProgress } from "./progress";
 import { MoveCoalescer } from "./coalescer";
 import { rigidityLabel, rigidityStep, rigidityValue } from "./rigidity";
 import { cornerAngles, faceAreas2, ramp, rampCss, scaleMax, vertexAreaLog, vertexDistortion } from "./distortion";
@@ -272,7 +273,9 @@ class App {
 
   private async createFromSample(sample: string): Promise<void> {
     this.setStatus(`Creating session from sample “${sample}”…`);
-    const r = await client.createSession({ source: { case: "sample", value: sample }, lambda: LAMBDA });
+    const r = await readWithProgress<CreateSessionResponse>(client.createSessionWithProgress({ source: { case: "sample", value: sample }, lambda: LAMBDA }), (p) =>
+      this.banner.status(progressText(`Creating session from sample “${sample}”…`, p)),
+    );
     const creds = { sessionId: r.sessionId, token: r.editToken };
     await this.load(creds, "edit", r.info!, r.viewToken, r.editToken);
     if (r.suggestedGroups.length) {
@@ -483,7 +486,14 @@ class App {
     await this.banner.progress("Factorizing…", async () => {
       this.banner.status("Factorizing…");
       const t = performance.now();
-      const r = await client.setHandles({ sessionId: s.creds.sessionId, token: s.creds.token, groups, prepare: this.method() });
+      // The streaming form reports the precompute's phases (seconds on a big mesh).
+      const r = await readWithProgress<SetHandlesResponse>(
+        client.setHandlesWithProgress(
+          { sessionId: s.creds.sessionId, token: s.creds.token, groups, prepare: this.method() },
+          { contextValues: createContextValues().set(kSessionId, s.creds.sessionId) },
+        ),
+        (p) => this.banner.status(progressText("Factorizing…", p)),
+      );
       const nh = groups.filter((g) => g.role === HandleRole.HANDLE).length;
       this.setStatus(`Handles set (${nh} handle group${nh === 1 ? "" : "s"}, ${groups.length - nh} fixed) in ${((performance.now() - t) / 1000).toFixed(2)} s — drag the orange handle`);
       s.anchorsAtRest = s.shapeAtRest;
@@ -1262,7 +1272,10 @@ class App {
       await this.banner.progress(`Uploading ${file.name}…`, async () => {
         const bytes = new Uint8Array(await file.arrayBuffer());
         this.banner.status(`Uploading ${file.name} (${(bytes.length / 1024).toFixed(0)} KiB)…`);
-        const r = await client.createSession({ source: { case: "meshBytes", value: bytes }, format, lambda: LAMBDA, weld: format === MeshFormat.STL || format === MeshFormat.OBJ });
+        const r = await readWithProgress<CreateSessionResponse>(
+          client.createSessionWithProgress({ source: { case: "meshBytes", value: bytes }, format, lambda: LAMBDA, weld: format === MeshFormat.STL || format === MeshFormat.OBJ }),
+          (p) => this.banner.status(progressText(`Uploading ${file.name}…`, p)),
+        );
         const creds = { sessionId: r.sessionId, token: r.editToken };
         await this.load(creds, "edit", r.info!, r.viewToken, r.editToken);
         history.replaceState(null, "", location.pathname + location.search + formatHash(creds));
