@@ -362,6 +362,23 @@ class ProgressStreamReactor final : public grpc::ServerWriteReactor<Event> {
   std::shared_ptr<ProgressStreamReactor> self_;
 };
 
+/// The completion of a *WithProgress call's work: `fill(value, event)` writes the response into
+/// the last event (or the result's error passes on), then the reactor finishes.
+template <typename Event, typename T, typename Fill>
+auto finish_stream_with(std::shared_ptr<ProgressStreamReactor<Event>> reactor,
+                        std::string_view rpc, Fill fill) {
+  return [reactor = std::move(reactor), rpc, fill = std::move(fill)](Result<T> result) {
+    std::optional<Event> last;
+    const Status status = service::run_guarded(rpc, [&]() -> Status {
+      if (!result.ok()) return result.status();
+      last.emplace();
+      fill(result.value(), *last);
+      return Status::success();
+    });
+    reactor->finish(status, std::move(last));
+  };
+}
+
 /// The progress callback of a ProgressStreamReactor<Event> (Event has a `progress` field).
 template <typename Event>
 service::ProgressFn stream_progress(const std::shared_ptr<ProgressStreamReactor<Event>>& reactor) {
@@ -464,16 +481,11 @@ grpc::ServerWriteReactor<v1::CreateSessionEvent>* DeformServiceImpl::CreateSessi
     converted.client = client_identity(*context, identity_);
     service_.create_session_async(
         std::move(converted), reactor->stop_token(),
-        [reactor, rpc = call.rpc()](Result<service::CreatedSession> result) {
-          std::optional<v1::CreateSessionEvent> last;
-          const Status status = service::run_guarded(rpc, [&]() -> Status {
-            if (!result.ok()) return result.status();
-            last.emplace();
-            created_to_proto(result.value(), last->mutable_response());
-            return Status::success();
-          });
-          reactor->finish(status, std::move(last));
-        },
+        finish_stream_with<v1::CreateSessionEvent, service::CreatedSession>(
+            reactor, call.rpc(),
+            [](const service::CreatedSession& created, v1::CreateSessionEvent& event) {
+              created_to_proto(created, event.mutable_response());
+            }),
         stream_progress(reactor));
     return Status::success();
   });
@@ -492,16 +504,11 @@ grpc::ServerWriteReactor<v1::SetHandlesEvent>* DeformServiceImpl::SetHandlesWith
     service_.set_handles_async(
         service::SessionId{request->session_id()}, service::Token{request->token()},
         std::move(converted), reactor->stop_token(),
-        [reactor, rpc = call.rpc()](Result<service::SessionInfo> result) {
-          std::optional<v1::SetHandlesEvent> last;
-          const Status status = service::run_guarded(rpc, [&]() -> Status {
-            if (!result.ok()) return result.status();
-            last.emplace();
-            session_info_to_proto(result.value(), last->mutable_response()->mutable_info());
-            return Status::success();
-          });
-          reactor->finish(status, std::move(last));
-        },
+        finish_stream_with<v1::SetHandlesEvent, service::SessionInfo>(
+            reactor, call.rpc(),
+            [](const service::SessionInfo& info, v1::SetHandlesEvent& event) {
+              session_info_to_proto(info, event.mutable_response()->mutable_info());
+            }),
         stream_progress(reactor));
     return Status::success();
   });
