@@ -457,7 +457,10 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
       << "interleaved per round; timings are medians, peak RSS is VmHWM of the method's process "
          "(reset after fork; includes the input mesh and the libraries, baseline in the JSON)\n";
   out << "- ours: default settings, threads " << options.threads << ", " << options.iterations
-      << " outer iterations from the Laplacian guess, metrics off in the timed run (E_theta / "
+      << " outer iterations from the Laplacian guess (named, not Auto's rigid start: the "
+         "per-iteration figures compare like with like; the guess's bi-Laplacian factor is built "
+         "by that first solve, so the precompute column holds create() only: validation, ARAP's "
+         "factor for the default start, step two), metrics off in the timed run (E_theta / "
          "E_phi per iteration come from a second, identical run with metrics on); ARAP timed run "
          "tolerance 0 (exactly "
       << options.iterations << " iterations, like CGAL's); scale_aware and arap: the plain "
