@@ -66,19 +66,33 @@ struct Client::Impl {
     return call.timeout.value_or(options.default_timeout);
   }
 
-  /// Runs one unary call with the deadline, the x-session-id header (when `session_id` is set)
-  /// and cancellation by `call.stop`.
-  template <typename Request, typename Response, typename Method>
-  Status unary(const char* rpc, const CallOptions& call, const std::string* session_id,
-               Method method, const Request& request, Response* response) const {
+  /// What every call checks before it is sent: the timeout, the session id (when set) and a
+  /// stop already requested.
+  static Status check_call(const char* rpc, const CallOptions& call,
+                           const std::string* session_id) {
     MD_RETURN_IF_ERROR(check_timeout(call));
     if (session_id) MD_RETURN_IF_ERROR(check_session_id(*session_id));
     if (call.stop.stop_requested()) {
       return Error(ErrorCode::Cancelled, std::string(rpc) + ": cancelled before it was sent");
     }
-    grpc::ClientContext context;
+    return Status::success();
+  }
+
+  /// The call's deadline and x-session-id header (when `session_id` is set).
+  void configure(grpc::ClientContext& context, const CallOptions& call,
+                 const std::string* session_id) const {
     context.set_deadline(deadline_after(timeout_of(call)));
     if (session_id) context.AddMetadata(kSessionIdHeader, *session_id);
+  }
+
+  /// Runs one unary call with the deadline, the x-session-id header (when `session_id` is set)
+  /// and cancellation by `call.stop`.
+  template <typename Request, typename Response, typename Method>
+  Status unary(const char* rpc, const CallOptions& call, const std::string* session_id,
+               Method method, const Request& request, Response* response) const {
+    MD_RETURN_IF_ERROR(check_call(rpc, call, session_id));
+    grpc::ClientContext context;
+    configure(context, call, session_id);
     // TryCancel is thread-safe; a stop before the call starts cancels it as soon as it does.
     const std::stop_callback on_stop(call.stop, [&context] { context.TryCancel(); });
     const grpc::Status status = ((*stub).*method)(&context, request, response);
@@ -94,17 +108,12 @@ struct Client::Impl {
                        StreamMethod stream_method, Method plain, const Request& request,
                        Response* response) const {
     if (!call.on_progress) return unary(rpc, call, session_id, plain, request, response);
-    MD_RETURN_IF_ERROR(check_timeout(call));
-    if (session_id) MD_RETURN_IF_ERROR(check_session_id(*session_id));
-    if (call.stop.stop_requested()) {
-      return Error(ErrorCode::Cancelled, std::string(rpc) + ": cancelled before it was sent");
-    }
+    MD_RETURN_IF_ERROR(check_call(rpc, call, session_id));
     bool heard = false, answered = false;
     grpc::Status status;
     {
       grpc::ClientContext context;
-      context.set_deadline(deadline_after(timeout_of(call)));
-      if (session_id) context.AddMetadata(kSessionIdHeader, *session_id);
+      configure(context, call, session_id);
       const std::stop_callback on_stop(call.stop, [&context] { context.TryCancel(); });
       std::unique_ptr<grpc::ClientReader<Event>> reader = ((*stub).*stream_method)(&context, request);
       Event event;

@@ -47,6 +47,12 @@ enum class StartFrom {
 /// multires.h) "decimate", "prolongation", "coarse_precompute", "fine_precompute".
 using BuildProgress = std::function<void(std::string_view phase, double fraction)>;
 
+/// Calls `progress` if it is set.
+inline void report_progress(const BuildProgress& progress, std::string_view phase,
+                            double fraction) {
+  if (progress) progress(phase, fraction);
+}
+
 /// Default SolveOptions::rigidity, chosen from bench/results/rigidity_sweep.md (with the default
 /// ScaleAwareSettings::scale_normal_tie 0.3 and Auto's rigid start: all three targets of issue 12
 /// on 12 of its 12 edits; 100 meets 11, the bar's E_phi 1.02x ARAP's).

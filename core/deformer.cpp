@@ -234,9 +234,6 @@ Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& 
   if (stop.stop_requested()) {
     return Error(ErrorCode::Cancelled, "precompute cancelled (deadline or client)");
   }
-  const auto report = [&progress](std::string_view phase, double fraction) {
-    if (progress) progress(phase, fraction);
-  };
   switch (method) {
     case Method::ScaleAware: {
       ScaleAwareSettings s;
@@ -262,19 +259,19 @@ Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& 
     case Method::Arap: {
       ArapSettings s;
       s.threads = settings.threads;
-      report("factorize", 0.0);
+      report_progress(progress, "factorize", 0.0);
       MD_ASSIGN_OR_RETURN(ArapSolver solver, ArapSolver::create(V0, F, constrained, s));
-      report("factorize", 1.0);
+      report_progress(progress, "factorize", 1.0);
       return std::unique_ptr<Deformer>(std::make_unique<ArapDeformer>(std::move(solver)));
     }
     case Method::Laplacian: {
-      report("factorize", 0.0);
+      report_progress(progress, "factorize", 0.0);
       MD_RETURN_IF_ERROR(validate_triangle_mesh(V0, F));
       MD_ASSIGN_OR_RETURN(MeshTopology topology, build_topology(F, static_cast<int>(V0.rows())));
       MD_ASSIGN_OR_RETURN(LaplacianEditor editor,
                           LaplacianEditor::create(V0, F, topology, constrained,
                                                   settings.laplacian_weights, settings.lambda));
-      report("factorize", 1.0);
+      report_progress(progress, "factorize", 1.0);
       return std::unique_ptr<Deformer>(std::make_unique<LaplacianDeformer>(
           std::move(editor), V0, F, std::move(topology), constrained, settings.lambda));
     }

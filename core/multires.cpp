@@ -368,7 +368,7 @@ Result<MeshHierarchy> MeshHierarchy::build_checked(const Positions& V, const Tri
                              : 0;
     size_t done = 0;
     std::vector<MeshLevel> coarse;
-    if (progress) progress("decimate", 0.0);
+    report_progress(progress, "decimate", 0.0);
     for (size_t k = 0; k < settings.level_vertices.size(); ++k) {
       const auto target = static_cast<size_t>(settings.level_vertices[k]);
       if (alive > target) {
@@ -384,14 +384,13 @@ Result<MeshHierarchy> MeshHierarchy::build_checked(const Positions& V, const Tri
       }
       coarse.push_back(snapshot(om, constrained_row));
     }
-    if (progress) progress("decimate", 1.0);
+    report_progress(progress, "decimate", 1.0);
     const auto must_keep = settings.constraint_levels == ConstraintLevels::KeepAll
                                ? static_cast<int>(constrained.size())
                                : locked;
     for (size_t k = 0; k < coarse.size(); ++k) {
-      if (progress) {
-        progress("validate", static_cast<double>(k) / static_cast<double>(coarse.size()));
-      }
+      report_progress(progress, "validate",
+                      static_cast<double>(k) / static_cast<double>(coarse.size()));
       MeshLevel& level = coarse[k];
       const Status valid = validate_triangle_mesh(level.V, level.F);
       if (!valid.ok()) {
@@ -405,7 +404,7 @@ Result<MeshHierarchy> MeshHierarchy::build_checked(const Positions& V, const Tri
       }
       hierarchy.levels_.push_back(std::move(level));
     }
-    if (progress) progress("validate", 1.0);
+    report_progress(progress, "validate", 1.0);
     return hierarchy;
   });
 }
@@ -693,20 +692,20 @@ Result<MultiresDeformer> MultiresDeformer::create(const Positions& V, const Tria
   s.report.coarse_constrained = static_cast<int>(level.constrained.size());
 
   start = Clock::now();
-  if (progress) progress("prolongation", 0.0);
+  report_progress(progress, "prolongation", 0.0);
   MD_ASSIGN_OR_RETURN(Prolongation prolongation,
                       Prolongation::create_checked(V, F, topology, level.to_fine, stop));
   s.prolongation.emplace(std::move(prolongation));
-  if (progress) progress("prolongation", 1.0);
+  report_progress(progress, "prolongation", 1.0);
   s.report.prolongation_seconds = seconds_since(start);
 
   start = Clock::now();
-  if (progress) progress("coarse_precompute", 0.0);
+  report_progress(progress, "coarse_precompute", 0.0);
   MD_ASSIGN_OR_RETURN(ScaleAwareSolver coarse, ScaleAwareSolver::create(level.V, level.F,
                                                                         level.constrained,
                                                                         settings.solver, stop));
   s.coarse.emplace(std::move(coarse));
-  if (progress) progress("coarse_precompute", 1.0);
+  report_progress(progress, "coarse_precompute", 1.0);
   s.report.coarse_solver_seconds = seconds_since(start);
   s.positions = V;
   return MultiresDeformer(std::move(impl));
@@ -773,10 +772,10 @@ void MultiresDeformer::install_fine_solver(ScaleAwareSolver solver) {
 Status MultiresDeformer::prepare_refinement(const BuildProgress& progress, std::stop_token stop) {
   std::optional<FineSolverInputs> inputs = fine_solver_inputs();
   if (!inputs) return Status::success();
-  if (progress) progress("fine_precompute", 0.0);
+  report_progress(progress, "fine_precompute", 0.0);
   MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, build_fine_solver(*inputs, std::move(stop)));
   install_fine_solver(std::move(solver));
-  if (progress) progress("fine_precompute", 1.0);
+  report_progress(progress, "fine_precompute", 1.0);
   return Status::success();
 }
 

@@ -166,9 +166,6 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
                                      const ScaleAwareSettings& settings_in,
                                      const std::stop_token& stop,
                                      const BuildProgress& progress) {
-  const auto report = [&progress](std::string_view phase, double fraction) {
-    if (progress) progress(phase, fraction);
-  };
   const auto check_stop = [&stop]() -> Status {
     if (!stop.stop_requested()) return Status::success();
     return Error(ErrorCode::Cancelled, "precompute cancelled (deadline or client)");
@@ -186,7 +183,7 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
                  "scale_pull and scale_smooth_length must be finite and >= 0, scale_normal_tie "
                  ">= 0 (infinity allowed)");
   }
-  report("validate", 0.0);
+  report_progress(progress, "validate", 0.0);
   MD_RETURN_IF_ERROR(validate_triangle_mesh(V0_in, F_in));
   MD_ASSIGN_OR_RETURN(topology, build_topology(F_in, static_cast<int>(V0_in.rows())));
   MD_RETURN_IF_ERROR(check_constrained(constrained_in, topology, 2));
@@ -208,19 +205,19 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   corner_sin = rest.theta.array().sin();
   corner_ratio = rest.ratio;
   N0 = face_normals(V0_in, F_in);
-  report("validate", 1.0);
+  report_progress(progress, "validate", 1.0);
 
   MD_RETURN_IF_ERROR(check_stop());
   if (!settings.lazy_laplacian_guess) {
     // The default start's factor (Auto at rigidity > 0: the rigid start). The Laplacian guess
     // (a denser bi-Laplacian factor) is built by the first solve that starts from it.
-    report("rigid_start", 0.0);
+    report_progress(progress, "rigid_start", 0.0);
     MD_RETURN_IF_ERROR(build_rigid_start());
-    report("rigid_start", 1.0);
+    report_progress(progress, "rigid_start", 1.0);
     MD_RETURN_IF_ERROR(check_stop());
   }
 
-  report("step_two", 0.0);
+  report_progress(progress, "step_two", 0.0);
   build_pattern();
   // The rest normals give the first numeric factor; later systems reuse it as a preconditioner.
   assemble(N0);
@@ -252,7 +249,7 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   rotations.assign(nv, Eigen::Quaterniond::Identity());
   has_previous = false;
   rotations_warm = true;  // identity is exact at rest
-  report("step_two", 1.0);
+  report_progress(progress, "step_two", 1.0);
   return Status::success();
 }
 

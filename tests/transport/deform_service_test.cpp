@@ -102,6 +102,41 @@ service::ServiceOptions one_worker() {
   return options;
 }
 
+/// Reads a *WithProgress stream to its end: the phases in first-seen order, whether the last
+/// event held the response (and how many events followed it), and the final status.
+template <typename Event>
+struct StreamRead {
+  std::vector<std::string> phases;
+  int progress_events = 0;
+  int responses = 0;
+  bool response_last = false;
+  Event last;
+  grpc::Status status;
+};
+
+template <typename Event>
+StreamRead<Event> read_all(grpc::ClientReader<Event>& reader) {
+  StreamRead<Event> out;
+  Event event;
+  for (int i = 0; i < 100000 && reader.Read(&event); ++i) {
+    if (event.has_progress()) {
+      ++out.progress_events;
+      out.response_last = false;
+      const std::string& phase = event.progress().phase();
+      if (std::find(out.phases.begin(), out.phases.end(), phase) == out.phases.end())
+        out.phases.push_back(phase);
+      EXPECT_GE(event.progress().fraction(), 0.0);
+      EXPECT_LE(event.progress().fraction(), 1.0);
+    } else if (event.has_response()) {
+      ++out.responses;
+      out.response_last = true;
+      out.last = event;
+    }
+  }
+  out.status = reader.Finish();
+  return out;
+}
+
 class DeformServiceTest : public ::testing::Test {
  protected:
   void SetUp() override { start(service::ServiceOptions{}); }
@@ -138,18 +173,23 @@ class DeformServiceTest : public ::testing::Test {
     return stub_->CreateSession(&context, request, out);
   }
 
+  /// SetHandles of a session's suggested groups, with its edit token.
+  static v1::SetHandlesRequest suggested_handles(const v1::CreateSessionResponse& created) {
+    v1::SetHandlesRequest handles;
+    handles.set_session_id(created.session_id());
+    handles.set_token(created.edit_token());
+    *handles.mutable_groups() = created.suggested_groups();
+    return handles;
+  }
+
   /// A sample session with its suggested groups set as handles.
   v1::CreateSessionResponse create_with_handles(const std::string& sample) {
     v1::CreateSessionResponse created;
     const grpc::Status status = create(sample_request(sample), &created);
     EXPECT_TRUE(status.ok()) << describe(status);
     EXPECT_EQ(created.suggested_groups_size(), 2);
-    v1::SetHandlesRequest handles;
-    handles.set_session_id(created.session_id());
-    handles.set_token(created.edit_token());
-    *handles.mutable_groups() = created.suggested_groups();
     v1::SetHandlesResponse response;
-    const grpc::Status set = set_handles(handles, &response);
+    const grpc::Status set = set_handles(suggested_handles(created), &response);
     EXPECT_TRUE(set.ok()) << describe(set);
     return created;
   }
@@ -158,6 +198,18 @@ class DeformServiceTest : public ::testing::Test {
     grpc::ClientContext context;
     bound(context);
     return stub_->SetHandles(&context, request, out);
+  }
+
+  /// The *WithProgress streams, read to their end (bounded by the call's deadline).
+  StreamRead<v1::CreateSessionEvent> create_with_progress(const v1::CreateSessionRequest& request) {
+    grpc::ClientContext context;
+    bound(context);
+    return read_all(*stub_->CreateSessionWithProgress(&context, request));
+  }
+  StreamRead<v1::SetHandlesEvent> set_handles_with_progress(const v1::SetHandlesRequest& request) {
+    grpc::ClientContext context;
+    bound(context);
+    return read_all(*stub_->SetHandlesWithProgress(&context, request));
   }
 
   grpc::Status move(const v1::MoveHandlesRequest& request, v1::MoveHandlesResponse* out,
@@ -1152,52 +1204,8 @@ TEST_F(DeformServiceTest, UndoRedoAndTheEditStateOverTheWire) {
 
 // --- progress streams (issue 15) ---------------------------------------------------------------
 
-namespace progress_streams {
-
-/// Reads a *WithProgress stream to its end: the phases in first-seen order, whether the last
-/// event held the response (and how many events followed it), and the final status.
-template <typename Event>
-struct Read {
-  std::vector<std::string> phases;
-  int progress_events = 0;
-  int responses = 0;
-  bool response_last = false;
-  Event last;
-  grpc::Status status;
-};
-
-template <typename Event>
-Read<Event> read_all(grpc::ClientReader<Event>& reader) {
-  Read<Event> out;
-  Event event;
-  for (int i = 0; i < 100000 && reader.Read(&event); ++i) {
-    if (event.has_progress()) {
-      ++out.progress_events;
-      out.response_last = false;
-      const std::string& phase = event.progress().phase();
-      if (std::find(out.phases.begin(), out.phases.end(), phase) == out.phases.end())
-        out.phases.push_back(phase);
-      EXPECT_GE(event.progress().fraction(), 0.0);
-      EXPECT_LE(event.progress().fraction(), 1.0);
-    } else if (event.has_response()) {
-      ++out.responses;
-      out.response_last = true;
-      out.last = event;
-    }
-  }
-  out.status = reader.Finish();
-  return out;
-}
-
-}  // namespace progress_streams
-
 TEST_F(DeformServiceTest, CreateAndSetHandlesWithProgressStreamPhasesThenTheResponse) {
-  using progress_streams::read_all;
-  grpc::ClientContext create_context;
-  bound(create_context);
-  auto create_reader =
-      stub_->CreateSessionWithProgress(&create_context, sample_request("cylinder_small"));
-  const auto created = read_all(*create_reader);
+  const auto created = create_with_progress(sample_request("cylinder_small"));
   ASSERT_TRUE(created.status.ok()) << describe(created.status);
   EXPECT_EQ(created.responses, 1);
   EXPECT_TRUE(created.response_last);
@@ -1206,14 +1214,7 @@ TEST_F(DeformServiceTest, CreateAndSetHandlesWithProgressStreamPhasesThenTheResp
   EXPECT_EQ(session.info().vertices(), 420u);
   ASSERT_EQ(session.suggested_groups_size(), 2);
 
-  v1::SetHandlesRequest handles;
-  handles.set_session_id(session.session_id());
-  handles.set_token(session.edit_token());
-  *handles.mutable_groups() = session.suggested_groups();
-  grpc::ClientContext set_context;
-  bound(set_context);
-  auto set_reader = stub_->SetHandlesWithProgress(&set_context, handles);
-  const auto set = read_all(*set_reader);
+  const auto set = set_handles_with_progress(suggested_handles(session));
   ASSERT_TRUE(set.status.ok()) << describe(set.status);
   EXPECT_EQ(set.responses, 1);
   EXPECT_TRUE(set.response_last);
@@ -1229,28 +1230,19 @@ TEST_F(DeformServiceTest, CreateAndSetHandlesWithProgressStreamPhasesThenTheResp
 }
 
 TEST_F(DeformServiceTest, ProgressStreamsEndWithTheUnaryCallsErrors) {
-  using progress_streams::read_all;
   {  // A bad mesh: INVALID_ARGUMENT after the parse began, and no response.
     v1::CreateSessionRequest bad;
     bad.set_mesh_bytes("v 0 0 0\nf 1 2 3\n");
     bad.set_format(v1::MESH_FORMAT_OBJ);
-    grpc::ClientContext context;
-    bound(context);
-    auto reader = stub_->CreateSessionWithProgress(&context, bad);
-    const auto read = read_all(*reader);
+    const auto read = create_with_progress(bad);
     EXPECT_EQ(read.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << describe(read.status);
     EXPECT_EQ(read.responses, 0);
   }
   const v1::CreateSessionResponse s = create_with_handles("cylinder_small");
-  v1::SetHandlesRequest handles;
-  handles.set_session_id(s.session_id());
-  *handles.mutable_groups() = s.suggested_groups();
+  v1::SetHandlesRequest handles = suggested_handles(s);
   {  // The view token cannot set handles: PERMISSION_DENIED before any work.
     handles.set_token(s.view_token());
-    grpc::ClientContext context;
-    bound(context);
-    auto reader = stub_->SetHandlesWithProgress(&context, handles);
-    const auto read = read_all(*reader);
+    const auto read = set_handles_with_progress(handles);
     EXPECT_EQ(read.status.error_code(), grpc::StatusCode::PERMISSION_DENIED);
     EXPECT_EQ(read.progress_events, 0);
     EXPECT_EQ(read.responses, 0);
@@ -1258,29 +1250,20 @@ TEST_F(DeformServiceTest, ProgressStreamsEndWithTheUnaryCallsErrors) {
   {  // An unknown session: NOT_FOUND.
     handles.set_session_id("0123456789abcdef0123456789abcdef");
     handles.set_token(s.edit_token());
-    grpc::ClientContext context;
-    bound(context);
-    auto reader = stub_->SetHandlesWithProgress(&context, handles);
-    EXPECT_EQ(read_all(*reader).status.error_code(), grpc::StatusCode::NOT_FOUND);
+    EXPECT_EQ(set_handles_with_progress(handles).status.error_code(), grpc::StatusCode::NOT_FOUND);
   }
   {  // A vertex out of range: INVALID_ARGUMENT.
     handles.set_session_id(s.session_id());
     handles.mutable_groups(1)->add_vertices(1'000'000);
-    grpc::ClientContext context;
-    bound(context);
-    auto reader = stub_->SetHandlesWithProgress(&context, handles);
-    EXPECT_EQ(read_all(*reader).status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+    EXPECT_EQ(set_handles_with_progress(handles).status.error_code(),
+              grpc::StatusCode::INVALID_ARGUMENT);
   }
 }
 
 TEST_F(DeformServiceTest, ACancelledProgressStreamEndsAndTheSessionStillServes) {
-  using progress_streams::read_all;
   v1::CreateSessionResponse created;
   ASSERT_TRUE(create(sample_request("cylinder"), &created).ok());
-  v1::SetHandlesRequest handles;
-  handles.set_session_id(created.session_id());
-  handles.set_token(created.edit_token());
-  *handles.mutable_groups() = created.suggested_groups();
+  const v1::SetHandlesRequest handles = suggested_handles(created);
   {
     grpc::ClientContext context;
     bound(context);
@@ -1295,10 +1278,7 @@ TEST_F(DeformServiceTest, ACancelledProgressStreamEndsAndTheSessionStillServes) 
     EXPECT_TRUE(rest.status.error_code() == grpc::StatusCode::CANCELLED || rest.status.ok())
         << describe(rest.status);
   }
-  grpc::ClientContext again;
-  bound(again);
-  auto reader = stub_->SetHandlesWithProgress(&again, handles);
-  const auto read = read_all(*reader);
+  const auto read = set_handles_with_progress(handles);
   ASSERT_TRUE(read.status.ok()) << describe(read.status);
   EXPECT_EQ(read.responses, 1);
   v1::MoveHandlesResponse moved;
