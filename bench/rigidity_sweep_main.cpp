@@ -172,6 +172,7 @@ struct Run {
   double handle_error = 0;  // max |v - target| over constrained vertices / bbox diagonal
   int pcg_iterations = 0;   // step two's PCG iterations, all outer iterations together
   int folds = 0;            // interior edges whose dihedral angle changed by more than 90 degrees
+  std::string start = "-";  // scale-aware: the start its result came from (SolveReport::start)
   Positions V;              // the result (kept for the figure)
 };
 
@@ -197,11 +198,7 @@ double handle_error(const Edit& e, const Positions& V) {
 
 // Local folds: interior edges whose dihedral angle moved by more than 90 degrees from the rest.
 int folds_of(const core::Measures& rest, const core::Measures& deformed) {
-  int folds = 0;
-  for (Eigen::Index e = 0; e < rest.phi.size(); ++e) {
-    folds += std::abs(deformed.phi(e) - rest.phi(e)) > 0.5 * M_PI ? 1 : 0;
-  }
-  return folds;
+  return core::count_folds(rest.phi, deformed.phi);
 }
 
 double seconds_since(std::chrono::steady_clock::time_point start) {
@@ -269,6 +266,7 @@ Result<Row> run_edit(const Edit& edit, const Options& options) {
     run.seconds = seconds_since(start);
     run.handle_error = handle_error(edit, r.V);
     run.folds = folds_of(rest, core::compute_measures(r.V, edit.F, topology));
+    run.start = core::start_name(r.start);
     run.V = r.V;
     return run;
   };
@@ -324,7 +322,9 @@ std::string markdown(const MachineInfo& machine, const Options& options,
   out << "- scale-aware: SolveOptions defaults except rigidity (max_iterations "
       << options.iterations << ", tolerance " << options.tolerance << ", start "
       << (options.start == core::StartFrom::Auto
-              ? "auto (the rigid start at rigidity > 0, the Laplacian guess at 0)"
+              ? "auto (the rigid start at rigidity > 0, or the Laplacian guess's result when "
+                "the rigid start's has folds and it has fewer at most 1.5x the energy; the "
+                "Laplacian guess at 0)"
               : core::start_name(options.start))
       << ", rigid start: ARAP to relative energy change " << options.rigid_start_tolerance
       << " or " << options.rigid_start_iterations << " iterations); scale_pull " << options.pull
@@ -379,8 +379,8 @@ std::string markdown(const MachineInfo& machine, const Options& options,
 
   out << "\n## Every run\n\n";
   out << "| edit | method | rigidity | its | conv. | E_theta | E_phi | area | E_theta/ARAP | "
-         "E_phi/ARAP | area/ARAP | targets | handles | folds | s | PCG / it |\n";
-  out << "|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|\n";
+         "E_phi/ARAP | area/ARAP | targets | handles | folds | s | PCG / it | start |\n";
+  out << "|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---|\n";
   for (const Row& row : rows) {
     const Run* arap = row.arap();
     for (const Run& r : row.runs) {
@@ -401,13 +401,13 @@ std::string markdown(const MachineInfo& machine, const Options& options,
           << (r.method == "arap_converged" || r.iterations == 0
                   ? std::string("-")
                   : fmt("%.1f", static_cast<double>(r.pcg_iterations) / r.iterations))
-          << " |\n";
+          << " | " << r.start << " |\n";
     }
   }
   out << "\nTargets column: T = E_theta below ARAP's, P = E_phi below ARAP's, A = area <= 1.5x "
          "ARAP's. s: create + solve seconds (shared, noisy machine). PCG / it: step two's "
          "conjugate-gradient iterations per outer iteration (with rigidity > 0 over the joint "
-         "(x, s) system).\n";
+         "(x, s) system). start: the start the scale-aware result came from (Auto's choice).\n";
   return out.str();
 }
 
@@ -439,6 +439,7 @@ nlohmann::json to_json(const MachineInfo& machine, const Options& options,
                       {"area_log_rms", r.errors.area_log_rms},
                       {"handle_error", r.handle_error},
                       {"folds", r.folds},
+                      {"start", r.start},
                       {"pcg_iterations", r.pcg_iterations}});
     }
     out["edits"].push_back({{"name", row.edit.name},

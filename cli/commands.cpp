@@ -70,11 +70,13 @@ Solver:
   --anderson M              Anderson acceleration of the outer iteration: mix the last M
                             updates (default 6; 0 = the plain iteration)
   --start auto|laplacian|previous|rigid|propagated  starting guess (default auto: with
-                            scale control (--rigidity > 0) the rigid start, at --rigidity 0
-                            laplacian; laplacian: the paper's initialisation; rigid: ARAP run
-                            to convergence first (relative change 1e-6, at most 1000
-                            iterations); propagated: the handles' rotations spread over the
-                            surface)
+                            scale control (--rigidity > 0) the rigid start, or the result from
+                            laplacian when the rigid start's has folds and it has fewer at most
+                            1.5x the energy (the report's start_used says which); at
+                            --rigidity 0 laplacian;
+                            laplacian: the paper's initialisation; rigid: ARAP run to
+                            convergence first (relative change 1e-6, at most 1000 iterations);
+                            propagated: the handles' rotations spread over the surface)
   --lambda L                handle weight (default 100)
   --threads N               solver threads, 0 = all (default 1)
 Output control:
@@ -161,9 +163,9 @@ std::optional<std::string> apply_solver_flags(const ParsedArgs& parsed, RunSetti
   }
   if (auto text = parsed.get("start")) {
     const Result<core::StartFrom> start = core::parse_start(*text);
-    if (!start.ok() || *start == core::StartFrom::Auto) {
-      return "--start must be 'laplacian', 'previous', 'rigid' or 'propagated', got '" + *text +
-             "'";
+    if (!start.ok()) {
+      return "--start must be 'auto', 'laplacian', 'previous', 'rigid' or 'propagated', got '" +
+             *text + "'";
     }
     run.options.start = *start;
   }
@@ -246,7 +248,6 @@ int run_deform(const std::vector<std::string>& args) {
     return usage_error(command, "--out: " + format.status().message());
   }
   RunSettings run;
-  run.options.start = core::StartFrom::Laplacian;
   run.progress = choose_progress_style(parsed.has("verbose"));
   run.label = fs::path(*mesh_path).filename().string();
   // Validate the flags before any file work; they are applied again after an edit spec's options.
@@ -355,7 +356,6 @@ int run_demo(const std::vector<std::string>& args) {
   auto input = benchmark_input(bench);
   if (!input.ok()) return runtime_error(command, input.status());
   RunSettings run;
-  run.options.start = core::StartFrom::Laplacian;
   run.progress = choose_progress_style(parsed.has("verbose"));
   run.label = "demo (" + bench.name + ")";
   auto outcome = run_deformation(*input, run);

@@ -263,6 +263,9 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
   j["factorizations"] = report.factorizations;
   j["pcg_iterations"] = report.pcg_iterations;
   j["anderson_rejections"] = report.anderson_rejections;
+  j["start_used"] = core::start_name(report.start);
+  j["start_candidates"] = report.start_candidates;
+  j["folded_edges"] = report.folded_edges >= 0 ? json(report.folded_edges) : json(nullptr);
   j["precompute_seconds"] = outcome.precompute_seconds;
   j["solve_seconds"] = report.seconds;
   if (!report.history.empty()) {

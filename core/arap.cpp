@@ -297,6 +297,7 @@ Result<SolveReport> ArapSolver::solve(const Positions& targets, const SolveOptio
   };
 
   SolveReport report;
+  report.start = from_laplacian ? StartFrom::Laplacian : StartFrom::Previous;
   // As in the scale-aware solver, an exact fit (rest pose, rigid motion) ends on an absolute
   // floor, where relative changes stop meaning anything: a weighted RMS edge residual of 1e-10 of
   // the bounding box. Both steps are direct (no PCG tolerance), so round-off sits far below it;

@@ -18,9 +18,11 @@ enum class StartFrom {
   /// The previous result when there is one; else, for the scale-aware method with scale control
   /// (rigidity > 0), the Rigid start (ARAP to convergence: measured in
   /// bench/results/rigidity_sweep.md, the issue-12 targets on 12 of 12 edits against 9 of 12 from
-  /// the Laplacian guess, whose basin is worse on 135-degree twists), and at rigidity 0 and for
-  /// the other methods the Laplacian-editing guess (the paper's start: rigidity 0 stays the
-  /// paper's method).
+  /// the Laplacian guess, whose basin is worse on 135-degree twists), unless its result has folds
+  /// (count_folds): then the result from the Laplacian guess is computed too and returned instead
+  /// if it has fewer folds at no more than 1.5x the energy (SolveReport::start says which; the
+  /// Spot twist's other basin costs 2.1-2.6x); at rigidity 0 and for the other
+  /// methods the Laplacian-editing guess (the paper's start: rigidity 0 stays the paper's method).
   Auto,
   Laplacian,  ///< always the Laplacian-editing guess (paper Section 5.2)
   Previous,   ///< the previous result (the rest mesh before the first solve)
@@ -28,7 +30,8 @@ enum class StartFrom {
   /// its own Laplacian guess until its relative energy change falls below
   /// SolveOptions::rigid_start_tolerance, at most rigid_start_iterations iterations
   /// (docs/algorithm.md section 8: the Laplacian guess is poor for large twists). The bent
-  /// cylinders keep some of converged ARAP's creases (4-5 folded edges; ARAP's own: 6).
+  /// cylinders keep some of converged ARAP's creases from it (4-5 folded edges; ARAP's own: 6),
+  /// which is why Auto then compares with the Laplacian guess's result.
   Rigid,
   /// Scale-aware only (other methods treat it as Laplacian): the handles' rotations propagated
   /// harmonically over the surface, then ARAP's global step with them (core/rotation_start.h;
@@ -153,7 +156,17 @@ struct SolveReport {
   int factorizations = 0;               ///< numeric factorizations during this solve
   int pcg_iterations = 0;               ///< total PCG iterations during this solve
   int anderson_rejections = 0;          ///< accelerated iterates the safeguard replaced
-  double seconds = 0;                   ///< wall time of the solve
+  double seconds = 0;                   ///< wall time of the solve (every candidate start)
+  /// The start the result came from: Laplacian, Previous, Rigid or Propagated (Auto resolved).
+  StartFrom start = StartFrom::Auto;
+  /// Auto's cold start with scale control (scale-aware, rigidity > 0) checks its result for folds
+  /// (count_folds in core/measures.h) and, if there are any, solves from the Laplacian guess too
+  /// and returns that result if it has fewer folds at no more than 1.5x the energy (or as many at
+  /// less energy). Then 2, and the other fields (history, iterations,
+  /// pcg_iterations, ...) describe the returned candidate; 1 otherwise.
+  int start_candidates = 1;
+  /// Folded edges of the returned result when that check ran; -1 when it did not.
+  int folded_edges = -1;
   StitchReport stitch;                  ///< ORA / magnification, when requested
 };
 

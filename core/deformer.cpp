@@ -150,6 +150,7 @@ class LaplacianDeformer final : public Deformer {
     }
     info.elapsed_seconds = std::chrono::duration<double>(Clock::now() - start).count();
     SolveReport report;
+    report.start = StartFrom::Laplacian;  // a direct solve: no start of its own
     report.history.push_back(info);
     report.converged = true;  // a direct solve is exact
     if (progress) progress(info);

@@ -1,5 +1,6 @@
 #include "core/measures.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <Eigen/Geometry>
@@ -51,15 +52,30 @@ Measures compute_measures(const Positions& V, const Triangles& F, const MeshTopo
       if (k == 0) m.area(f) = 0.5 * e1.cross(e2).norm();
     }
   }
+  m.phi = dihedral_angles(V, F, topology, threads);
+  return m;
+}
+
+Eigen::VectorXd dihedral_angles(const Positions& V, const Triangles& F,
+                                const MeshTopology& topology, int threads) {
   const Positions N = face_normals(V, F);
   const Eigen::Index ne = topology.interior_edges.rows();
-  m.phi.resize(ne);
+  Eigen::VectorXd phi(ne);
+  const bool parallel = threads > 1 && F.rows() > 8000;
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
   for (Eigen::Index e = 0; e < ne; ++e) {
-    m.phi(e) = angle_between(N.row(topology.edge_faces(e, 0)).transpose(),
-                             N.row(topology.edge_faces(e, 1)).transpose());
+    phi(e) = angle_between(N.row(topology.edge_faces(e, 0)).transpose(),
+                           N.row(topology.edge_faces(e, 1)).transpose());
   }
-  return m;
+  return phi;
+}
+
+int count_folds(const Eigen::VectorXd& rest_phi, const Eigen::VectorXd& phi) {
+  int folds = 0;
+  for (Eigen::Index e = 0; e < std::min(rest_phi.size(), phi.size()); ++e) {
+    folds += std::abs(phi(e) - rest_phi(e)) > 0.5 * M_PI ? 1 : 0;
+  }
+  return folds;
 }
 
 AngleErrors angle_errors(const Measures& rest, const Measures& deformed) {

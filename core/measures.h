@@ -29,6 +29,17 @@ Positions face_normals(const Positions& V, const Triangles& F);
 Measures compute_measures(const Positions& V, const Triangles& F, const MeshTopology& topology,
                           int threads = 1);
 
+/// The dihedral angles alone (Measures::phi: #IE, in [0, pi]), the same values as
+/// compute_measures' at any thread count.
+Eigen::VectorXd dihedral_angles(const Positions& V, const Triangles& F,
+                                const MeshTopology& topology, int threads = 1);
+
+/// Folds: interior edges whose dihedral angle moved by more than 90 degrees from the rest, i.e.
+/// creases (or sheets turned over) that the rest shape does not have.
+/// @param[in] rest_phi, phi  dihedral angles of the same edges (dihedral_angles), rest and
+///                           deformed.
+int count_folds(const Eigen::VectorXd& rest_phi, const Eigen::VectorXd& phi);
+
 /// E_theta, E_phi (RMS radians, paper Section 5.1) and the RMS of log(area'/area) over faces.
 struct AngleErrors {
   double e_theta = 0;

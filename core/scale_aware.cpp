@@ -60,6 +60,10 @@ struct PcgOutcome {
 
 }  // namespace
 
+// Auto's cold start (solve()): the Laplacian guess's result replaces the rigid start's when it
+// has fewer folds and at most this multiple of its energy.
+constexpr double kFoldFreeEnergyRatio = 1.5;
+
 struct ScaleAwareSolver::Impl {
   // Mesh and measures.
   int nv = 0;
@@ -70,6 +74,7 @@ struct ScaleAwareSolver::Impl {
   RowPositions N0;
   Eigen::VectorXd corner_cos, corner_sin, corner_ratio;  // 3#F, corner 3f+k at F(f,k)
   double bbox_diagonal = 1;
+  Eigen::VectorXd rest_phi;  // #IE rest dihedral angles (folds_of)
 
   // Constraints.
   Eigen::VectorXi constrained;
@@ -152,6 +157,22 @@ struct ScaleAwareSolver::Impl {
   PcgOutcome pcg(const Eigen::VectorXd& b, Eigen::VectorXd& sol, double reduction,
                  double tolerance, int max_iterations, const std::stop_token& stop) const;
   RowPositions normals_of(const Eigen::VectorXd& pos, const RowPositions& fallback) const;
+  /// One candidate solve: its report and the state a commit would keep.
+  struct Candidate {
+    SolveReport report;
+    Eigen::VectorXd x;
+    RowPositions N;
+    std::vector<Eigen::Quaterniond> rotations;
+    bool rotations_warm = false;
+  };
+  /// The outer iterations of solve() from one start (Rigid, Laplacian, Propagated or Previous),
+  /// without the ORA stitch and without committing: the solver's warm-start state is unchanged.
+  Result<Candidate> run_from(StartFrom from, const Positions& targets, const SolveOptions& options,
+                             const ProgressCallback& progress, const std::stop_token& stop,
+                             Clock::time_point start);
+  /// Interior edges of `pos` whose dihedral angle moved by more than 90 degrees from the rest
+  /// (a crease the rest shape does not have; core::count_folds).
+  int folds_of(const Eigen::VectorXd& pos) const;
   /// M u for corner k (3f + c) of a face with normal n, M = l R(n, theta) (rodrigues()), or
   /// M^T u with sign -1: l (cos u + sign sin n x u + (1 - cos)(n . u) n).
   Eigen::Vector3d corner_apply(int k, const Eigen::Vector3d& n, const Eigen::Vector3d& u,
@@ -204,6 +225,7 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   corner_cos = rest.theta.array().cos();
   corner_sin = rest.theta.array().sin();
   corner_ratio = rest.ratio;
+  rest_phi = rest.phi;
   N0 = face_normals(V0_in, F_in);
   report_progress(progress, "validate", 1.0);
 
@@ -831,42 +853,11 @@ Status ScaleAwareSolver::prepare(double rigidity) {
   return impl_->prepare_rigidity(rigidity);
 }
 
-Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const SolveOptions& options,
-                                            const ProgressCallback& progress,
-                                            std::stop_token stop) {
-  Impl& s = *impl_;
-  const auto start = Clock::now();
-  if (options.max_iterations < 0 || options.inner_iterations < 1 || !(options.tolerance >= 0) ||
-      !(options.pcg_tolerance > 0) || options.rigid_start_iterations < 0 ||
-      !(options.rigid_start_tolerance >= 0)) {
-    return Error(ErrorCode::InvalidArgument,
-                 "solve options out of range: max_iterations >= 0, inner_iterations >= 1, "
-                 "tolerance >= 0, pcg_tolerance > 0, rigid_start_iterations >= 0 and "
-                 "rigid_start_tolerance >= 0 are required");
-  }
-  MD_RETURN_IF_ERROR(check_targets(targets, s.constrained, s.topology, s.bbox_diagonal, true));
-  if (options.face_scale.size() != 0) {
-    if (options.face_scale.size() != s.nf) {
-      return Error(ErrorCode::InvalidArgument,
-                   "face_scale has " + std::to_string(options.face_scale.size()) +
-                       " entries for " + std::to_string(s.nf) + " faces");
-    }
-    for (Eigen::Index f = 0; f < s.nf; ++f) {
-      if (!(options.face_scale(f) > 0) || !std::isfinite(options.face_scale(f))) {
-        return Error(ErrorCode::InvalidArgument, "face_scale of face " + std::to_string(f) +
-                                                     " must be positive and finite");
-      }
-    }
-  }
-  MD_RETURN_IF_ERROR(check_rigidity(options.rigidity));
-  if (options.lambda != s.settings.lambda) {
-    return Error(ErrorCode::InvalidArgument,
-                 "lambda is fixed when the solver is created (" + std::to_string(s.settings.lambda) +
-                     "); got " + std::to_string(options.lambda));
-  }
-
+Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
+    StartFrom from, const Positions& targets, const SolveOptions& options,
+    const ProgressCallback& progress, const std::stop_token& stop, Clock::time_point start) {
+  Impl& s = *this;
   const double rho = options.rigidity;
-  MD_RETURN_IF_ERROR(s.prepare_rigidity(rho));
 
   // Work on copies: a cancelled or failed solve leaves the solver as it was.
   Eigen::VectorXd x = s.x;
@@ -874,15 +865,7 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
   std::vector<Eigen::Quaterniond> rotations = s.rotations;
   bool rotations_warm = s.rotations_warm;
 
-  // Auto's cold start: with scale control (rigidity > 0) ARAP run to convergence, whose basin the
-  // scale-aware energy then refines (bench/results/rigidity_sweep.md: all three targets of issue
-  // 12 on 12 of 12 edits at the default rigidity, against 9 of 12 from the Laplacian guess, which
-  // leaves the 135-degree twists in a worse basin); at rigidity 0 the paper's own start, the
-  // Laplacian guess (Section 5.2), so that rigidity 0 stays the paper's method.
-  const bool cold = options.start == StartFrom::Auto && !s.has_previous;
-  const bool from_rigid = options.start == StartFrom::Rigid || (cold && rho > 0);
-  const bool from_laplacian = options.start == StartFrom::Laplacian || (cold && rho == 0);
-  if (from_rigid) {
+  if (from == StartFrom::Rigid) {
     if (!s.rigid_start) MD_RETURN_IF_ERROR(s.build_rigid_start());
     SolveOptions arap_options;
     arap_options.max_iterations = options.rigid_start_iterations;
@@ -894,7 +877,7 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     x = Eigen::Map<const Eigen::VectorXd>(guess_rows.data(), 3 * s.nv);
     rotations_warm = false;
   }
-  if (options.start == StartFrom::Propagated) {
+  if (from == StartFrom::Propagated) {
     if (!s.propagated_start) {
       MD_ASSIGN_OR_RETURN(RotationPropagationStart built,
                           RotationPropagationStart::create(s.V0, s.F, s.topology, s.constrained,
@@ -906,7 +889,7 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     x = Eigen::Map<const Eigen::VectorXd>(guess_rows.data(), 3 * s.nv);
     rotations_warm = false;
   }
-  if (from_laplacian) {
+  if (from == StartFrom::Laplacian) {
     if (!s.laplacian) {  // ScaleAwareSettings::lazy_laplacian_guess
       MD_ASSIGN_OR_RETURN(LaplacianEditor editor,
                           LaplacianEditor::create(s.V0, s.F, s.topology, s.constrained,
@@ -1120,6 +1103,101 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
       unchecked = true;
     }
   }
+
+  report.start = from;
+  Candidate candidate;
+  candidate.report = std::move(report);
+  candidate.x = std::move(x);
+  candidate.N = std::move(N);
+  candidate.rotations = std::move(rotations);
+  candidate.rotations_warm = rotations_warm;
+  return candidate;
+}
+
+int ScaleAwareSolver::Impl::folds_of(const Eigen::VectorXd& pos) const {
+  const Positions P = Eigen::Map<const RowPositions>(pos.data(), nv, 3);
+  return count_folds(rest_phi, dihedral_angles(P, F, topology, threads));
+}
+
+Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const SolveOptions& options,
+                                            const ProgressCallback& progress,
+                                            std::stop_token stop) {
+  Impl& s = *impl_;
+  const auto start = Clock::now();
+  if (options.max_iterations < 0 || options.inner_iterations < 1 || !(options.tolerance >= 0) ||
+      !(options.pcg_tolerance > 0) || options.rigid_start_iterations < 0 ||
+      !(options.rigid_start_tolerance >= 0)) {
+    return Error(ErrorCode::InvalidArgument,
+                 "solve options out of range: max_iterations >= 0, inner_iterations >= 1, "
+                 "tolerance >= 0, pcg_tolerance > 0, rigid_start_iterations >= 0 and "
+                 "rigid_start_tolerance >= 0 are required");
+  }
+  MD_RETURN_IF_ERROR(check_targets(targets, s.constrained, s.topology, s.bbox_diagonal, true));
+  if (options.face_scale.size() != 0) {
+    if (options.face_scale.size() != s.nf) {
+      return Error(ErrorCode::InvalidArgument,
+                   "face_scale has " + std::to_string(options.face_scale.size()) +
+                       " entries for " + std::to_string(s.nf) + " faces");
+    }
+    for (Eigen::Index f = 0; f < s.nf; ++f) {
+      if (!(options.face_scale(f) > 0) || !std::isfinite(options.face_scale(f))) {
+        return Error(ErrorCode::InvalidArgument, "face_scale of face " + std::to_string(f) +
+                                                     " must be positive and finite");
+      }
+    }
+  }
+  MD_RETURN_IF_ERROR(check_rigidity(options.rigidity));
+  if (options.lambda != s.settings.lambda) {
+    return Error(ErrorCode::InvalidArgument,
+                 "lambda is fixed when the solver is created (" + std::to_string(s.settings.lambda) +
+                     "); got " + std::to_string(options.lambda));
+  }
+
+  const double rho = options.rigidity;
+  MD_RETURN_IF_ERROR(s.prepare_rigidity(rho));
+
+  // Auto's cold start: with scale control (rigidity > 0) ARAP run to convergence, whose basin the
+  // scale-aware energy then refines (bench/results/rigidity_sweep.md: all three targets of issue
+  // 12 on 12 of 12 edits at the default rigidity, against 9 of 12 from the Laplacian guess, which
+  // leaves the 135-degree twists in a worse basin); at rigidity 0 the paper's own start, the
+  // Laplacian guess (Section 5.2), so that rigidity 0 stays the paper's method.
+  const bool cold = options.start == StartFrom::Auto && !s.has_previous;
+  StartFrom from = options.start;
+  if (from == StartFrom::Auto) {
+    from = s.has_previous ? StartFrom::Previous : rho > 0 ? StartFrom::Rigid : StartFrom::Laplacian;
+  }
+  MD_ASSIGN_OR_RETURN(Impl::Candidate chosen,
+                      s.run_from(from, targets, options, progress, stop, start));
+  if (cold && rho > 0) {
+    // Where converged ARAP creases (bent tubes: interior edges folded by more than 90 degrees
+    // near the handles), the scale-aware iteration keeps its creases: they lower its energy, so
+    // more iterations do not remove them. Then the result from the Laplacian guess is computed
+    // too, and replaces it if it has fewer folds at not much more energy (or as many folds at
+    // less energy). Measured on bench/results/rigidity_sweep.md's edits at rigidity 1-300: on the
+    // bent cylinders the fold-free basin costs 0.77-1.31x the creased one's energy, on the Spot
+    // twist the Laplacian guess's basin costs 2.1-2.6x (the worse basin of issue 12, E_theta
+    // above converged ARAP's), hence kFoldFreeEnergyRatio. Where the rigid start folds nothing,
+    // nothing else runs.
+    chosen.report.folded_edges = s.folds_of(chosen.x);
+    if (chosen.report.folded_edges > 0) {
+      MD_ASSIGN_OR_RETURN(Impl::Candidate other, s.run_from(StartFrom::Laplacian, targets,
+                                                            options, progress, stop, start));
+      other.report.folded_edges = s.folds_of(other.x);
+      const double energy = chosen.report.history.back().energy;
+      const double other_energy = other.report.history.back().energy;
+      const bool fewer = other.report.folded_edges < chosen.report.folded_edges &&
+                         other_energy <= kFoldFreeEnergyRatio * energy;
+      const bool tie_lower =
+          other.report.folded_edges == chosen.report.folded_edges && other_energy < energy;
+      if (fewer || tie_lower) chosen = std::move(other);
+      chosen.report.start_candidates = 2;
+    }
+  }
+  SolveReport report = std::move(chosen.report);
+  Eigen::VectorXd x = std::move(chosen.x);
+  RowPositions N = std::move(chosen.N);
+  std::vector<Eigen::Quaterniond> rotations = std::move(chosen.rotations);
+  const bool rotations_warm = chosen.rotations_warm;
 
   report.V = Eigen::Map<const RowPositions>(x.data(), s.nv, 3);
   if (options.ora || options.face_scale.size() != 0) {

@@ -136,12 +136,16 @@ TEST_F(MethodCliTest, BadMethodAndOraWithABaselineAreErrors) {
 TEST_F(MethodCliTest, RigidityComesFromTheFlagOrTheSpecAndIsReported) {
   write("edit.json", R"({"fixed": [)" + column(0) + R"(], "handles": [{"vertices": [)" +
                          column(12) + R"(], "translation": [0.4, 0, 0.2]}]})");
-  // Default: the library's default rigidity, from the paper's Laplacian guess.
+  // Default: the library's default rigidity and start (Auto: the rigid start at rigidity > 0;
+  // this edit folds nothing, so nothing else runs).
   CliRun r = run("deform --mesh grid.obj --edit edit.json --out out.obj --report report.json");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   auto j = report();
   EXPECT_EQ(j["options"]["rigidity"], core::kDefaultRigidity);
-  EXPECT_EQ(j["options"]["start"], "laplacian");
+  EXPECT_EQ(j["options"]["start"], "auto");
+  EXPECT_EQ(j["start_used"], "rigid");
+  EXPECT_EQ(j["start_candidates"], 1);
+  EXPECT_EQ(j["folded_edges"], 0);
   const double default_area = j["final"]["area_log_rms"];
 
   // 0 is the paper's method, from the Laplacian guess.
@@ -149,7 +153,9 @@ TEST_F(MethodCliTest, RigidityComesFromTheFlagOrTheSpecAndIsReported) {
   ASSERT_EQ(r.exit_code, 0) << r.err;
   j = report();
   EXPECT_EQ(j["options"]["rigidity"], 0.0);
-  EXPECT_EQ(j["options"]["start"], "laplacian");
+  EXPECT_EQ(j["options"]["start"], "auto");
+  EXPECT_EQ(j["start_used"], "laplacian");
+  EXPECT_TRUE(j["folded_edges"].is_null());  // only checked with scale control
   const double paper_area = j["final"]["area_log_rms"];
   EXPECT_LT(default_area, paper_area);
   for (const auto& it : j["history"]) EXPECT_TRUE(it.contains("energy_before"));
@@ -166,6 +172,11 @@ TEST_F(MethodCliTest, RigidityComesFromTheFlagOrTheSpecAndIsReported) {
   j = report();
   EXPECT_EQ(j["options"]["rigidity"], 0.5);
   EXPECT_EQ(j["options"]["start"], "rigid");
+  EXPECT_EQ(j["start_used"], "rigid");
+  r = run("deform --mesh grid.obj --edit rigid.json --out out.obj --report report.json "
+          "--start auto");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(report()["options"]["start"], "auto");
   r = run("deform --mesh grid.obj --edit rigid.json --out out.obj --report report.json "
           "--start propagated");
   ASSERT_EQ(r.exit_code, 0) << r.err;

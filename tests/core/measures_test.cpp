@@ -52,6 +52,30 @@ TEST(Measures, DihedralAngleOfAHinge) {
   }
 }
 
+TEST(Measures, FoldsAreDihedralChangesPastNinetyDegrees) {
+  const MeshData flat = hinge(0.0);
+  auto topo = build_topology(flat.F, 4);
+  ASSERT_TRUE(topo.ok());
+  const Eigen::VectorXd rest = dihedral_angles(flat.V, flat.F, *topo);
+  EXPECT_EQ(rest, compute_measures(flat.V, flat.F, *topo).phi);
+  for (double fold : {0.0, 0.3, 1.5, 1.6, 2.5, 3.1}) {
+    const MeshData bent = hinge(fold);
+    const Eigen::VectorXd phi = dihedral_angles(bent.V, bent.F, *topo);
+    EXPECT_NEAR(phi(0), fold, 1e-12);
+    EXPECT_EQ(count_folds(rest, phi), fold > M_PI / 2 ? 1 : 0) << "fold " << fold;
+    // Measured from the rest: a hinge that rests folded unfolds by more than 90 degrees too.
+    EXPECT_EQ(count_folds(phi, rest), fold > M_PI / 2 ? 1 : 0) << "fold " << fold;
+  }
+  // A rigid motion and a uniform scale fold nothing.
+  const MeshData sharp = hinge(2.5);
+  const Eigen::Matrix3d R =
+      Eigen::AngleAxisd(2.0, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix();
+  const Positions moved = (3.0 * sharp.V * R.transpose()).rowwise() + Eigen::RowVector3d(1, 2, 3);
+  EXPECT_EQ(count_folds(dihedral_angles(sharp.V, sharp.F, *topo),
+                        dihedral_angles(moved, sharp.F, *topo)),
+            0);
+}
+
 TEST(Measures, ErrorsOfHandComputedCases) {
   const MeshData flat = hinge(0.0), bent = hinge(0.4);
   auto topo = build_topology(flat.F, 4);
@@ -101,6 +125,7 @@ TEST(Measures, SeveralThreadsGiveTheSameValues) {
   EXPECT_EQ(one.ratio, two.ratio);
   EXPECT_EQ(one.area, two.area);
   EXPECT_EQ(one.phi, two.phi);
+  EXPECT_EQ(one.phi, dihedral_angles(mesh.V, mesh.F, topology, 2));
   EXPECT_GT(one.phi.cwiseAbs().maxCoeff(), 0.0);
 }
 

@@ -204,16 +204,97 @@ TEST(ScaleControl, ChangingRigidityPerSolveEqualsAFreshSolver) {
   options.rigidity = 1.0;
   ASSERT_TRUE(reused->solve(edit.setup.targets, options).ok());
   options.rigidity = 5.0;
-  options.start = StartFrom::Rigid;  // what a fresh solver's Auto start is at rigidity > 0
+  options.start = StartFrom::Rigid;  // Auto's first candidate at rigidity > 0
   auto changed = reused->solve(edit.setup.targets, options);
   ASSERT_TRUE(changed.ok()) << changed.status().to_string();
 
   auto fresh = ScaleAwareSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained);
   ASSERT_TRUE(fresh.ok()) << fresh.status().to_string();
-  options.start = StartFrom::Auto;
   auto expected = fresh->solve(edit.setup.targets, options);
   ASSERT_TRUE(expected.ok()) << expected.status().to_string();
   EXPECT_LE((changed->V - expected->V).cwiseAbs().maxCoeff(), 1e-12 * bbox_diagonal(edit.mesh));
+}
+
+// Auto's cold start at rigidity > 0: the rigid start's result, unless it has folds; then the
+// Laplacian guess's result too, and the one with fewer folds. The Table 1 cylinder bend: converged
+// ARAP creases the tube near the handles and the scale-aware iteration keeps those creases from
+// the rigid start (they lower its energy), while from the Laplacian guess it has none.
+TEST(ScaleControl, AutoColdStartReturnsTheStartWithFewerFolds) {
+  const std::vector<DeformationBenchmark> suite = make_suite(SuiteScale::Paper);
+  const DeformationBenchmark& cylinder = suite[1];
+  ASSERT_EQ(cylinder.name, "cylinder");
+  auto setup = constraints_from_selection(cylinder.mesh.V, cylinder.selection, cylinder.transform);
+  ASSERT_TRUE(setup.ok()) << setup.status().to_string();
+  const MeshTopology topology =
+      *build_topology(cylinder.mesh.F, static_cast<int>(cylinder.mesh.V.rows()));
+  const Eigen::VectorXd rest = dihedral_angles(cylinder.mesh.V, cylinder.mesh.F, topology);
+  auto folds_of = [&](const Positions& V) {
+    return count_folds(rest, dihedral_angles(V, cylinder.mesh.F, topology));
+  };
+  SolveOptions options;  // defaults: rigidity kDefaultRigidity
+  options.track_metrics = false;
+  SolveReport from[2];
+  const StartFrom starts[2] = {StartFrom::Rigid, StartFrom::Laplacian};
+  for (int k = 0; k < 2; ++k) {
+    auto solver = ScaleAwareSolver::create(cylinder.mesh.V, cylinder.mesh.F, setup->constrained);
+    ASSERT_TRUE(solver.ok()) << solver.status().to_string();
+    options.start = starts[k];
+    auto report = solver->solve(setup->targets, options);
+    ASSERT_TRUE(report.ok()) << report.status().to_string();
+    EXPECT_EQ(report->start, starts[k]);
+    EXPECT_EQ(report->start_candidates, 1);
+    EXPECT_EQ(report->folded_edges, -1);  // only Auto's cold start checks
+    from[k] = *report;
+  }
+  const int rigid_folds = folds_of(from[0].V), laplacian_folds = folds_of(from[1].V);
+  // The premise (bench/results/rigidity_sweep.md): the rigid start creases this edit.
+  ASSERT_GT(rigid_folds, laplacian_folds);
+
+  auto solver = ScaleAwareSolver::create(cylinder.mesh.V, cylinder.mesh.F, setup->constrained);
+  ASSERT_TRUE(solver.ok()) << solver.status().to_string();
+  options.start = StartFrom::Auto;
+  auto chosen = solver->solve(setup->targets, options);
+  ASSERT_TRUE(chosen.ok()) << chosen.status().to_string();
+  EXPECT_EQ(chosen->start, StartFrom::Laplacian);
+  EXPECT_EQ(chosen->start_candidates, 2);
+  EXPECT_EQ(chosen->folded_edges, laplacian_folds);
+  EXPECT_EQ(folds_of(chosen->V), laplacian_folds);
+  EXPECT_LE((chosen->V - from[1].V).cwiseAbs().maxCoeff(),
+            1e-9 * bbox_diagonal(cylinder.mesh));
+  EXPECT_EQ(chosen->iterations, from[1].iterations);
+  // The solver keeps the returned candidate: the next Auto solve warm-starts from it.
+  EXPECT_EQ(solver->positions(), chosen->V);
+  options.max_iterations = 0;
+  auto next = solver->solve(setup->targets, options);
+  ASSERT_TRUE(next.ok()) << next.status().to_string();
+  EXPECT_EQ(next->start, StartFrom::Previous);
+  EXPECT_EQ(next->start_candidates, 1);
+  EXPECT_LE((next->V - chosen->V).cwiseAbs().maxCoeff(), 1e-12 * bbox_diagonal(cylinder.mesh));
+}
+
+TEST(ScaleControl, AutoColdStartWithoutFoldsIsTheRigidStart) {
+  // The bar twist of the small suite: the rigid start folds nothing, so Auto runs nothing else.
+  for (const SuiteEdit& edit : small_suite_edits()) {
+    if (edit.name != "bar") continue;
+    SolveOptions options;
+    options.track_metrics = false;
+    auto solver = ScaleAwareSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained);
+    ASSERT_TRUE(solver.ok()) << solver.status().to_string();
+    auto automatic = solver->solve(edit.setup.targets, options);
+    ASSERT_TRUE(automatic.ok()) << automatic.status().to_string();
+    EXPECT_EQ(automatic->start, StartFrom::Rigid);
+    EXPECT_EQ(automatic->start_candidates, 1);
+    EXPECT_EQ(automatic->folded_edges, 0);
+
+    auto rigid_solver = ScaleAwareSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained);
+    ASSERT_TRUE(rigid_solver.ok()) << rigid_solver.status().to_string();
+    options.start = StartFrom::Rigid;
+    auto rigid = rigid_solver->solve(edit.setup.targets, options);
+    ASSERT_TRUE(rigid.ok()) << rigid.status().to_string();
+    EXPECT_EQ(automatic->V, rigid->V);
+    return;
+  }
+  FAIL() << "the small suite has no bar";
 }
 
 TEST(ScaleControl, TwoThreadsGiveTheSameResultBitForBit) {
