@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -45,7 +46,7 @@ struct ArapSolver::Impl {
   RowPositions V0;
   Triangles F;
   MeshTopology topology;
-  Measures rest;  // for e_theta / e_phi
+  std::optional<Measures> rest;  // for e_theta / e_phi, measured on the first solve with metrics
   double bbox_diagonal = 1;
   int threads = 1;
 
@@ -84,8 +85,6 @@ struct ArapSolver::Impl {
 Status ArapSolver::Impl::build(const Positions& V0_in, const Triangles& F_in,
                                const Eigen::VectorXi& constrained_in,
                                const ArapSettings& settings) {
-  MD_RETURN_IF_ERROR(validate_triangle_mesh(V0_in, F_in));
-  MD_ASSIGN_OR_RETURN(topology, build_topology(F_in, static_cast<int>(V0_in.rows())));
   MD_RETURN_IF_ERROR(check_constrained(constrained_in, topology, 1));
 
   threads = settings.threads > 0 ? settings.threads : omp_get_max_threads();
@@ -104,8 +103,6 @@ Status ArapSolver::Impl::build(const Positions& V0_in, const Triangles& F_in,
     }
   }
   bbox_diagonal = (V0.colwise().maxCoeff() - V0.colwise().minCoeff()).norm();
-  rest = compute_measures(V0_in, F_in, topology);
-
   build_weights();
   MD_RETURN_IF_ERROR(factor());
 
@@ -237,7 +234,17 @@ ArapSolver::~ArapSolver() = default;
 Result<ArapSolver> ArapSolver::create(const Positions& V0, const Triangles& F,
                                       const Eigen::VectorXi& constrained,
                                       const ArapSettings& settings) {
+  MD_RETURN_IF_ERROR(validate_triangle_mesh(V0, F));
+  MD_ASSIGN_OR_RETURN(MeshTopology topology, build_topology(F, static_cast<int>(V0.rows())));
+  return create(V0, F, topology, constrained, settings);
+}
+
+Result<ArapSolver> ArapSolver::create(const Positions& V0, const Triangles& F,
+                                      const MeshTopology& topology,
+                                      const Eigen::VectorXi& constrained,
+                                      const ArapSettings& settings) {
   auto impl = std::make_unique<Impl>();
+  impl->topology = topology;
   MD_RETURN_IF_ERROR(impl->build(V0, F, constrained, settings));
   return ArapSolver(std::move(impl));
 }
@@ -289,7 +296,8 @@ Result<SolveReport> ArapSolver::solve(const Positions& targets, const SolveOptio
   auto record = [&](IterationInfo& info) {
     if (options.track_metrics) {
       const Positions V = P;
-      const AngleErrors errors = angle_errors(s.rest, compute_measures(V, s.F, s.topology));
+      if (!s.rest) s.rest = compute_measures(s.V0, s.F, s.topology);
+      const AngleErrors errors = angle_errors(*s.rest, compute_measures(V, s.F, s.topology));
       info.e_theta = errors.e_theta;
       info.e_phi = errors.e_phi;
     }

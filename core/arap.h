@@ -31,6 +31,7 @@
 #include "core/deform_types.h"
 #include "core/mesh_data.h"
 #include "core/status.h"
+#include "core/topology.h"
 
 namespace meshdeform::core {
 
@@ -57,6 +58,13 @@ class ArapSolver {
   ///         One constrained vertex per component is enough: the result is then a rigid motion
   ///         of that component (a translation when started from the rest pose).
   [[nodiscard]] static Result<ArapSolver> create(const Positions& V0, const Triangles& F,
+                                                 const Eigen::VectorXi& constrained,
+                                                 const ArapSettings& settings = {});
+  /// The same for a mesh the caller has validated (validate_triangle_mesh) and whose topology
+  /// it has built (build_topology(F, #V)): neither is done again (the scale-aware solver's rigid
+  /// start). The constrained indices are still checked.
+  [[nodiscard]] static Result<ArapSolver> create(const Positions& V0, const Triangles& F,
+                                                 const MeshTopology& topology,
                                                  const Eigen::VectorXi& constrained,
                                                  const ArapSettings& settings = {});
 

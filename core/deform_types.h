@@ -45,7 +45,8 @@ enum class StartFrom {
 /// phase name and the fraction of that phase done, in [0, 1]. Every phase reports 0 when it starts
 /// and 1 when it ends; long phases report fractions in between. Phase names: "validate" (mesh
 /// checks, topology, rest measures), "rigid_start" (the ARAP factorization of the scale-aware
-/// solver's default start), "step_two" (the scale-aware solver's step-two matrix), "factorize"
+/// solver's default start; with two or more solver threads the scale term's system beside it),
+/// "step_two" (the scale-aware solver's step-two matrix), "factorize"
 /// (ARAP's and Laplacian editing's factorizations), and for a multiresolution deformer (core/
 /// multires.h) "decimate", "prolongation", "coarse_precompute", "fine_precompute".
 using BuildProgress = std::function<void(std::string_view phase, double fraction)>;

@@ -6,6 +6,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <future>
 #include <limits>
 #include <optional>
 #include <string>
@@ -133,8 +134,19 @@ struct ScaleAwareSolver::Impl {
   Status build_rigid_start() {
     ArapSettings arap_settings;
     arap_settings.threads = settings.threads;
-    MD_ASSIGN_OR_RETURN(ArapSolver built, ArapSolver::create(V0, F, constrained, arap_settings));
+    MD_ASSIGN_OR_RETURN(ArapSolver built,
+                        ArapSolver::create(V0, F, topology, constrained, arap_settings));
     rigid_start.emplace(std::move(built));
+    return Status::success();
+  }
+  /// The scale term's constant system (built once, used at every rigidity > 0).
+  Status build_scale_control() {
+    ScaleControl control;
+    MD_RETURN_IF_ERROR(control.build(V0, F, topology, N0, constrained, settings.scale_pull,
+                                     settings.scale_smooth_length));
+    control.set_normal_tie(settings.scale_normal_tie);
+    control.set_threads(threads);
+    scale_control.emplace(std::move(control));
     return Status::success();
   }
   void build_pattern();
@@ -234,7 +246,20 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
     // The default start's factor (Auto at rigidity > 0: the rigid start). The Laplacian guess
     // (a denser bi-Laplacian factor) is built by the first solve that starts from it.
     report_progress(progress, "rigid_start", 0.0);
-    MD_RETURN_IF_ERROR(build_rigid_start());
+    if (threads > 1) {
+      // Two independent factorizations on two cores: ARAP's Laplacian here and the scale
+      // term's face system (which every solve at rigidity > 0, the default, needs) beside it.
+      // 46,850-vertex Spot: 0.5-0.7 s and 0.7 s one after the other.
+      std::future<Status> scale = std::async(std::launch::async, [this] {
+        return build_scale_control();
+      });
+      const Status rigid = build_rigid_start();
+      const Status built = scale.get();
+      MD_RETURN_IF_ERROR(rigid);
+      MD_RETURN_IF_ERROR(built);
+    } else {
+      MD_RETURN_IF_ERROR(build_rigid_start());
+    }
     report_progress(progress, "rigid_start", 1.0);
     MD_RETURN_IF_ERROR(check_stop());
   }
@@ -495,14 +520,8 @@ Status ScaleAwareSolver::Impl::prepare_rigidity(double rigidity) {
     }
     return Status::success();
   }
-  if (!scale_control) {
-    ScaleControl control;
-    MD_RETURN_IF_ERROR(control.build(V0, F, topology, N0, constrained, settings.scale_pull,
-                                     settings.scale_smooth_length));
-    control.set_normal_tie(settings.scale_normal_tie);
-    control.set_threads(threads);
-    scale_control.emplace(std::move(control));
-  }
+  // Scale control first: T + rho L's L is the scale term's face Laplacian.
+  if (!scale_control) MD_RETURN_IF_ERROR(build_scale_control());
   if (settings.preconditioner == StepTwoPreconditioner::BlockTrace && trace_rigid_rho != rigidity) {
     // The preconditioner stays constant for a given rho, so only a change of rho (a slider
     // move) refactors this n x n matrix.

@@ -43,6 +43,8 @@ struct ScaleAwareSettings {
   /// OpenMP threads for the per-vertex and per-face loops; 0 means all hardware threads.
   /// Default 1: a service solves many sessions side by side, and on a loaded 2-core machine
   /// extra threads per solve only contend (measured 4x slower). Results do not depend on it.
+  /// With 2 or more, create() also builds the scale term's system (every solve at rigidity > 0
+  /// needs it) on a second thread beside the rigid start's ARAP factorization.
   int threads = 1;
   /// Scale control (SolveOptions::rigidity > 0; see core/scale_control.h), study constants
   /// rather than user options: they fix the constant scale system, so they are per solver.
