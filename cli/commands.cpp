@@ -73,10 +73,10 @@ Solver:
                             scale control (--rigidity > 0) the rigid start, or the result from
                             laplacian when the rigid start's has folds and it has fewer at most
                             1.5x the energy (the report's start_used says which); at
-                            --rigidity 0 laplacian;
-                            laplacian: the paper's initialisation; rigid: ARAP run to
-                            convergence first (relative change 1e-6, at most 1000 iterations);
-                            propagated: the handles' rotations spread over the surface)
+                            --rigidity 0 laplacian; laplacian: the paper's initialisation;
+                            rigid: ARAP run to convergence first (relative change 1e-6, at
+                            most 1000 iterations); propagated: the handles' rotations spread
+                            over the surface)
   --lambda L                handle weight (default 100)
   --threads N               solver threads, 0 = all (default 1)
 Output control:
