@@ -195,7 +195,7 @@ json run_ours(const Model& model, const Options& options, bool is_arap, int ande
   auto created = Solver::create(V0, F, model.setup.constrained, settings);
   if (!created.ok()) throw std::runtime_error(created.status().to_string());
   Solver solver = std::move(created).value();
-  if constexpr (requires { solver.prepare(core::kDefaultRigidity); }) {
+  if constexpr (requires { solver.prepare(core::SolveOptions{}.rigidity); }) {
     // Everything a default solve builds before its start: the scale term's system and the
     // preconditioner factor of the default rigidity (prepare), not only create().
     const Status prepared = solver.prepare(core::SolveOptions{}.rigidity);
@@ -311,8 +311,9 @@ MethodResult aggregate(const std::string& method, const std::vector<json>& runs)
     const double init = run.value("init_s", 0.0);
     pre.push_back(run.value("precompute_s", 0.0));
     solve.push_back(run.value("solve_s", 0.0));
-    const double iterations_s =
-        run.contains("iterations_s") ? run.value("iterations_s", 0.0) : run.value("solve_s", 0.0) - init;
+    const double iterations_s = run.contains("iterations_s")
+                                    ? run.value("iterations_s", 0.0)
+                                    : run.value("solve_s", 0.0) - init;
     per_it.push_back(its > 0 ? iterations_s / its : 0.0);
     conv.push_back(run.value("converge_s", 0.0));
     rss.push_back(run.value("peak_rss_kib", 0L) / 1024.0);
@@ -492,8 +493,8 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
                 "result where that folds; the start's time is excluded from ms/it and "
                 "included in time to quality)"
               : "")
-      << ", ARAP from its Laplacian guess; the scale-aware precompute column is create() and prepare() at "
-         "the default rigidity, everything a default solve builds before its start (validation, "
+      << ", ARAP from its Laplacian guess; the scale-aware precompute column is create() and "
+         "prepare() at the default rigidity, everything a default solve builds before its start (validation, "
          "ARAP's factor for the default start, the scale term's system, the preconditioner "
          "factor; with two or more threads the first two factorizations run side by side), "
          "metrics off in the timed run (E_theta / "

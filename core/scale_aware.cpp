@@ -76,6 +76,13 @@ struct ScaleAwareSolver::Impl {
   Eigen::VectorXd corner_cos, corner_sin, corner_ratio;  // 3#F, corner 3f+k at F(f,k)
   double bbox_diagonal = 1;
   Eigen::VectorXd rest_phi;  // #IE rest dihedral angles (folds_of)
+  // All rest measures, for E_theta / E_phi (track_metrics) and the ORA report: measured on first
+  // use, then kept (every candidate and every later solve compares against the same rest).
+  std::optional<Measures> rest_measures;
+  const Measures& rest() {
+    if (!rest_measures) rest_measures = compute_measures(V0, F, topology, threads);
+    return *rest_measures;
+  }
 
   // Constraints.
   Eigen::VectorXi constrained;
@@ -926,12 +933,10 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
   for (Eigen::Index j = 0; j < targets.rows(); ++j) {
     target_vec.segment<3>(3 * j) = targets.row(j).transpose();
   }
-  const Measures rest =
-      options.track_metrics ? compute_measures(s.V0, s.F, s.topology) : Measures{};
   auto record = [&](IterationInfo& info, const Eigen::VectorXd& pos) {
     if (options.track_metrics) {
       const Positions P = Eigen::Map<const RowPositions>(pos.data(), s.nv, 3);
-      const AngleErrors errors = angle_errors(rest, compute_measures(P, s.F, s.topology));
+      const AngleErrors errors = angle_errors(s.rest(), compute_measures(P, s.F, s.topology));
       info.e_theta = errors.e_theta;
       info.e_phi = errors.e_phi;
     }
@@ -1230,11 +1235,8 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     }
     MD_ASSIGN_OR_RETURN(Positions stitched,
                         s.stitcher->stitch(report.V, targets, options.face_scale));
-    const Measures rest_measures = compute_measures(s.V0, s.F, s.topology);
-    const AngleErrors before =
-        angle_errors(rest_measures, compute_measures(report.V, s.F, s.topology));
-    const AngleErrors after =
-        angle_errors(rest_measures, compute_measures(stitched, s.F, s.topology));
+    const AngleErrors before = angle_errors(s.rest(), compute_measures(report.V, s.F, s.topology));
+    const AngleErrors after = angle_errors(s.rest(), compute_measures(stitched, s.F, s.topology));
     report.stitch = {true,           before.e_theta, before.e_phi, before.area_log_rms,
                      after.e_theta,  after.e_phi,    after.area_log_rms,
                      seconds_since(stitch_start)};
