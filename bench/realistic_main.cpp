@@ -67,8 +67,9 @@ struct Options {
   int cgal_max_iterations = 100;
   int threads = 1;
   // Start of the scale-aware runs: Auto (the default a user gets: converged ARAP at rigidity > 0,
-  // or the Laplacian guess's result where that folds) or a named one (--start laplacian: the
-  // paper's guess, as this bench ran before the rigid start became the default).
+  // or the Laplacian guess's or the paper start's result where that folds) or a named one
+  // (--start laplacian: the paper's guess, as this bench ran before the rigid start became the
+  // default).
   core::StartFrom start = core::StartFrom::Auto;
   std::uint64_t seed = 1;
   std::string out_dir = MESHDEFORM_BENCH_RESULTS_DIR;

@@ -322,9 +322,9 @@ std::string markdown(const MachineInfo& machine, const Options& options,
   out << "- scale-aware: SolveOptions defaults except rigidity (max_iterations "
       << options.iterations << ", tolerance " << options.tolerance << ", start "
       << (options.start == core::StartFrom::Auto
-              ? "auto (the rigid start at rigidity > 0, or the Laplacian guess's result when "
-                "the rigid start's has folds and it has fewer at most 1.5x the energy; the "
-                "Laplacian guess at 0)"
+              ? "auto (the rigid start at rigidity > 0; where its result has folds, the "
+                "Laplacian guess's and then the paper start's result when it has fewer at most "
+                "1.5x the rigid start's energy; the Laplacian guess at 0)"
               : core::start_name(options.start))
       << ", rigid start: ARAP to relative energy change " << options.rigid_start_tolerance
       << " or " << options.rigid_start_iterations << " iterations); scale_pull " << options.pull
@@ -355,6 +355,8 @@ std::string markdown(const MachineInfo& machine, const Options& options,
            fmt("%.4f", e.area_log_rms);
   };
   int met_all = 0;
+  int no_new_folds = 0;
+  std::string fold_notes;  // edits where any of the three results folds
   for (const Row& row : rows) {
     const Run* arap = row.arap();
     const Run *def = nullptr, *pure = nullptr, *ora = nullptr;
@@ -366,6 +368,12 @@ std::string markdown(const MachineInfo& machine, const Options& options,
     if (arap == nullptr || def == nullptr || pure == nullptr || ora == nullptr) continue;
     const Verdict v = verdict(*def, *arap);
     met_all += v.all() ? 1 : 0;
+    no_new_folds += def->folds <= pure->folds ? 1 : 0;
+    if (def->folds + pure->folds + arap->folds > 0) {
+      fold_notes += (fold_notes.empty() ? "" : ", ") + row.edit.name + " " +
+                    std::to_string(def->folds) + " / " + std::to_string(pure->folds) + " / " +
+                    std::to_string(arap->folds);
+    }
     out << "| " << row.edit.name << " | " << row.edit.V.rows() << " | " << arap->iterations
         << (arap->converged ? "" : " (cap)") << " | " << triple(arap->errors) << " | "
         << triple(def->errors) << " | " << ratio(def->errors.e_theta, arap->errors.e_theta) << " / "
@@ -376,6 +384,10 @@ std::string markdown(const MachineInfo& machine, const Options& options,
         << " | " << triple(ora->errors) << " |\n";
   }
   out << "\nAll three targets met on " << met_all << " of " << rows.size() << " edits.\n";
+  out << "\nNo new folds at the default (folded edges at most the paper's, rigidity 0) on "
+      << no_new_folds << " of " << rows.size() << " edits. Folded edges, default / paper / "
+      << "converged ARAP, where any has one: " << (fold_notes.empty() ? "none" : fold_notes)
+      << ".\n";
 
   out << "\n## Every run\n\n";
   out << "| edit | method | rigidity | its | conv. | E_theta | E_phi | area | E_theta/ARAP | "

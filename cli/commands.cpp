@@ -69,14 +69,16 @@ Solver:
   --inner-iterations K      step-one sweeps per outer iteration (default 5)
   --anderson M              Anderson acceleration of the outer iteration: mix the last M
                             updates (default 6; 0 = the plain iteration)
-  --start auto|laplacian|previous|rigid|propagated  starting guess (default auto: with
-                            scale control (--rigidity > 0) the rigid start, or the result from
-                            laplacian when the rigid start's has folds and it has fewer at most
-                            1.5x the energy (the report's start_used says which); at
-                            --rigidity 0 laplacian; laplacian: the paper's initialisation;
-                            rigid: ARAP run to convergence first (relative change 1e-6, at
-                            most 1000 iterations); propagated: the handles' rotations spread
-                            over the surface)
+  --start auto|laplacian|previous|rigid|propagated|paper  starting guess (default auto:
+                            with scale control (--rigidity > 0) the rigid start, or, when its
+                            result has folds, the result from laplacian or then paper that has
+                            fewer at most 1.5x the rigid start's energy (the report's start_used
+                            says which); at --rigidity 0 laplacian; laplacian: the paper's
+                            initialisation; rigid: ARAP run to convergence first (relative
+                            change 1e-6, at most 1000 iterations); propagated: the handles'
+                            rotations spread over the surface; paper: the paper's method
+                            (rigidity 0) from laplacian until it has no folds, then the
+                            rigidity)
   --lambda L                handle weight (default 100)
   --threads N               solver threads, 0 = all (default 1)
 Output control:
@@ -164,8 +166,8 @@ std::optional<std::string> apply_solver_flags(const ParsedArgs& parsed, RunSetti
   if (auto text = parsed.get("start")) {
     const Result<core::StartFrom> start = core::parse_start(*text);
     if (!start.ok()) {
-      return "--start must be 'auto', 'laplacian', 'previous', 'rigid' or 'propagated', got '" +
-             *text + "'";
+      return "--start must be 'auto', 'laplacian', 'previous', 'rigid', 'propagated' or "
+             "'paper', got '" + *text + "'";
     }
     run.options.start = *start;
   }

@@ -266,6 +266,7 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
   j["start_used"] = core::start_name(report.start);
   j["start_candidates"] = report.start_candidates;
   j["folded_edges"] = report.folded_edges >= 0 ? json(report.folded_edges) : json(nullptr);
+  j["paper_start_iterations"] = report.paper_iterations;
   j["precompute_seconds"] = outcome.precompute_seconds;
   j["solve_seconds"] = report.seconds;
   if (!report.history.empty()) {

@@ -19,8 +19,9 @@ enum class StartFrom {
   /// (rigidity > 0), the Rigid start (ARAP to convergence: measured in
   /// bench/results/rigidity_sweep.md, the issue-12 targets on 12 of 12 edits against 9 of 12 from
   /// the Laplacian guess, whose basin is worse on 135-degree twists), unless its result has folds
-  /// (count_folds): then the result from the Laplacian guess is computed too and returned instead
-  /// if it has fewer folds at no more than 1.5x the energy (SolveReport::start says which; the
+  /// (count_folds): then the results from the Laplacian guess and, if the best so far still has
+  /// folds, from the Paper start are computed too, and one replaces the best if it has fewer
+  /// folds at no more than 1.5x the rigid start's energy (SolveReport::start says which; the
   /// Spot twist's other basin costs 2.1-2.6x); at rigidity 0 and for the other
   /// methods the Laplacian-editing guess (the paper's start: rigidity 0 stays the paper's method).
   Auto,
@@ -31,7 +32,7 @@ enum class StartFrom {
   /// SolveOptions::rigid_start_tolerance, at most rigid_start_iterations iterations
   /// (docs/algorithm.md section 8: the Laplacian guess is poor for large twists). The bent
   /// cylinders keep some of converged ARAP's creases from it (4-5 folded edges; ARAP's own: 6),
-  /// which is why Auto then compares with the Laplacian guess's result.
+  /// which is why Auto then compares with the Laplacian guess's and the Paper start's results.
   Rigid,
   /// Scale-aware only (other methods treat it as Laplacian): the handles' rotations propagated
   /// harmonically over the surface, then ARAP's global step with them (core/rotation_start.h;
@@ -39,6 +40,13 @@ enum class StartFrom {
   /// bench/results/rigidity_propagated_start/: no folds on the twisted bars and their E_phi
   /// below ARAP's, but their E_theta 1.4x ARAP's at the default rigidity, so Auto does not use it.
   Propagated,
+  /// Scale-aware only (other methods treat it as Laplacian): the paper's own solve (rigidity 0)
+  /// from the Laplacian guess until its result has no folds (count_folds; at most max_iterations
+  /// iterations), then the solve at the requested rigidity from there. The Laplacian guess of a
+  /// large bend has many folds (64 on the irregular bent cylinder) that the paper's iteration
+  /// removes within ~10 iterations; with the scale term on from the start some of them set into
+  /// creases that more iterations do not remove. At rigidity 0 it is the Laplacian start.
+  Paper,
 };
 
 /// Progress of a precompute (building a solver or a hierarchy), called on the building thread: a
@@ -158,14 +166,19 @@ struct SolveReport {
   int pcg_iterations = 0;               ///< total PCG iterations during this solve
   int anderson_rejections = 0;          ///< accelerated iterates the safeguard replaced
   double seconds = 0;                   ///< wall time of the solve (every candidate start)
-  /// The start the result came from: Laplacian, Previous, Rigid or Propagated (Auto resolved).
+  /// The start the result came from: Laplacian, Previous, Rigid, Propagated or Paper (Auto
+  /// resolved).
   StartFrom start = StartFrom::Auto;
   /// Auto's cold start with scale control (scale-aware, rigidity > 0) checks its result for folds
-  /// (count_folds in core/measures.h) and, if there are any, solves from the Laplacian guess too
-  /// and returns that result if it has fewer folds at no more than 1.5x the energy (or as many at
-  /// less energy). Then 2, and the other fields (history, iterations,
-  /// pcg_iterations, ...) describe the returned candidate; 1 otherwise.
+  /// (count_folds in core/measures.h) and, while the best result so far has any, solves from the
+  /// Laplacian guess and then from the Paper start too; a candidate replaces the best one if it
+  /// has fewer folds at no more than 1.5x the rigid start's energy (or as many at less energy).
+  /// The number of candidates solved (1-3); the other fields (history, iterations,
+  /// pcg_iterations, ...) describe the returned candidate.
   int start_candidates = 1;
+  /// With start Paper: the paper's iterations (rigidity 0) before the solve at the requested
+  /// rigidity (whose iterations `history` and `iterations` describe); 0 otherwise.
+  int paper_iterations = 0;
   /// Folded edges of the returned result when that check ran; -1 when it did not.
   int folded_edges = -1;
   StitchReport stitch;                  ///< ORA / magnification, when requested

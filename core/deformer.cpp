@@ -34,7 +34,8 @@ class SolverDeformer final : public Deformer {
     if constexpr (kMethod == Method::Arap) {
       // ARAP's rotation-aware starts are the scale-aware solver's: here they are its Laplacian
       // guess.
-      if (options.start == StartFrom::Rigid || options.start == StartFrom::Propagated) {
+      if (options.start == StartFrom::Rigid || options.start == StartFrom::Propagated ||
+          options.start == StartFrom::Paper) {
         SolveOptions laplacian_start = options;
         laplacian_start.start = StartFrom::Laplacian;
         return solver_.solve(targets, laplacian_start, progress, std::move(stop));
@@ -212,18 +213,20 @@ const char* start_name(StartFrom start) {
       return "rigid";
     case StartFrom::Propagated:
       return "propagated";
+    case StartFrom::Paper:
+      return "paper";
   }
   return "auto";
 }
 
 Result<StartFrom> parse_start(std::string_view name) {
   for (StartFrom start : {StartFrom::Auto, StartFrom::Laplacian, StartFrom::Previous,
-                          StartFrom::Rigid, StartFrom::Propagated}) {
+                          StartFrom::Rigid, StartFrom::Propagated, StartFrom::Paper}) {
     if (name == start_name(start)) return start;
   }
   return Error(ErrorCode::InvalidArgument,
                "unknown start \"" + std::string(name) +
-                   "\" (expected auto, laplacian, previous, rigid or propagated)");
+                   "\" (expected auto, laplacian, previous, rigid, propagated or paper)");
 }
 
 Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& V0,

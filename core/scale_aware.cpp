@@ -61,8 +61,8 @@ struct PcgOutcome {
 
 }  // namespace
 
-// Auto's cold start (solve()): the Laplacian guess's result replaces the rigid start's when it
-// has fewer folds and at most this multiple of its energy.
+// Auto's cold start (solve()): another start's result replaces the best so far when it has
+// fewer folds and at most this multiple of the rigid start's energy.
 constexpr double kFoldFreeEnergyRatio = 1.5;
 
 struct ScaleAwareSolver::Impl {
@@ -184,11 +184,15 @@ struct ScaleAwareSolver::Impl {
     std::vector<Eigen::Quaterniond> rotations;
     bool rotations_warm = false;
   };
-  /// The outer iterations of solve() from one start (Rigid, Laplacian, Propagated or Previous),
+  /// The outer iterations of solve() from one start (Rigid, Laplacian, Propagated, Paper or
+  /// Previous),
   /// without the ORA stitch and without committing: the solver's warm-start state is unchanged.
+  /// `state`, when given, replaces the solver's own warm-start state for a Previous start;
+  /// `until_fold_free` also stops the iteration once the iterate has no folds.
   Result<Candidate> run_from(StartFrom from, const Positions& targets, const SolveOptions& options,
                              const ProgressCallback& progress, const std::stop_token& stop,
-                             Clock::time_point start);
+                             Clock::time_point start, const Candidate* state = nullptr,
+                             bool until_fold_free = false);
   /// Interior edges of `pos` whose dihedral angle moved by more than 90 degrees from the rest
   /// (a crease the rest shape does not have; core::count_folds).
   int folds_of(const Eigen::VectorXd& pos) const;
@@ -881,15 +885,35 @@ Status ScaleAwareSolver::prepare(double rigidity) {
 
 Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
     StartFrom from, const Positions& targets, const SolveOptions& options,
-    const ProgressCallback& progress, const std::stop_token& stop, Clock::time_point start) {
+    const ProgressCallback& progress, const std::stop_token& stop, Clock::time_point start,
+    const Candidate* state, bool until_fold_free) {
   Impl& s = *this;
   const double rho = options.rigidity;
 
+  if (from == StartFrom::Paper) {
+    // The paper's iteration first, until the Laplacian guess's folds are gone; then the
+    // requested rigidity from that fold-free iterate.
+    if (rho == 0) return run_from(StartFrom::Laplacian, targets, options, progress, stop, start);
+    // The paper's own system: handle weight lambda and T's preconditioner (solve() prepares
+    // every solve's rigidity anew, so an early return here leaves nothing wrong behind).
+    SolveOptions paper = options;
+    paper.rigidity = 0;
+    MD_RETURN_IF_ERROR(prepare_rigidity(0));
+    MD_ASSIGN_OR_RETURN(const Candidate first, run_from(StartFrom::Laplacian, targets, paper,
+                                                        progress, stop, start, nullptr, true));
+    MD_RETURN_IF_ERROR(prepare_rigidity(rho));
+    MD_ASSIGN_OR_RETURN(Candidate second, run_from(StartFrom::Previous, targets, options,
+                                                   progress, stop, start, &first));
+    second.report.start = StartFrom::Paper;
+    second.report.paper_iterations = first.report.iterations;
+    return second;
+  }
+
   // Work on copies: a cancelled or failed solve leaves the solver as it was.
-  Eigen::VectorXd x = s.x;
-  RowPositions N = s.N;
-  std::vector<Eigen::Quaterniond> rotations = s.rotations;
-  bool rotations_warm = s.rotations_warm;
+  Eigen::VectorXd x = state != nullptr ? state->x : s.x;
+  RowPositions N = state != nullptr ? state->N : s.N;
+  std::vector<Eigen::Quaterniond> rotations = state != nullptr ? state->rotations : s.rotations;
+  bool rotations_warm = state != nullptr ? state->rotations_warm : s.rotations_warm;
 
   if (from == StartFrom::Rigid) {
     if (!s.rigid_start) MD_RETURN_IF_ERROR(s.build_rigid_start());
@@ -1121,6 +1145,7 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
       report.converged = true;
       break;
     }
+    if (until_fold_free && s.folds_of(x) == 0) break;
     if (accelerate && it < options.max_iterations) {
       plain = x;
       x = accelerator.compute(plain);
@@ -1196,26 +1221,34 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     // Where converged ARAP creases (bent tubes: interior edges folded by more than 90 degrees
     // near the handles), the scale-aware iteration keeps its creases: they lower its energy, so
     // more iterations do not remove them. Then the result from the Laplacian guess is computed
-    // too, and replaces it if it has fewer folds at not much more energy (or as many folds at
-    // less energy). Measured on bench/results/rigidity_sweep.md's edits at rigidity 1-300: on the
-    // bent cylinders the fold-free basin costs 0.77-1.31x the creased one's energy, on the Spot
-    // twist the Laplacian guess's basin costs 2.1-2.6x (the worse basin of issue 12, E_theta
-    // above converged ARAP's), hence kFoldFreeEnergyRatio. Where the rigid start folds nothing,
-    // nothing else runs.
+    // too and, if the best result so far still has folds, the Paper start's (the paper's own
+    // iteration until the Laplacian guess's folds are gone, then the rigidity: on the irregular
+    // bent cylinder the Laplacian guess's result keeps 2 creases that the scale term set while
+    // the guess's 64 folds were being removed). A candidate replaces the best one if it has fewer
+    // folds at not much more energy than the rigid start's (or as many folds at less energy).
+    // Measured on bench/results/rigidity_sweep.md's edits at rigidity 1-300: on the bent
+    // cylinders the fold-free basin costs 0.77-1.31x the creased one's energy, on the Spot twist
+    // the Laplacian guess's basin costs 2.1-2.6x (the worse basin of issue 12, E_theta above
+    // converged ARAP's), hence kFoldFreeEnergyRatio. Where the rigid start folds nothing, nothing
+    // else runs.
     chosen.report.folded_edges = s.folds_of(chosen.x);
-    if (chosen.report.folded_edges > 0) {
-      MD_ASSIGN_OR_RETURN(Impl::Candidate other, s.run_from(StartFrom::Laplacian, targets,
-                                                            options, progress, stop, start));
+    const double rigid_energy = chosen.report.history.back().energy;
+    int candidates = 1;
+    for (const StartFrom next : {StartFrom::Laplacian, StartFrom::Paper}) {
+      if (chosen.report.folded_edges == 0) break;
+      MD_ASSIGN_OR_RETURN(Impl::Candidate other,
+                          s.run_from(next, targets, options, progress, stop, start));
+      ++candidates;
       other.report.folded_edges = s.folds_of(other.x);
       const double energy = chosen.report.history.back().energy;
       const double other_energy = other.report.history.back().energy;
       const bool fewer = other.report.folded_edges < chosen.report.folded_edges &&
-                         other_energy <= kFoldFreeEnergyRatio * energy;
+                         other_energy <= kFoldFreeEnergyRatio * rigid_energy;
       const bool tie_lower =
           other.report.folded_edges == chosen.report.folded_edges && other_energy < energy;
       if (fewer || tie_lower) chosen = std::move(other);
-      chosen.report.start_candidates = 2;
     }
+    chosen.report.start_candidates = candidates;
   }
   SolveReport report = std::move(chosen.report);
   Eigen::VectorXd x = std::move(chosen.x);

@@ -181,6 +181,14 @@ TEST_F(MethodCliTest, RigidityComesFromTheFlagOrTheSpecAndIsReported) {
           "--start propagated");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(report()["options"]["start"], "propagated");
+  EXPECT_EQ(report()["paper_start_iterations"], 0);
+  r = run("deform --mesh grid.obj --edit rigid.json --out out.obj --report report.json "
+          "--start paper");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  j = report();
+  EXPECT_EQ(j["options"]["start"], "paper");
+  EXPECT_EQ(j["start_used"], "paper");
+  EXPECT_GE(j["paper_start_iterations"], 1);
 
   // Bad values are usage errors (flag) or runtime errors (spec), naming the option.
   for (const char* bad : {"-1", "nan", "abc", "inf"}) {

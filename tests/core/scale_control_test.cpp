@@ -272,6 +272,97 @@ TEST(ScaleControl, AutoColdStartReturnsTheStartWithFewerFolds) {
   EXPECT_LE((next->V - chosen->V).cwiseAbs().maxCoeff(), 1e-12 * bbox_diagonal(cylinder.mesh));
 }
 
+// Where the Laplacian guess's result folds too: the irregular bent cylinder. The guess has dozens
+// of folds; with the scale term on from the start two of them set into creases, while the paper's
+// iteration alone removes them all. The Paper start runs the paper's iteration until the iterate
+// has no folds and only then the rigidity, and Auto tries it third.
+TEST(ScaleControl, PaperStartRemovesTheGuessFoldsBeforeTheRigidityAndAutoTriesItThird) {
+  auto irregular = make_irregular(make_cylinder(), 1);
+  ASSERT_TRUE(irregular.ok()) << irregular.status().to_string();
+  const MeshData& mesh = irregular->mesh;
+  auto setup = constraints_from_selection(mesh.V, irregular->selection, irregular->transform);
+  ASSERT_TRUE(setup.ok()) << setup.status().to_string();
+  const MeshTopology topology = *build_topology(mesh.F, static_cast<int>(mesh.V.rows()));
+  const Eigen::VectorXd rest = dihedral_angles(mesh.V, mesh.F, topology);
+  auto folds_of = [&](const Positions& V) {
+    return count_folds(rest, dihedral_angles(V, mesh.F, topology));
+  };
+  auto fresh_solve = [&](StartFrom start, double rigidity, int iterations) {
+    auto solver = ScaleAwareSolver::create(mesh.V, mesh.F, setup->constrained);
+    EXPECT_TRUE(solver.ok()) << solver.status().to_string();
+    SolveOptions options;
+    options.track_metrics = false;
+    options.start = start;
+    options.rigidity = rigidity;
+    options.max_iterations = iterations;
+    auto report = solver->solve(setup->targets, options);
+    EXPECT_TRUE(report.ok()) << report.status().to_string();
+    return *report;
+  };
+  const int budget = SolveOptions{}.max_iterations;
+
+  // The premise: the Laplacian guess folds, and so does its result at the default rigidity.
+  EXPECT_GT(folds_of(fresh_solve(StartFrom::Laplacian, 0.0, 0).V), 0);
+  EXPECT_GT(folds_of(fresh_solve(StartFrom::Laplacian, kDefaultRigidity, budget).V), 0);
+
+  const SolveReport paper = fresh_solve(StartFrom::Paper, kDefaultRigidity, budget);
+  EXPECT_EQ(paper.start, StartFrom::Paper);
+  EXPECT_EQ(folds_of(paper.V), 0);
+  const int k = paper.paper_iterations;
+  ASSERT_GT(k, 0);
+  ASSERT_LT(k, budget);  // stopped by the fold check, not the budget
+  // The stop rule: the paper's iterate is fold-free after k iterations, not after k - 1.
+  EXPECT_EQ(folds_of(fresh_solve(StartFrom::Laplacian, 0.0, k).V), 0);
+  EXPECT_GT(folds_of(fresh_solve(StartFrom::Laplacian, 0.0, k - 1).V), 0);
+  // And it is those two solves in a row: rigidity 0 for k iterations, then the rigidity.
+  {
+    auto solver = ScaleAwareSolver::create(mesh.V, mesh.F, setup->constrained);
+    ASSERT_TRUE(solver.ok()) << solver.status().to_string();
+    SolveOptions options;
+    options.track_metrics = false;
+    options.start = StartFrom::Laplacian;
+    options.rigidity = 0;
+    options.max_iterations = k;
+    ASSERT_TRUE(solver->solve(setup->targets, options).ok());
+    options.start = StartFrom::Previous;
+    options.rigidity = kDefaultRigidity;
+    options.max_iterations = budget;
+    auto second = solver->solve(setup->targets, options);
+    ASSERT_TRUE(second.ok()) << second.status().to_string();
+    EXPECT_LE((second->V - paper.V).cwiseAbs().maxCoeff(), 1e-9 * bbox_diagonal(mesh));
+    EXPECT_EQ(second->iterations, paper.iterations);
+  }
+
+  // Auto: the rigid start folds, the Laplacian guess's result too, the Paper start's does not.
+  const SolveReport automatic = fresh_solve(StartFrom::Auto, kDefaultRigidity, budget);
+  EXPECT_EQ(automatic.start, StartFrom::Paper);
+  EXPECT_EQ(automatic.start_candidates, 3);
+  EXPECT_EQ(automatic.folded_edges, 0);
+  EXPECT_EQ(automatic.paper_iterations, k);
+  EXPECT_LE((automatic.V - paper.V).cwiseAbs().maxCoeff(), 1e-9 * bbox_diagonal(mesh));
+}
+
+TEST(ScaleControl, PaperStartAtRigidityZeroIsTheLaplacianStart) {
+  for (const SuiteEdit& edit : small_suite_edits()) {
+    SCOPED_TRACE(edit.name);
+    SolveReport from[2];
+    const StartFrom starts[2] = {StartFrom::Laplacian, StartFrom::Paper};
+    for (int k = 0; k < 2; ++k) {
+      auto solver = ScaleAwareSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained);
+      ASSERT_TRUE(solver.ok()) << solver.status().to_string();
+      SolveOptions options;
+      options.rigidity = 0;
+      options.start = starts[k];
+      auto report = solver->solve(edit.setup.targets, options);
+      ASSERT_TRUE(report.ok()) << report.status().to_string();
+      from[k] = *report;
+    }
+    EXPECT_EQ(from[1].start, StartFrom::Laplacian);
+    EXPECT_EQ(from[1].paper_iterations, 0);
+    EXPECT_EQ(from[1].V, from[0].V);
+  }
+}
+
 TEST(ScaleControl, AutoColdStartWithoutFoldsIsTheRigidStart) {
   // The bar twist of the small suite: the rigid start folds nothing, so Auto runs nothing else.
   for (const SuiteEdit& edit : small_suite_edits()) {
