@@ -1,8 +1,10 @@
 // Browser-side speed of the viewer (issue 5): time from a drag event to the frame that shows its
 // result, updates per second while dragging, and bytes per update in each position encoding,
-// for the 4,802-vertex cylinder and the 40,401-vertex bumpy plane, on loopback, in one run.
+// for the 4,802-vertex cylinder, the 40,401-vertex bumpy plane and the same plane at 187,489
+// vertices (issue 15: a multiresolution session, moves answered on a coarse level and the full
+// resolution streamed by the background refinement after the drag), on loopback, in one run.
 //
-//   node bench/viewer_latency.mjs [--build build] [--moves 90] [--out bench/results]
+//   node bench/viewer_latency.mjs [--build build] [--moves 90] [--out bench/results] [--model NAME]
 //
 // Starts its own meshdeform-server (127.0.0.1, ephemeral ports) serving web_viewer/dist, drives
 // Debian's headless Chromium (playwright-core from web_viewer/node_modules) with real mouse
@@ -34,8 +36,12 @@ for (const f of [serverPath, path.join(dist, "index.html")]) {
   if (!existsSync(f)) { console.error(`missing ${f}: run ./scripts/build.sh and ./scripts/build-viewer.sh`); process.exit(2); }
 }
 
-const models = [{ sample: "cylinder", vertices: 4802 }, { sample: "bumpy_plane", vertices: 40401 }].filter((m) => !args.model || m.sample === args.model);
-const encodings = ["double", "float32", "meshopt"];
+// settle: how long the page is watched after the mouse is released (refinement revisions).
+const models = [
+  { sample: "cylinder", vertices: 4802, encodings: ["double", "float32", "meshopt"], settleMs: 1500 },
+  { sample: "bumpy_plane", vertices: 40401, encodings: ["double", "float32", "meshopt"], settleMs: 1500 },
+  { sample: "bumpy_plane_large", vertices: 187489, encodings: ["float32", "meshopt"], settleMs: Number(args.settle ?? 20_000) },
+].filter((m) => !args.model || m.sample === args.model);
 
 function startServer() {
   return new Promise((resolve, reject) => {
@@ -80,10 +86,15 @@ async function measure(browser, url, model, encoding) {
   }
   const dragSeconds = (performance.now() - t0) / 1000;
   await page.mouse.up();
-  await page.waitForTimeout(1500);
+  const upAt = await page.evaluate(() => performance.now());
+  await page.waitForTimeout(model.settleMs);
   const m = await page.evaluate(() => window.__meshdeform.metrics());
   await ctx.close();
   const frames = m.dragToFrameMs;
+  // After the release: the background refinement's revisions (full resolution on a
+  // multiresolution session), when each was on screen.
+  const after = m.renderedAt.map((t, i) => ({ t: t - upAt, refinement: m.renderedRefinement[i], converged: m.renderedConverged[i] }))
+    .filter((u) => u.t >= 0 && u.refinement);
   return {
     model: model.sample, vertices: model.vertices, encoding,
     drag_events: moves, drag_seconds: dragSeconds,
@@ -94,6 +105,13 @@ async function measure(browser, url, model, encoding) {
     bytes_per_update_mean: mean(m.updateBytes),
     dense_double_bytes: 24 * model.vertices,
     dense_float32_bytes: 12 * model.vertices,
+    settle_ms: model.settleMs,
+    refinement_after_release: {
+      frames: after.length,
+      first_ms: after.length ? after[0].t : null,
+      last_ms: after.length ? after[after.length - 1].t : null,
+      converged: after.some((u) => u.converged),
+    },
   };
 }
 
@@ -103,7 +121,7 @@ function serviceAlone(grpc, model) {
   if (!existsSync(loadtestPath)) return null;
   const json = path.join(os.tmpdir(), `meshdeform-viewer-bench-${process.pid}-${model.sample}.json`);
   execSync(`${loadtestPath} --server ${grpc} --sessions 1 --sample ${model.sample} --rate 60 --duration 10 --watchers 1 --iterations 2 --json ${json}`,
-    { stdio: "ignore", timeout: 60_000 });
+    { stdio: "ignore", timeout: 120_000 });
   const j = JSON.parse(readFileSync(json, "utf8"));
   return { model: model.sample, moves_per_second: j.moves.per_second_total, latency_ms: j.moves.latency_ms, server_solve_ms: j.moves.server_solve_ms };
 }
@@ -125,7 +143,7 @@ try {
     }
   }
   for (const model of models) {
-    for (const encoding of encodings) {
+    for (const encoding of model.encodings) {
       const r = await measure(browser, url, model, encoding);
       rows.push(r);
       console.log(`${r.model} ${r.encoding}: ${r.updates_per_second.toFixed(1)} updates/s, drag->frame p50 ${r.drag_to_frame_ms.p50.toFixed(0)} ms, ` +
@@ -161,6 +179,13 @@ for (const r of rows) {
     `${Math.round(r.bytes_per_update_mean).toLocaleString("en")} | ${r.dense_double_bytes.toLocaleString("en")} | ${r.dense_float32_bytes.toLocaleString("en")} |\n`;
 }
 md += `\nframe work: main-thread time per rendered frame (normals + WebGL calls); the rasterizing itself runs in Chromium's GPU process, on the CPU here.\n`;
+md += `\nAfter the release (the background refinement: on the ${(187489).toLocaleString("en")}-vertex plane, a multiresolution session, the moves ` +
+  `above are coarse-level solves prolonged to full resolution, and these revisions are full-resolution solves):\n\n`;
+md += `| model | encoding | watched (s) | refinement frames | first / last after release (ms) | converged within the watch |\n|---|---|---:|---:|---|---|\n`;
+for (const r of rows) {
+  const a = r.refinement_after_release;
+  md += `| ${r.model} | ${r.encoding} | ${f(r.settle_ms / 1000, 1)} | ${a.frames} | ${a.frames ? `${f(a.first_ms)} / ${f(a.last_ms)}` : "-"} | ${a.converged ? "yes" : "no"} |\n`;
+}
 if (alone.length) {
   md += `\nThe same loop without a browser (meshdeform-loadtest, native gRPC, same server, 60 Hz ticks, one move in flight, one watcher):\n\n`;
   md += `| model | moves/s | latency p50 / p95 (ms) | server solve p50 (ms) |\n|---|---:|---|---:|\n`;

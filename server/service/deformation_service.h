@@ -58,8 +58,9 @@ class DeformationService {
   DeformationService& operator=(const DeformationService&) = delete;
 
   /// Built-in samples: "bumpy_plane", "cylinder", "bar", "cactus" (the paper's Table 1 sizes,
-  /// procedural) and the same with "_small" (< 1,000 vertices). Meshes from data files ("spot")
-  /// are not available at run time.
+  /// procedural), the same with "_small" (< 1,000 vertices) and "bumpy_plane_large" (the bumpy
+  /// plane at 187,489 vertices, for big-mesh editing). Meshes from data files ("spot") are not
+  /// available at run time.
   static std::vector<std::string> sample_names();
 
   /// Creates a session from mesh bytes (cleaned and validated by io::load_mesh_from_memory) or a

@@ -171,6 +171,18 @@ TEST(CreateSessionTest, FromSampleWithSuggestedGroups) {
   EXPECT_EQ(closed->info.boundary_loops, 0);
 }
 
+TEST(CreateSessionTest, LargeSampleIsTheBumpyPlaneAt187k) {
+  DeformationService service(small_options());
+  Result<CreatedSession> created = service.create_session(sample_request("bumpy_plane_large"));
+  ASSERT_TRUE(created.ok()) << message_of(created);
+  EXPECT_EQ(created->info.vertices, 433 * 433);
+  EXPECT_EQ(created->info.boundary_loops, 1);
+  ASSERT_EQ(created->suggested_groups.size(), 2u);
+  EXPECT_EQ(created->suggested_groups[0].role, HandleRole::Fixed);
+  EXPECT_EQ(created->suggested_groups[1].role, HandleRole::Handle);
+  EXPECT_GT(created->suggested_groups[1].vertices.size(), 1000u);  // the centre disc, r 0.15
+}
+
 TEST(CreateSessionTest, BadInputIsInvalidArgument) {
   DeformationService service(small_options());
   CreateSessionRequest garbage;

@@ -56,7 +56,12 @@ interface Hooks {
   positions(): number[];
   /** The rest mesh (revision 0) as loaded. */
   restPositions(): number[];
-  metrics(): { dragToFrameMs: number[]; updateBytes: number[]; updateEncodings: string[]; updatesRendered: number; frameWorkMs: number[] };
+  /** renderedAt / renderedRefinement / renderedConverged: per rendered update, performance.now() when it was applied and
+   * whether it was a background refinement revision and converged (how a big mesh's full-resolution result arrives). */
+  metrics(): {
+    dragToFrameMs: number[]; updateBytes: number[]; updateEncodings: string[]; updatesRendered: number; frameWorkMs: number[];
+    renderedAt: number[]; renderedRefinement: boolean[]; renderedConverged: boolean[];
+  };
   resetMetrics(): void;
   /** Every applied group's move as the page holds it (translation, rotation w x y z, scale). */
   moveStates(): { translation: number[]; rotation: number[]; scale: number }[];
@@ -160,7 +165,10 @@ class App {
   private watchGenCounter = 0;
   private readonly moveT0 = new Map<number, number>(); // revision -> pointer time
   private readonly frameAt = new Map<number, number>(); // revision -> end of its first frame
-  readonly metrics = { dragToFrameMs: [] as number[], updateBytes: [] as number[], updateEncodings: [] as string[], updatesRendered: 0 };
+  readonly metrics = {
+    dragToFrameMs: [] as number[], updateBytes: [] as number[], updateEncodings: [] as string[], updatesRendered: 0,
+    renderedAt: [] as number[], renderedRefinement: [] as boolean[], renderedConverged: [] as boolean[],
+  };
 
   readonly coalescer = new MoveCoalescer<MoveTarget, MoveHandlesResponse>({
     key: (t) => statesKey(t.states) + "|" + t.opts + (t.reset ? "|reset" : "") + "|" + t.history,
@@ -985,6 +993,9 @@ class App {
     showResult(r, rev, this.interaction.dragging || this.viewer.gizmo.dragging);
     hooks.revision = rev;
     this.metrics.updatesRendered++;
+    this.metrics.renderedAt.push(performance.now());
+    this.metrics.renderedRefinement.push(r.refinement);
+    this.metrics.renderedConverged.push(r.converged);
     if (!this.coalescer.busy) this.viewer.setTargets(null);
     if (upd.isSnapshot) s.resolveSnapshot();
     if (!this.viewer.gizmo.dragging) this.placeGizmo();
@@ -1356,7 +1367,11 @@ const hooks: Hooks = {
   },
   metrics() {
     const m = app.metrics;
-    return { dragToFrameMs: [...m.dragToFrameMs], updateBytes: [...m.updateBytes], updateEncodings: [...m.updateEncodings], updatesRendered: m.updatesRendered, frameWorkMs: [...app.viewer.frameWorkMs] };
+    return {
+      dragToFrameMs: [...m.dragToFrameMs], updateBytes: [...m.updateBytes], updateEncodings: [...m.updateEncodings], updatesRendered: m.updatesRendered,
+      frameWorkMs: [...app.viewer.frameWorkMs], renderedAt: [...m.renderedAt], renderedRefinement: [...m.renderedRefinement],
+      renderedConverged: [...m.renderedConverged],
+    };
   },
   moveStates() {
     return app.states.map((m) => ({ translation: [...m.translation], rotation: [...m.rotation], scale: m.scale }));
@@ -1369,6 +1384,9 @@ const hooks: Hooks = {
     app.metrics.updateBytes.length = 0;
     app.metrics.updateEncodings.length = 0;
     app.metrics.updatesRendered = 0;
+    app.metrics.renderedAt.length = 0;
+    app.metrics.renderedRefinement.length = 0;
+    app.metrics.renderedConverged.length = 0;
     app.viewer.frameWorkMs.length = 0;
   },
 };
