@@ -1,9 +1,9 @@
 // Wiring: session lifecycle, the Watch stream, moves, tools and the test hooks.
 import * as THREE from "three";
-import { create, toBinary } from "@bufbuild/protobuf";
+import { create } from "@bufbuild/protobuf";
 import { Code, ConnectError, createContextValues } from "@connectrpc/connect";
 import {
-  DeformUpdateSchema, HandleGroupSchema, HandleRole, HistoryAction, MagnifyRegionSchema, MeshFormat, Method, VertexTargetsSchema,
+  HandleGroupSchema, HandleRole, HistoryAction, MagnifyRegionSchema, MeshFormat, Method, VertexTargetsSchema,
   type CreateSessionResponse, type DeformUpdate, type HandleGroup, type MoveHandlesResponse, type SessionInfo, type SetHandlesResponse,
 } from "./gen/meshdeform/v1/deformation_pb";
 import { kSessionId, makeClient } from "./client";
@@ -31,7 +31,7 @@ import { Banner, $, $btn, $in, $sel } from "./ui/dom";
 import { renderGroupList } from "./ui/groupsPanel";
 import { showBytes, showCounts, showResult } from "./ui/metrics";
 import { dismissFirstHint, hideLinkProblem, showFirstHint, showLinkProblem } from "./ui/notice";
-import { decoderReady, encodingName, parseEncoding, PositionState } from "./updates";
+import { decoderReady, encodingName, parseEncoding, PositionState, updateWireBytes } from "./updates";
 import "./style.css";
 
 type Role = "edit" | "view";
@@ -974,7 +974,7 @@ class App {
   }
 
   private onUpdate(s: Session, upd: DeformUpdate): void {
-    const bytes = toBinary(DeformUpdateSchema, upd).length;
+    const bytes = updateWireBytes(upd);
     const r = upd.result!;
     this.metrics.updateBytes.push(bytes);
     this.metrics.updateEncodings.push(encodingName(r.encoding));

@@ -1,8 +1,9 @@
 // Applies the Watch stream to a flat Float32Array of positions, in revision order.
 // Every DeformResult is decoded by its own `encoding` field: an older server ignores the
 // requested encoding and sends doubles (encoding UNSPECIFIED).
+import { toBinary } from "@bufbuild/protobuf";
 import { MeshoptDecoder } from "meshoptimizer/decoder";
-import { PositionEncoding, type DeformResult, type DeformUpdate } from "./gen/meshdeform/v1/deformation_pb";
+import { DeformResultSchema, DeformUpdateSchema, PositionEncoding, type DeformResult, type DeformUpdate } from "./gen/meshdeform/v1/deformation_pb";
 
 export type EncodingName = "double" | "float32" | "meshopt";
 
@@ -107,5 +108,58 @@ export class PositionState {
     }
     this.revision = rev;
     return { applied: true, changed: idx, result: r };
+  }
+}
+
+function varintSize(v: number): number {
+  let n = 1;
+  while (v >= 0x80) {
+    v = Math.floor(v / 128);
+    n++;
+  }
+  return n;
+}
+
+/** Bytes of a length-delimited field with `payload` bytes (omitted when empty, as proto3 does). */
+function lengthDelimited(tagBytes: number, payload: number): number {
+  return payload === 0 ? 0 : tagBytes + varintSize(payload) + payload;
+}
+
+/**
+ * The serialized size of `upd` (what the wire carried), without serializing its positions: re-encoding a
+ * delta of 10^5 doubles to count it cost the viewer more than decoding it (40k vertices: most of the main
+ * thread while dragging). The big repeated and bytes fields of the result are counted from their lengths,
+ * everything else by serializing the update with them emptied (restored before returning).
+ */
+export function updateWireBytes(upd: DeformUpdate): number {
+  const r = upd.result;
+  if (!r) return toBinary(DeformUpdateSchema, upd).length;
+  const { changedIndices, changedPositions, positions, packedChangedPositions, packedPositions } = r;
+  let indexBytes = 0;
+  for (const i of changedIndices) indexBytes += varintSize(i);
+  // Fields 3-5 have one-byte tags, 17 and 18 two-byte ones; all are packed or bytes (wire type 2).
+  const big =
+    lengthDelimited(1, indexBytes) +
+    lengthDelimited(1, 8 * changedPositions.length) +
+    lengthDelimited(1, 8 * positions.length) +
+    lengthDelimited(2, packedChangedPositions.length) +
+    lengthDelimited(2, packedPositions.length);
+  const empty = new Uint8Array(0);
+  r.changedIndices = [];
+  r.changedPositions = [];
+  r.positions = [];
+  r.packedChangedPositions = empty;
+  r.packedPositions = empty;
+  try {
+    // DeformUpdate = the result (field 1: tag, length, payload) + its own small fields.
+    const payload = toBinary(DeformResultSchema, r).length + big;
+    const outside = toBinary(DeformUpdateSchema, { ...upd, result: undefined }).length;
+    return outside + 1 + varintSize(payload) + payload;
+  } finally {
+    r.changedIndices = changedIndices;
+    r.changedPositions = changedPositions;
+    r.positions = positions;
+    r.packedChangedPositions = packedChangedPositions;
+    r.packedPositions = packedPositions;
   }
 }

@@ -1,7 +1,8 @@
 import { beforeAll, describe, expect, it } from "vitest";
 import { create } from "@bufbuild/protobuf";
 import { DeformResultSchema, DeformUpdateSchema, PositionEncoding, type DeformUpdate } from "../src/gen/meshdeform/v1/deformation_pb";
-import { PositionState, decoderReady, parseEncoding, encodingName } from "../src/updates";
+import { toBinary } from "@bufbuild/protobuf";
+import { PositionState, decoderReady, parseEncoding, encodingName, updateWireBytes } from "../src/updates";
 
 const N = 5;
 const rest = Array.from({ length: N * 3 }, (_, i) => i * 0.5 - 1); // exactly representable in float32
@@ -132,5 +133,42 @@ describe("updates (misc)", () => {
     expect(parseEncoding("float32")).toBe(PositionEncoding.FLOAT32);
     expect(parseEncoding(null)).toBe(PositionEncoding.MESHOPT);
     expect(encodingName(PositionEncoding.MESHOPT)).toBe("meshopt");
+  });
+});
+
+describe("updateWireBytes", () => {
+  it("equals the serialized size for every encoding, snapshot and delta, small and large", () => {
+    const sizes = [0, 1, 5, 100, 3000]; // 3000: 3-byte length prefixes and index varints
+    for (const n of sizes) {
+      for (const enc of [PositionEncoding.UNSPECIFIED, PositionEncoding.FLOAT32, PositionEncoding.MESHOPT]) {
+        for (const snapshot of [false, true]) {
+          const indices = Array.from({ length: n }, (_, i) => i * 37 + (i % 3) * 200_000);
+          const vals = Array.from({ length: 3 * n }, (_, i) => Math.sin(i) * 1e3);
+          const bytes = new Uint8Array(12 * n).map((_, i) => (i * 31) & 0xff);
+          const doubles = enc === PositionEncoding.UNSPECIFIED;
+          const upd = create(DeformUpdateSchema, {
+            isSnapshot: snapshot,
+            skippedRevisions: BigInt(n),
+            result: create(DeformResultSchema, {
+              revision: BigInt(n + 1),
+              encoding: enc,
+              eTheta: 0.01,
+              converged: n % 2 === 0,
+              editor: "refinement",
+              changedIndices: snapshot ? [] : indices,
+              changedPositions: !snapshot && doubles ? vals : [],
+              positions: snapshot && doubles ? vals : [],
+              packedChangedPositions: !snapshot && !doubles ? bytes : new Uint8Array(0),
+              packedPositions: snapshot && !doubles ? bytes : new Uint8Array(0),
+            }),
+          });
+          const before = toBinary(DeformUpdateSchema, upd);
+          expect(updateWireBytes(upd)).toBe(before.length);
+          expect(toBinary(DeformUpdateSchema, upd)).toEqual(before); // the message is left as it was
+        }
+      }
+    }
+    const empty = create(DeformUpdateSchema, { isSnapshot: true });
+    expect(updateWireBytes(empty)).toBe(toBinary(DeformUpdateSchema, empty).length);
   });
 });
