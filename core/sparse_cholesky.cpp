@@ -30,6 +30,23 @@ class SupernodalLlt : public Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lo
                                  /*to_monotonic=*/1, m_cholmodFactor, &cholmod()) != 0;
   }
   bool is_simplicial() const { return m_cholmodFactor != nullptr && !m_cholmodFactor->is_super; }
+  // Simplicial LL' when the analysis finds fewer than `switch_flops` flops per factor entry,
+  // supernodal otherwise (CHOLMOD_AUTO); a supernodal factor stays supernodal.
+  void choose_simplicial_below(double switch_flops) {
+    cholmod_common& c = cholmod();
+    c.supernodal = CHOLMOD_AUTO;
+    c.supernodal_switch = switch_flops;
+    c.final_asis = 0;
+    c.final_super = 1;
+    c.final_ll = 1;
+    c.final_pack = 1;
+    c.final_monotonic = 1;
+  }
+  void always_supernodal() {
+    cholmod_common& c = cholmod();
+    c.supernodal = CHOLMOD_SUPERNODAL;
+    c.final_asis = 1;
+  }
 };
 
 }  // namespace
@@ -37,6 +54,7 @@ class SupernodalLlt : public Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lo
 struct SparseCholesky::Impl {
   SupernodalLlt llt;
   bool simplicial_solves = false;
+  bool converted = false;  // a supernodal factor changed to simplicial: refactoring needs analysis
   bool analyzed = false;
   bool factorized = false;
   double factor_flops = 0;
@@ -49,6 +67,12 @@ SparseCholesky& SparseCholesky::operator=(SparseCholesky&&) noexcept = default;
 SparseCholesky::~SparseCholesky() = default;
 
 Status SparseCholesky::analyze(const SparseMatrix& A) {
+  if (impl_->simplicial_solves) {
+    impl_->llt.choose_simplicial_below(kSimplicialFlopsPerEntry);
+  } else {
+    impl_->llt.always_supernodal();
+  }
+  impl_->converted = false;
   impl_->llt.analyzePattern(A);
   if (impl_->llt.info() != Eigen::Success) {
     return Error(ErrorCode::NumericalFailure, "symbolic analysis of a " + std::to_string(A.rows()) +
@@ -63,8 +87,8 @@ Status SparseCholesky::analyze(const SparseMatrix& A) {
 }
 
 Status SparseCholesky::factorize(const SparseMatrix& A) {
-  // A converted (simplicial) factor would be refactored simplicially, slowly: analyse again.
-  if (!impl_->analyzed || impl_->llt.is_simplicial()) MD_RETURN_IF_ERROR(analyze(A));
+  // A converted factor would be refactored simplicially, slowly for a dense one: analyse again.
+  if (!impl_->analyzed || impl_->converted) MD_RETURN_IF_ERROR(analyze(A));
   impl_->llt.factorize(A);
   impl_->factorized = impl_->llt.info() == Eigen::Success;
   if (!impl_->factorized) {
@@ -72,10 +96,14 @@ Status SparseCholesky::factorize(const SparseMatrix& A) {
                  "Cholesky factorization of a " + std::to_string(A.rows()) + " x " +
                      std::to_string(A.cols()) + " system failed (matrix not positive definite)");
   }
-  if (impl_->simplicial_solves && !impl_->llt.to_simplicial()) {
-    return Error(ErrorCode::Internal, "converting the Cholesky factor of a " +
+  if (impl_->simplicial_solves && !impl_->llt.is_simplicial()) {
+    if (!impl_->llt.to_simplicial()) {
+      impl_->factorized = false;
+      return Error(ErrorCode::Internal, "converting the Cholesky factor of a " +
                                           std::to_string(A.rows()) + " x " +
                                           std::to_string(A.cols()) + " system failed");
+    }
+    impl_->converted = true;
   }
   return Status::success();
 }
@@ -88,6 +116,9 @@ Eigen::MatrixXd SparseCholesky::solve(const Eigen::MatrixXd& b) const {
 }
 
 bool SparseCholesky::is_factorized() const { return impl_->factorized; }
+bool SparseCholesky::factored_simplicially() const {
+  return impl_->factorized && impl_->llt.is_simplicial() && !impl_->converted;
+}
 double SparseCholesky::factor_flops() const { return impl_->factor_flops; }
 double SparseCholesky::solve_flops() const { return 4.0 * impl_->lnz; }
 

@@ -138,6 +138,70 @@ INSTANTIATE_TEST_SUITE_P(SupernodalAndSimplicialSolves, SparseCholeskyRefactor, 
                            return info.param ? "SimplicialSolves" : "Supernodal";
                          });
 
+/// The 5-point Laplacian of a side x side grid plus shift I: a mesh-like, sparse factor.
+SparseMatrix grid_laplacian(int side, double shift) {
+  std::vector<Eigen::Triplet<double>> entries;
+  const auto id = [side](int i, int j) { return i * side + j; };
+  for (int i = 0; i < side; ++i) {
+    for (int j = 0; j < side; ++j) {
+      entries.emplace_back(id(i, j), id(i, j), shift);
+      for (const auto& [di, dj] : {std::pair{1, 0}, std::pair{0, 1}}) {
+        if (i + di >= side || j + dj >= side) continue;
+        const int a = id(i, j), b = id(i + di, j + dj);
+        entries.emplace_back(a, a, 1.0);
+        entries.emplace_back(b, b, 1.0);
+        entries.emplace_back(a, b, -1.0);
+        entries.emplace_back(b, a, -1.0);
+      }
+    }
+  }
+  SparseMatrix A(side * side, side * side);
+  A.setFromTriplets(entries.begin(), entries.end());
+  return A;
+}
+
+// With simplicial solves a mesh-like sparse matrix is factored simplicially directly and a
+// dense-factor one supernodally and converted; both solve, refactor new values and match LDL^T.
+TEST(SparseCholesky, SimplicialSolvesFactorSparseMatricesDirectlyAndDenseOnesSupernodally) {
+  struct Case {
+    const char* name;
+    SparseMatrix A1, A2;
+    bool direct;
+  };
+  const std::vector<Case> cases = {
+      {"grid", grid_laplacian(40, 0.1), grid_laplacian(40, 2.0), true},
+      {"random_graph", random_spd(700, 4, 0.1, 41, 42), random_spd(700, 4, 2.0, 41, 43), false},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    SparseCholesky cholesky;
+    cholesky.set_simplicial_solves(true);
+    ASSERT_TRUE(cholesky.analyze(c.A1).ok());
+    RecordProperty(std::string(c.name) + "_flops_per_entry",
+                   std::to_string(cholesky.factor_flops() / (0.25 * cholesky.solve_flops())));
+    EXPECT_EQ(cholesky.factor_flops() / (0.25 * cholesky.solve_flops()) <
+                  SparseCholesky::kSimplicialFlopsPerEntry,
+              c.direct);
+    const Eigen::MatrixXd b = random_rhs(static_cast<int>(c.A1.rows()), 3, 44);
+    for (int round = 0; round < 2; ++round) {
+      SCOPED_TRACE(round);
+      for (const SparseMatrix* A : {&c.A1, &c.A2}) {
+        ASSERT_TRUE(cholesky.factorize(*A).ok());
+        EXPECT_EQ(cholesky.factored_simplicially(), c.direct);
+        const Eigen::MatrixXd x = cholesky.solve(b);
+        EXPECT_LT(relative_residual(*A, x, b), 1e-12);
+        EXPECT_LT((x - ldlt_solve(*A, b)).norm(), 1e-9 * x.norm());
+      }
+    }
+    // Without simplicial solves every factor is supernodal.
+    SparseCholesky supernodal;
+    ASSERT_TRUE(supernodal.factorize(c.A1).ok());
+    EXPECT_FALSE(supernodal.factored_simplicially());
+    const Eigen::MatrixXd x = supernodal.solve(b);
+    EXPECT_LT((x - ldlt_solve(c.A1, b)).norm(), 1e-9 * x.norm());
+  }
+}
+
 TEST(SparseCholesky, IndefiniteOrSingularMatrixIsANumericalFailure) {
   const int n = 120;
   const SparseMatrix spd = random_spd(n, 3, 0.1, 21, 22);
