@@ -138,6 +138,33 @@ TEST(ScaleControl, NoOuterIterationIncreasesTheJointEnergy) {
   }
 }
 
+// The adaptive PCG schedule (each step two reduces its residual by the last relative energy
+// change, clamped to [1e-8, 0.1]) only decides how exactly each step two is solved, not where the
+// iteration goes: run to convergence it reaches the fixed point of the iteration that solves every
+// step two to pcg_tolerance, in fewer PCG steps.
+TEST(ScaleControl, AdaptivePcgReachesTheFixedPointOfExactStepTwosInFewerSteps) {
+  const test::BendEdit bend = test::make_bend(12);
+  std::vector<SolveReport> reports;
+  for (const bool adaptive : {true, false}) {
+    SCOPED_TRACE(adaptive ? "adaptive" : "exact");
+    auto solver = ScaleAwareSolver::create(bend.mesh.V, bend.mesh.F, bend.constrained);
+    ASSERT_TRUE(solver.ok()) << solver.status().to_string();
+    SolveOptions options;  // the default rigidity, start and Anderson window
+    options.adaptive_pcg = adaptive;
+    options.max_iterations = 2000;
+    options.tolerance = 1e-10;
+    auto report = solver->solve(bend.targets, options);
+    ASSERT_TRUE(report.ok()) << report.status().to_string();
+    ASSERT_TRUE(report->converged);
+    reports.push_back(*std::move(report));
+  }
+  const double diagonal = bbox_diagonal(bend.mesh);
+  EXPECT_LT((reports[0].V - reports[1].V).cwiseAbs().maxCoeff(), 1e-6 * diagonal);
+  EXPECT_NEAR(reports[0].history.back().energy, reports[1].history.back().energy,
+              1e-6 * reports[1].history.back().energy);
+  EXPECT_LT(reports[0].pcg_iterations, reports[1].pcg_iterations);
+}
+
 TEST(ScaleControl, LargeRigidityBringsAreaTowardConvergedArap) {
   for (const SuiteEdit& edit : small_suite_edits()) {
     if (edit.name == "bumpy_plane") continue;  // the paper's method is already ARAP-like there
