@@ -100,8 +100,8 @@ Status SparseCholesky::factorize(const SparseMatrix& A) {
     if (!impl_->llt.to_simplicial()) {
       impl_->factorized = false;
       return Error(ErrorCode::Internal, "converting the Cholesky factor of a " +
-                                          std::to_string(A.rows()) + " x " +
-                                          std::to_string(A.cols()) + " system failed");
+                                            std::to_string(A.rows()) + " x " +
+                                            std::to_string(A.cols()) + " system failed");
     }
     impl_->converted = true;
   }

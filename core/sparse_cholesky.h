@@ -1,8 +1,8 @@
 #pragma once
 /// @file sparse_cholesky.h
-/// Internal to core: a sparse Cholesky factorization (CHOLMOD, supernodal or simplicial) that keeps its symbolic
-/// analysis across numeric refactorizations and reports flop counts, so callers can decide
-/// deterministically when a lagged factor stops paying for itself.
+/// Internal to core: a sparse Cholesky factorization (CHOLMOD, supernodal or simplicial) that
+/// keeps its symbolic analysis across numeric refactorizations and reports flop counts, so callers
+/// can decide deterministically when a lagged factor stops paying for itself.
 
 #include <memory>
 
