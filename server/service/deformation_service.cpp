@@ -559,6 +559,7 @@ void DeformationService::move_handles_async(const SessionId& id, const Token& ed
     return;
   }
   std::shared_ptr<Session> session = std::move(found).value();
+  session->note_move_arrival();
   post(session, [this, session, request = std::move(request), stop = std::move(stop),
                  done = std::move(done)] {
     Result<DeformResult> result = run_guarded("MoveHandles", [&]() -> Result<DeformResult> {
@@ -575,9 +576,23 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
   if (options_.refine_budget <= 0 || shutdown_.stop_requested()) return;
   // Strand-only state, read on the strand: this runs at the end of an edit or refinement task.
   if (!session->wants_refinement() || session->has_queued_edits()) return;
-  if (after_move && options_.refine_delay.count() > 0) {
+  // What refinement needs first (the full-resolution solver of a multiresolution session,
+  // seconds at 10^5 vertices) is built off the strand at once, during the drag, so that
+  // refinement can start as soon as the handles rest; its install schedules refinement again.
+  if (session->background_build_running()) return;
+  if (std::optional<Session::BackgroundBuild> build = session->take_background_build()) {
+    run_background_build(session, std::move(*build));
+    return;
+  }
+  // A slice that starts while moves keep coming (e.g. the full-resolution solver of a
+  // multiresolution session installed mid-drag) would be preempted by the next move after
+  // taking a core from it, and delay it until it stops: wait for the rest delay as after a move.
+  const bool dragging =
+      std::chrono::steady_clock::now() - session->last_move_time() < options_.refine_delay;
+  if ((after_move || dragging) && options_.refine_delay.count() > 0) {
     // Start once the handles rest: every move posts a timer, and only the one whose move is
-    // still the last when it fires goes on (the others see a newer move and drop out).
+    // still the last when it fires goes on (the others see a newer move, arrived or committed,
+    // and drop out).
     delays_.post_after(options_.refine_delay, [this, session] {
       if (std::chrono::steady_clock::now() - session->last_move_time() < options_.refine_delay) {
         return;
@@ -732,6 +747,7 @@ ServiceStats DeformationService::stats() const {
   stats.moves_cancelled = counters_->moves_cancelled.load();
   stats.refinements_committed = counters_->refinements_committed.load();
   stats.refinements_preempted = counters_->refinements_preempted.load();
+  stats.background_builds_installed = counters_->background_builds_installed.load();
   stats.pcg_iterations = counters_->pcg_iterations.load();
   stats.outer_iterations = counters_->outer_iterations.load();
   stats.resident_bytes = resident_set_bytes();

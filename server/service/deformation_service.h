@@ -179,9 +179,10 @@ class DeformationService {
   /// `is_refinement`) preempts a running refinement slice of the session.
   void post(const std::shared_ptr<Session>& session, std::function<void()> task,
             bool is_refinement = false, Session::StrandStep step = {});
-  /// If the session wants refinement, queues one slice at background priority (it runs when no
-  /// edit of any session waits) and, after it, the next.
-  /// `after_move`: wait for ServiceOptions::refine_delay of rest first.
+  /// If the session wants refinement: starts the background build refinement needs, if any, at
+  /// once (run_background_build); otherwise queues one slice at background priority (it runs
+  /// when no edit of any session waits) and, after it, the next. `after_move`, or a move that
+  /// arrived or committed within ServiceOptions::refine_delay: wait for that much rest first.
   void schedule_refinement(const std::shared_ptr<Session>& session, bool after_move);
   /// Runs a session's background build (Session::take_background_build) on the pool's background
   /// class, off the strand, then installs it on the strand and resumes refinement.

@@ -163,6 +163,9 @@ std::string MetricsRegistry::render(const ServiceStats& stats) const {
   counter("meshdeform_refinements_preempted_total",
           "Refinement slices stopped because an edit arrived.",
           static_cast<double>(stats.refinements_preempted));
+  counter("meshdeform_background_builds_installed_total",
+          "Full-resolution solvers of multiresolution sessions built off the strand and installed.",
+          static_cast<double>(stats.background_builds_installed));
   counter("meshdeform_pcg_iterations_total", "Conjugate-gradient iterations of step two.",
           static_cast<double>(stats.pcg_iterations));
   counter("meshdeform_outer_iterations_total", "Outer (local/global) iterations of all solves.",

@@ -682,7 +682,9 @@ bool Session::finish_background_build(const BackgroundBuild& build,
   DeformerCache::Entry* entry = cached_deformer(build.method);
   if (entry == nullptr || entry->deformer.get() != build.key) return false;
   (*installer)(*entry->deformer);
-  return !entry->deformer->needs_background_build();
+  if (entry->deformer->needs_background_build()) return false;
+  counters_->background_builds_installed.fetch_add(1);
+  return true;
 }
 
 Result<std::optional<DeformResult>> Session::refine(std::stop_source slice) {

@@ -34,6 +34,7 @@ struct ServiceCounters {
   std::atomic<std::uint64_t> moves_cancelled{0};
   std::atomic<std::uint64_t> refinements_committed{0};
   std::atomic<std::uint64_t> refinements_preempted{0};
+  std::atomic<std::uint64_t> background_builds_installed{0};
   std::atomic<std::uint64_t> pcg_iterations{0};
   std::atomic<std::uint64_t> outer_iterations{0};
   std::atomic<std::uint64_t> persist_failures{0};
@@ -203,10 +204,16 @@ class Session : public std::enable_shared_from_this<Session> {
   /// What the memory budget charges: the mesh, its revisions and the cached deformers.
   std::size_t estimated_bytes() const { return base_bytes_ + deformers_->bytes(); }
   std::chrono::steady_clock::time_point last_used() const;
-  /// When the last move (not refinement) was committed; the epoch before any.
+  /// When a move (not refinement) last arrived or was last committed, whichever came later; the
+  /// epoch before any. Refinement waits until this is ServiceOptions::refine_delay old: a move
+  /// still queued or running counts from its arrival, not only from the previous commit.
   std::chrono::steady_clock::time_point last_move_time() const {
     return std::chrono::steady_clock::time_point(
         std::chrono::steady_clock::duration(last_move_ticks_.load()));
+  }
+  /// Records a move's arrival (before it is queued on the strand).
+  void note_move_arrival() {
+    last_move_ticks_.store(std::chrono::steady_clock::now().time_since_epoch().count());
   }
   void touch(std::chrono::steady_clock::time_point now);
   /// Edits queued or running (the store only evicts sessions with none).

@@ -334,6 +334,8 @@ struct ServiceStats {
   std::uint64_t moves_cancelled = 0;         ///< Cancelled or DeadlineExceeded
   std::uint64_t refinements_committed = 0;   ///< revisions committed by background refinement
   std::uint64_t refinements_preempted = 0;   ///< refinement slices stopped by a new edit
+  /// Full-resolution solvers of multiresolution sessions built off the strand and installed.
+  std::uint64_t background_builds_installed = 0;
   std::uint64_t pcg_iterations = 0;          ///< step-two CG iterations over all solves
   std::uint64_t outer_iterations = 0;        ///< outer iterations over all solves
   std::uint64_t sessions_restored = 0;       ///< loaded from the state directory

@@ -7,6 +7,7 @@
 #include <chrono>
 #include <optional>
 #include <string>
+#include <thread>
 
 #include "core/deformer.h"
 #include "core/io/mesh_io.h"
@@ -111,6 +112,57 @@ TEST(MultiresSessionTest, MovesAreCoarseAndRefinementConvergesTheFullMesh) {
   EXPECT_NEAR(last->e_theta, want.e_theta, 0.02 * want.e_theta);
   EXPECT_NEAR(last->e_phi, want.e_phi, 0.02 * want.e_phi);
   EXPECT_NEAR(last->area_log_rms, want.area_log_rms, 0.02 * want.area_log_rms);
+}
+
+TEST(MultiresSessionTest, FullSolverIsBuiltDuringADragAndRefinementWaitsForRest) {
+  // A drag on a multiresolution session: the full-resolution solver refinement needs is built
+  // off the strand from the first move on (not only once the handles rest), and its install
+  // mid-drag starts no refinement slice, which the next move would only preempt after the slice
+  // took a core and delayed that move. With a rest delay longer than the test, no slice may run.
+  ServiceOptions options;
+  options.workers = 2;
+  options.multires_above = 1000;
+  options.multires_coarse_vertices = 1000;
+  options.refine_budget = 30;
+  options.refine_delay = milliseconds(600'000);
+  DeformationService service(options);
+  CreateSessionRequest create;
+  create.sample = "cylinder";  // 4,802 vertices
+  Result<CreatedSession> created = service.create_session(create);
+  ASSERT_TRUE(created.ok()) << created.status().to_string();
+  SetHandlesRequest handles;
+  handles.groups = created->suggested_groups;
+  ASSERT_TRUE(service.set_handles(created->id, created->edit_token, handles).ok());
+
+  auto drag_to = [&](int step) {
+    MoveRequest move;
+    GroupMove lift;
+    lift.group = 1;
+    lift.translation = Eigen::Vector3d(0.0, 0.0, 0.01 * step);
+    move.moves.push_back(lift);
+    move.max_iterations = 1;
+    return service.move_handles(created->id, created->edit_token, move);
+  };
+  Result<DeformResult> moved = drag_to(1);
+  ASSERT_TRUE(moved.ok()) << moved.status().to_string();
+  // The user holds still, far shorter than the rest delay: the build goes on and is installed
+  // while the session is idle (bounded wait), and no slice may follow it.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (service.stats().background_builds_installed == 0 &&
+         std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(milliseconds(10));
+  }
+  ASSERT_EQ(service.stats().background_builds_installed, 1u)
+      << "the full-resolution solver was not built before the handles rested";
+  std::this_thread::sleep_for(milliseconds(300));  // time for a slice that should not start
+  for (int step = 2; step <= 4; ++step) {
+    moved = drag_to(step);
+    ASSERT_TRUE(moved.ok()) << moved.status().to_string();
+    EXPECT_EQ(moved->revision, static_cast<std::uint64_t>(step)) << "a refinement revision";
+  }
+  EXPECT_EQ(service.stats().background_builds_installed, 1u);
+  EXPECT_EQ(service.stats().refinements_committed, 0u);
+  EXPECT_EQ(service.stats().refinements_preempted, 0u) << "a slice ran during the drag";
 }
 
 }  // namespace
