@@ -297,7 +297,7 @@ Result<SolveReport> ArapSolver::solve(const Positions& targets, const SolveOptio
     if (options.track_metrics) {
       const Positions V = P;
       if (!s.rest) s.rest = compute_measures(s.V0, s.F, s.topology);
-      const AngleErrors errors = angle_errors(*s.rest, compute_measures(V, s.F, s.topology));
+      const AngleErrors errors = angle_errors(*s.rest, V, s.F, s.topology);
       info.e_theta = errors.e_theta;
       info.e_phi = errors.e_phi;
     }

@@ -145,7 +145,7 @@ class LaplacianDeformer final : public Deformer {
     info.linear_seconds = std::chrono::duration<double>(Clock::now() - start).count();
     if (options.track_metrics) {
       if (!rest_) rest_ = compute_measures(V0_, F_, topology_);
-      const AngleErrors errors = angle_errors(*rest_, compute_measures(V, F_, topology_));
+      const AngleErrors errors = angle_errors(*rest_, V, F_, topology_);
       info.e_theta = errors.e_theta;
       info.e_phi = errors.e_phi;
     }

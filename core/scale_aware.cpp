@@ -960,7 +960,7 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
   auto record = [&](IterationInfo& info, const Eigen::VectorXd& pos) {
     if (options.track_metrics) {
       const Positions P = Eigen::Map<const RowPositions>(pos.data(), s.nv, 3);
-      const AngleErrors errors = angle_errors(s.rest(), compute_measures(P, s.F, s.topology));
+      const AngleErrors errors = angle_errors(s.rest(), P, s.F, s.topology);
       info.e_theta = errors.e_theta;
       info.e_phi = errors.e_phi;
     }
@@ -1268,8 +1268,8 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     }
     MD_ASSIGN_OR_RETURN(Positions stitched,
                         s.stitcher->stitch(report.V, targets, options.face_scale));
-    const AngleErrors before = angle_errors(s.rest(), compute_measures(report.V, s.F, s.topology));
-    const AngleErrors after = angle_errors(s.rest(), compute_measures(stitched, s.F, s.topology));
+    const AngleErrors before = angle_errors(s.rest(), report.V, s.F, s.topology);
+    const AngleErrors after = angle_errors(s.rest(), stitched, s.F, s.topology);
     report.stitch = {true,           before.e_theta, before.e_phi, before.area_log_rms,
                      after.e_theta,  after.e_phi,    after.area_log_rms,
                      seconds_since(stitch_start)};

@@ -578,8 +578,8 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
   result->changed_positions.resize(static_cast<Eigen::Index>(result->changed.size()), 3);
   for (std::size_t j = 0; j < result->changed.size(); ++j)
     result->changed_positions.row(static_cast<Eigen::Index>(j)) = V.row(result->changed[j]);
-  const core::Measures measures = core::compute_measures(V, rest_.F, topology_, settings_.threads);
-  const core::AngleErrors errors = core::angle_errors(rest_measures_, measures);
+  const core::AngleErrors errors =
+      core::angle_errors(rest_measures_, V, rest_.F, topology_, settings_.threads);
   result->e_theta = errors.e_theta;
   result->e_phi = errors.e_phi;
   result->area_log_rms = errors.area_log_rms;

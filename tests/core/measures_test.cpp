@@ -2,10 +2,14 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <random>
+#include <vector>
 
 #include <Eigen/Geometry>
 
+#include "core/fast_angle.h"
 #include "core/topology.h"
 #include "tests/support/mesh_factories.h"
 
@@ -127,6 +131,71 @@ TEST(Measures, SeveralThreadsGiveTheSameValues) {
   EXPECT_EQ(one.phi, two.phi);
   EXPECT_EQ(one.phi, dihedral_angles(mesh.V, mesh.F, topology, 2));
   EXPECT_GT(one.phi.cwiseAbs().maxCoeff(), 0.0);
+}
+
+TEST(Measures, BatchedAtan2IsWithinTwoUlpOfStdAtan2) {
+  // Every octant's branch (swap, reduction past 0.66, second quadrant), tiny and huge ratios,
+  // zeros, and the exact angles 0, pi/4, pi/2, 3pi/4 and pi.
+  std::vector<double> y = {0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1e-300, 1e300, 1e-20, 5.0, 0.66, 0.67};
+  std::vector<double> x = {1.0, -1.0, -0.0, 0.0, 1.0, -1.0, 1e-300, 1.0, -1.0, -1.0, 3.0, 1.0, -1.0};
+  std::mt19937_64 engine(7);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  for (int i = 0; i < 200000; ++i) {
+    const double scale = std::pow(10.0, 6.0 * unit(engine));
+    y.push_back(std::abs(unit(engine)) * (i % 5 == 0 ? 1e-9 : 1.0));
+    x.push_back(unit(engine) * scale);
+  }
+  const std::ptrdiff_t n = static_cast<std::ptrdiff_t>(y.size());
+  std::vector<double> out(y.size());
+  atan2_nonnegative(y.data(), x.data(), out.data(), n);
+  double worst_ulp = 0;
+  EXPECT_EQ(out[2], 0.0) << "atan2(0, -0) is 0 here (std::atan2: pi), as documented";
+  for (std::ptrdiff_t i = 3; i < n; ++i) {
+    const double want = std::atan2(y[i], x[i]);
+    const double ulp = std::nextafter(want, 4.0) - want;
+    ASSERT_LE(std::abs(out[i] - want), 2.0 * ulp + 1e-300)
+        << "atan2(" << y[i] << ", " << x[i] << ") = " << want << ", got " << out[i];
+    worst_ulp = std::max(worst_ulp, std::abs(out[i] - want) / ulp);
+  }
+  EXPECT_EQ(out[0], 0.0);
+  EXPECT_NEAR(out[1], M_PI, 1e-15);
+  EXPECT_EQ(out[4], M_PI / 4);
+  EXPECT_EQ(out[3], M_PI / 2);
+  EXPECT_GT(worst_ulp, 0.0) << "not an approximation: the test would not see one";
+  // In place, as compute_measures calls it.
+  std::vector<double> in_place = x;
+  atan2_nonnegative(y.data(), in_place.data(), in_place.data(), n);
+  EXPECT_EQ(in_place, out);
+}
+
+TEST(Measures, FusedErrorsEqualTheErrorsOfTheMeasuresAtAnyThreadCount) {
+  // 101 x 101 grid, 20,000 faces (above the parallel size), bent and stretched unevenly.
+  const MeshData rest = test::make_grid(100, 0.05);
+  MeshData deformed = rest;
+  for (Eigen::Index v = 0; v < deformed.V.rows(); ++v) {
+    deformed.V(v, 2) += 0.02 * std::sin(7.0 * v) + 0.3 * deformed.V(v, 0) * deformed.V(v, 0);
+    deformed.V(v, 1) *= 1.0 + 0.5 * deformed.V(v, 0);
+  }
+  const MeshTopology topology = *build_topology(rest.F, static_cast<int>(rest.V.rows()));
+  const Measures rest_measures = compute_measures(rest.V, rest.F, topology);
+  const AngleErrors want =
+      angle_errors(rest_measures, compute_measures(deformed.V, deformed.F, topology));
+  ASSERT_GT(want.e_theta, 1e-3);
+  ASSERT_GT(want.e_phi, 1e-3);
+  ASSERT_GT(want.area_log_rms, 1e-3);
+  const AngleErrors one = angle_errors(rest_measures, deformed.V, deformed.F, topology);
+  const AngleErrors two = angle_errors(rest_measures, deformed.V, deformed.F, topology, 2);
+  EXPECT_NEAR(one.e_theta, want.e_theta, 1e-12 * want.e_theta);
+  EXPECT_NEAR(one.e_phi, want.e_phi, 1e-12 * want.e_phi);
+  EXPECT_NEAR(one.area_log_rms, want.area_log_rms, 1e-12 * want.area_log_rms);
+  EXPECT_EQ(one.e_theta, two.e_theta);
+  EXPECT_EQ(one.e_phi, two.e_phi);
+  EXPECT_EQ(one.area_log_rms, two.area_log_rms);
+  // The rest against itself: zero.
+  const AngleErrors none = angle_errors(rest_measures, rest.V, rest.F, topology, 2);
+  EXPECT_EQ(none.e_theta, 0.0);
+  EXPECT_EQ(none.e_phi, 0.0);
+  EXPECT_EQ(none.area_log_rms, 0.0);
 }
 
 TEST(Measures, LocalDistortionLocatesTheChange) {
