@@ -4,7 +4,8 @@
 #include <array>
 #include <numeric>
 #include <string>
-#include <tuple>
+
+#include "core/edge_table.h"
 
 namespace meshdeform::core {
 namespace {
@@ -15,18 +16,6 @@ int find_root(std::vector<int>& parent, int x) {
     x = parent[x];
   }
   return x;
-}
-
-// CSR from (key, value) pairs sorted by key then value.
-void build_csr(std::vector<std::pair<int, int>>& pairs, int n, std::vector<int>& offsets,
-               std::vector<int>& values) {
-  std::sort(pairs.begin(), pairs.end());
-  pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
-  offsets.assign(n + 1, 0);
-  for (const auto& [k, v] : pairs) ++offsets[k + 1];
-  std::partial_sum(offsets.begin(), offsets.end(), offsets.begin());
-  values.resize(pairs.size());
-  for (size_t i = 0; i < pairs.size(); ++i) values[i] = pairs[i].second;
 }
 
 }  // namespace
@@ -50,36 +39,25 @@ Result<MeshTopology> build_topology(const Triangles& F, int vertex_count) {
     }
   }
 
-  // Edges as (min, max, face), sorted: runs of equal (min, max) are one edge.
-  std::vector<std::tuple<int, int, int>> half;
-  half.reserve(3 * t.face_count);
-  for (int f = 0; f < t.face_count; ++f) {
-    for (int k = 0; k < 3; ++k) {
-      const int a = F(f, k), b = F(f, (k + 1) % 3);
-      half.emplace_back(std::min(a, b), std::max(a, b), f);
-    }
-  }
-  std::sort(half.begin(), half.end());
+  // Edges sorted by (min, max), each with its faces in ascending order.
+  const EdgeTable edges = build_edge_table(F, vertex_count);
   std::vector<std::array<int, 4>> interior;  // i, j, f0, f1
-  for (size_t s = 0; s < half.size();) {
-    size_t e = s + 1;
-    while (e < half.size() && std::get<0>(half[e]) == std::get<0>(half[s]) &&
-           std::get<1>(half[e]) == std::get<1>(half[s])) {
-      ++e;
-    }
-    const auto [i, j, f0] = half[s];
-    if (e - s > 2) {
+  interior.reserve(static_cast<std::size_t>(edges.edge_count()));
+  for (int e = 0; e < edges.edge_count(); ++e) {
+    const int count = edges.half_edge_count(e);
+    const int f0 = edges.corners[static_cast<std::size_t>(edges.offsets[e])] / 3;
+    if (count > 2) {
       return Error(ErrorCode::InvalidArgument,
-                   "edge (" + std::to_string(i) + ", " + std::to_string(j) + ") is non-manifold: " +
-                       std::to_string(e - s) + " faces share it (first: face " +
-                       std::to_string(f0) + ")");
+                   "edge (" + std::to_string(edges.lo[e]) + ", " + std::to_string(edges.hi[e]) +
+                       ") is non-manifold: " + std::to_string(count) +
+                       " faces share it (first: face " + std::to_string(f0) + ")");
     }
-    if (e - s == 2) {
-      interior.push_back({i, j, f0, std::get<2>(half[s + 1])});
+    if (count == 2) {
+      interior.push_back(
+          {edges.lo[e], edges.hi[e], f0, edges.corners[static_cast<std::size_t>(edges.offsets[e]) + 1] / 3});
     } else {
       ++t.boundary_edge_count;
     }
-    s = e;
   }
   const int ne = static_cast<int>(interior.size());
   t.interior_edges.resize(ne, 2);
@@ -89,22 +67,41 @@ Result<MeshTopology> build_topology(const Triangles& F, int vertex_count) {
     t.edge_faces.row(e) << interior[e][2], interior[e][3];
   }
 
-  std::vector<std::pair<int, int>> vf, vv;
-  vf.reserve(3 * t.face_count);
-  vv.reserve(6 * t.face_count);
-  std::vector<int> parent(vertex_count);
+  // Vertex -> faces: a counting sort of the corners, faces ascending.
+  const auto nvs = static_cast<std::size_t>(vertex_count);
+  t.vf_offsets.assign(nvs + 1, 0);
+  for (int f = 0; f < t.face_count; ++f) {
+    for (int k = 0; k < 3; ++k) ++t.vf_offsets[static_cast<std::size_t>(F(f, k)) + 1];
+  }
+  std::partial_sum(t.vf_offsets.begin(), t.vf_offsets.end(), t.vf_offsets.begin());
+  t.vf_faces.resize(static_cast<std::size_t>(3 * t.face_count));
+  std::vector<int> fill(t.vf_offsets.begin(), t.vf_offsets.end() - 1);
+  for (int f = 0; f < t.face_count; ++f) {
+    for (int k = 0; k < 3; ++k) t.vf_faces[static_cast<std::size_t>(fill[static_cast<std::size_t>(F(f, k))]++)] = f;
+  }
+  // Vertex -> neighbours from the sorted edges: a vertex v meets its smaller neighbours (edges
+  // (u, v), u < v) before its larger ones (edges (v, w)), each group ascending: sorted lists.
+  t.vv_offsets.assign(nvs + 1, 0);
+  for (int e = 0; e < edges.edge_count(); ++e) {
+    ++t.vv_offsets[static_cast<std::size_t>(edges.lo[e]) + 1];
+    ++t.vv_offsets[static_cast<std::size_t>(edges.hi[e]) + 1];
+  }
+  std::partial_sum(t.vv_offsets.begin(), t.vv_offsets.end(), t.vv_offsets.begin());
+  t.vv_neighbors.resize(static_cast<std::size_t>(t.vv_offsets.back()));
+  fill.assign(t.vv_offsets.begin(), t.vv_offsets.end() - 1);
+  for (int e = 0; e < edges.edge_count(); ++e) {
+    const int a = edges.lo[e], b = edges.hi[e];
+    t.vv_neighbors[static_cast<std::size_t>(fill[static_cast<std::size_t>(a)]++)] = b;
+    t.vv_neighbors[static_cast<std::size_t>(fill[static_cast<std::size_t>(b)]++)] = a;
+  }
+
+  std::vector<int> parent(nvs);
   std::iota(parent.begin(), parent.end(), 0);
   for (int f = 0; f < t.face_count; ++f) {
     for (int k = 0; k < 3; ++k) {
-      const int a = F(f, k), b = F(f, (k + 1) % 3);
-      vf.emplace_back(a, f);
-      vv.emplace_back(a, b);
-      vv.emplace_back(b, a);
-      parent[find_root(parent, a)] = find_root(parent, b);
+      parent[find_root(parent, F(f, k))] = find_root(parent, F(f, (k + 1) % 3));
     }
   }
-  build_csr(vf, vertex_count, t.vf_offsets, t.vf_faces);
-  build_csr(vv, vertex_count, t.vv_offsets, t.vv_neighbors);
 
   // Component ids in order of first appearance, so they are deterministic.
   t.component.setConstant(vertex_count, -1);

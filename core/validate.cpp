@@ -9,8 +9,9 @@
 #include <numeric>
 #include <sstream>
 #include <string>
-#include <unordered_map>
 #include <vector>
+
+#include "core/edge_table.h"
 
 namespace meshdeform::core {
 namespace {
@@ -28,19 +29,6 @@ std::string format_double(double value) {
   out << value;
   return out.str();
 }
-
-// Undirected edge key: both indices are known to be in [0, #V), so they fit in 32 bits each.
-std::uint64_t edge_key(int a, int b) {
-  const auto lo = static_cast<std::uint64_t>(a < b ? a : b);
-  const auto hi = static_cast<std::uint64_t>(a < b ? b : a);
-  return (lo << 32U) | hi;
-}
-
-struct EdgeFaces {
-  int count = 0;
-  std::array<int, 3> faces{};     // the first three incident faces (enough to report)
-  std::array<bool, 3> forward{};  // traversed from the smaller to the larger index
-};
 
 // Union-find over face corners (3 * f + k), used to count the fans around each vertex.
 class CornerSets {
@@ -135,58 +123,67 @@ Status validate_triangle_mesh(const Positions& V, const Triangles& F) {
     }
   }
 
-  // Duplicate faces: same vertex set in any order or orientation.
+  // Duplicate faces: same vertex set in any order or orientation. Sorted (set, face) rows: the
+  // first face (in face order) whose set an earlier face has, reported with the earliest one.
   {
-    std::map<std::array<int, 3>, Eigen::Index> seen;
+    std::vector<std::array<int, 4>> sets(static_cast<std::size_t>(nf));
     for (Eigen::Index f = 0; f < nf; ++f) {
-      std::array<int, 3> key = {F(f, 0), F(f, 1), F(f, 2)};
-      std::sort(key.begin(), key.end());
-      const auto [it, inserted] = seen.emplace(key, f);
-      if (!inserted) {
-        return invalid(face_text(F, f) + " duplicates face " + std::to_string(it->second));
+      std::array<int, 4>& row = sets[static_cast<std::size_t>(f)];
+      row = {F(f, 0), F(f, 1), F(f, 2), static_cast<int>(f)};
+      std::sort(row.begin(), row.begin() + 3);
+    }
+    std::sort(sets.begin(), sets.end());
+    Eigen::Index duplicate = -1, original = -1;
+    for (std::size_t r = 1; r < sets.size(); ++r) {
+      const bool same = std::equal(sets[r].begin(), sets[r].begin() + 3, sets[r - 1].begin());
+      // The second row of a run is its earliest duplicate; the run's first row its original.
+      if (same && (r < 2 || !std::equal(sets[r - 1].begin(), sets[r - 1].begin() + 3,
+                                         sets[r - 2].begin()))) {
+        if (duplicate < 0 || sets[r][3] < duplicate) {
+          duplicate = sets[r][3];
+          original = sets[r - 1][3];
+        }
       }
+    }
+    if (duplicate >= 0) {
+      return invalid(face_text(F, duplicate) + " duplicates face " + std::to_string(original));
     }
   }
 
-  // Edge table: incident faces and traversal direction of every undirected edge.
-  std::unordered_map<std::uint64_t, EdgeFaces> edges;
-  edges.reserve(static_cast<std::size_t>(3 * nf));
-  for (Eigen::Index f = 0; f < nf; ++f) {
-    for (int k = 0; k < 3; ++k) {
-      const int p = F(f, k);
-      const int q = F(f, (k + 1) % 3);
-      EdgeFaces& e = edges[edge_key(p, q)];
-      if (e.count < 3) {
-        e.faces[static_cast<std::size_t>(e.count)] = static_cast<int>(f);
-        e.forward[static_cast<std::size_t>(e.count)] = p < q;
-      }
-      ++e.count;
-    }
-  }
+  // Edge table: the half-edges (corners 3 f + k, from F(f, k) to F(f, k + 1)) of every
+  // undirected edge, in corner order.
+  const EdgeTable edges = build_edge_table(F, static_cast<int>(nv));
+  auto face_of = [&edges](int e, int i) {
+    return edges.corners[static_cast<std::size_t>(edges.offsets[e] + i)] / 3;
+  };
+  auto forward = [&edges, &F](int e, int i) {
+    const int c = edges.corners[static_cast<std::size_t>(edges.offsets[e] + i)];
+    return F(c / 3, c % 3) < F(c / 3, (c % 3 + 1) % 3);
+  };
   // Report in face order so that the first offending element is deterministic.
   for (Eigen::Index f = 0; f < nf; ++f) {
     for (int k = 0; k < 3; ++k) {
       const int p = F(f, k);
       const int q = F(f, (k + 1) % 3);
-      const EdgeFaces& e = edges.at(edge_key(p, q));
-      if (e.count > 2) {
+      const int e = edges.edge_of[static_cast<std::size_t>(3 * f + k)];
+      const int count = edges.half_edge_count(e);
+      if (count > 2) {
         return invalid("non-manifold edge (" + std::to_string(std::min(p, q)) + ", " +
                        std::to_string(std::max(p, q)) + ") is shared by " +
-                       std::to_string(e.count) + " faces (" + std::to_string(e.faces[0]) + ", " +
-                       std::to_string(e.faces[1]) + ", " + std::to_string(e.faces[2]) +
-                       (e.count > 3 ? ", ..." : "") + ")");
+                       std::to_string(count) + " faces (" + std::to_string(face_of(e, 0)) + ", " +
+                       std::to_string(face_of(e, 1)) + ", " + std::to_string(face_of(e, 2)) +
+                       (count > 3 ? ", ..." : "") + ")");
       }
     }
   }
   for (Eigen::Index f = 0; f < nf; ++f) {
     for (int k = 0; k < 3; ++k) {
-      const int p = F(f, k);
-      const int q = F(f, (k + 1) % 3);
-      const EdgeFaces& e = edges.at(edge_key(p, q));
-      if (e.count == 2 && e.forward[0] == e.forward[1]) {
-        return invalid("edge (" + std::to_string(p) + ", " + std::to_string(q) +
+      const int e = edges.edge_of[static_cast<std::size_t>(3 * f + k)];
+      if (edges.half_edge_count(e) == 2 && forward(e, 0) == forward(e, 1)) {
+        return invalid("edge (" + std::to_string(F(f, k)) + ", " +
+                       std::to_string(F(f, (k + 1) % 3)) +
                        ") is traversed in the same direction by faces " +
-                       std::to_string(e.faces[0]) + " and " + std::to_string(e.faces[1]) +
+                       std::to_string(face_of(e, 0)) + " and " + std::to_string(face_of(e, 1)) +
                        " (inconsistent orientation)");
       }
     }
@@ -196,12 +193,12 @@ Status validate_triangle_mesh(const Positions& V, const Triangles& F) {
   // vertex whose corners fall into more than one set has more than one fan (e.g. two cones
   // touching at their apex).
   CornerSets corners(3 * nf);
-  for (const auto& [key, e] : edges) {
-    if (e.count != 2) continue;
-    const int p = static_cast<int>(key >> 32U);
-    const int q = static_cast<int>(key & 0xffffffffU);
-    corners.unite(corner_of(F, e.faces[0], p), corner_of(F, e.faces[1], p));
-    corners.unite(corner_of(F, e.faces[0], q), corner_of(F, e.faces[1], q));
+  for (int e = 0; e < edges.edge_count(); ++e) {
+    if (edges.half_edge_count(e) != 2) continue;
+    const int p = edges.lo[static_cast<std::size_t>(e)];
+    const int q = edges.hi[static_cast<std::size_t>(e)];
+    corners.unite(corner_of(F, face_of(e, 0), p), corner_of(F, face_of(e, 1), p));
+    corners.unite(corner_of(F, face_of(e, 0), q), corner_of(F, face_of(e, 1), q));
   }
   std::vector<int> fan_root(static_cast<std::size_t>(nv), -1);
   std::vector<int> fan_count(static_cast<std::size_t>(nv), 0);
