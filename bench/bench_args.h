@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "common/command_line.h"
+#include "core/allocator.h"
 #include "core/status.h"
 
 namespace meshdeform::bench {
@@ -136,10 +137,11 @@ inline Status write_file(const std::filesystem::path& path, const std::string& t
   return Status::success();
 }
 
-/// main() of a benchmark: --help/-h prints `usage` and exits 0; `run` returning an error prints
+/// main() of a benchmark (the solvers' heap settings first, core/allocator.h): --help/-h prints `usage` and exits 0; `run` returning an error prints
 /// it (and the usage, for a bad flag) and exits 1, as does an escaped exception.
 template <typename Usage, typename Run>
 int bench_main(int argc, char** argv, const char* name, Usage&& usage, Run&& run) {
+  core::keep_freed_heap_for_solver_arrays();  // as the server and the CLI do
   try {
     if (wants_help(argc, argv)) {
       usage(std::cout);

@@ -18,6 +18,7 @@
 
 #include "bench/bench_config.h"
 #include "common/command_line.h"
+#include "core/allocator.h"
 #include "core/curve2d.h"
 #include "core/curve2d_svg.h"
 #include "core/koch.h"
@@ -206,4 +207,7 @@ int run(int argc, char** argv) {
 }  // namespace
 }  // namespace meshdeform::bench
 
-int main(int argc, char** argv) { return meshdeform::bench::run(argc, argv); }
+int main(int argc, char** argv) {
+  meshdeform::core::keep_freed_heap_for_solver_arrays();
+  return meshdeform::bench::run(argc, argv);
+}

@@ -7,8 +7,10 @@
 #include <vector>
 
 #include "cli/commands.h"
+#include "core/allocator.h"
 
 int main(int argc, char** argv) {
+  meshdeform::core::keep_freed_heap_for_solver_arrays();
   try {
     std::vector<std::string> args(argv + 1, argv + argc);
     return meshdeform::cli::run_cli(args);

@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "common/command_line.h"
+#include "core/allocator.h"
 #include "server/service/deformation_service.h"
 #include "server/service/log.h"
 #include "server/service/persistence.h"
@@ -266,6 +267,7 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  meshdeform::core::keep_freed_heap_for_solver_arrays();
   using meshdeform::service::log_event;
   using meshdeform::service::LogFields;
   using meshdeform::service::LogLevel;
