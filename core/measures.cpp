@@ -21,6 +21,27 @@ double area_log_error2(double rest_area, double area) {
   return log_ratio * log_ratio;
 }
 
+// The corners of faces [first, end): corner c = 3 (f - first) + k (at F(f, k), between
+// e1 = F(f, k+1) - F(f, k) and e2 = F(f, k+2) - F(f, k)) gets |e1 x e2| in cross_norm[c] and
+// e1 . e2 in dot[c], the arguments of its angle's atan2 (accurate near 0 and pi, unlike acos of
+// a normalised dot product); also_per_corner(f, k, e1, e2, |e1 x e2|) does what else a caller
+// needs there.
+template <typename PerCorner>
+void corner_block(const Positions& V, const Triangles& F, Eigen::Index first, Eigen::Index end,
+                  double* cross_norm, double* dot, PerCorner&& also_per_corner) {
+  for (Eigen::Index f = first; f < end; ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const Eigen::Vector3d v = V.row(F(f, k));
+      const Eigen::Vector3d e1 = Eigen::Vector3d(V.row(F(f, (k + 1) % 3))) - v;
+      const Eigen::Vector3d e2 = Eigen::Vector3d(V.row(F(f, (k + 2) % 3))) - v;
+      const double c = e1.cross(e2).norm();
+      cross_norm[3 * (f - first) + k] = c;
+      dot[3 * (f - first) + k] = e1.dot(e2);
+      also_per_corner(f, k, e1, e2, c);
+    }
+  }
+}
+
 double rms(const Eigen::VectorXd& x) {
   return x.size() == 0 ? 0.0 : std::sqrt(x.squaredNorm() / static_cast<double>(x.size()));
 }
@@ -52,23 +73,16 @@ Measures compute_measures(const Positions& V, const Triangles& F, const MeshTopo
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
   for (Eigen::Index b = 0; b < blocks; ++b) {
     const Eigen::Index first = b * kBlock, end = std::min(nf, first + kBlock);
-    // Corner angles as atan2(|e1 x e2|, e1 . e2): accurate near 0 and pi, unlike acos of a
-    // normalised dot product. theta holds the dot products until the batched atan2.
+    // theta holds the dot products until the batched atan2.
     std::array<double, 3 * kBlock> cross_norm;
-    for (Eigen::Index f = first; f < end; ++f) {
-      for (int k = 0; k < 3; ++k) {
-        const Eigen::Vector3d v = V.row(F(f, k));
-        const Eigen::Vector3d e1 = Eigen::Vector3d(V.row(F(f, (k + 1) % 3))) - v;
-        const Eigen::Vector3d e2 = Eigen::Vector3d(V.row(F(f, (k + 2) % 3))) - v;
-        const double c = e1.cross(e2).norm();
-        cross_norm[static_cast<std::size_t>(3 * (f - first) + k)] = c;
-        m.theta(3 * f + k) = e1.dot(e2);
-        const double l1 = e1.norm();
-        m.ratio(3 * f + k) = l1 > 0 ? e2.norm() / l1 : 0.0;
-        if (k == 0) m.area(f) = 0.5 * c;
-      }
-    }
     double* theta = m.theta.data() + 3 * first;
+    corner_block(V, F, first, end, cross_norm.data(), theta,
+                 [&m](Eigen::Index f, int k, const Eigen::Vector3d& e1, const Eigen::Vector3d& e2,
+                      double c) {
+                   const double l1 = e1.norm();
+                   m.ratio(3 * f + k) = l1 > 0 ? e2.norm() / l1 : 0.0;
+                   if (k == 0) m.area(f) = 0.5 * c;
+                 });
     atan2_nonnegative(cross_norm.data(), theta, theta, 3 * (end - first));
   }
   m.phi = dihedral_angles(V, F, topology, threads);
@@ -134,18 +148,11 @@ AngleErrors angle_errors(const Measures& rest, const Positions& V, const Triangl
     for (Eigen::Index b = 0; b < face_blocks; ++b) {
       const Eigen::Index first = b * kBlock, end = std::min(nf, first + kBlock);
       double area_log2 = 0;
-      for (Eigen::Index f = first; f < end; ++f) {
-        for (int k = 0; k < 3; ++k) {
-          const Eigen::Vector3d v = V.row(F(f, k));
-          const Eigen::Vector3d e1 = Eigen::Vector3d(V.row(F(f, (k + 1) % 3))) - v;
-          const Eigen::Vector3d e2 = Eigen::Vector3d(V.row(F(f, (k + 2) % 3))) - v;
-          const double c = e1.cross(e2).norm();
-          const auto i = static_cast<std::size_t>(3 * (f - first) + k);
-          cross_norm[i] = c;
-          angle[i] = e1.dot(e2);
-          if (k == 0) area_log2 += area_log_error2(rest.area(f), 0.5 * c);
-        }
-      }
+      corner_block(V, F, first, end, cross_norm.data(), angle.data(),
+                   [&](Eigen::Index f, int k, const Eigen::Vector3d&, const Eigen::Vector3d&,
+                       double c) {
+                     if (k == 0) area_log2 += area_log_error2(rest.area(f), 0.5 * c);
+                   });
       const Eigen::Index corners = 3 * (end - first);
       atan2_nonnegative(cross_norm.data(), angle.data(), angle.data(), corners);
       double theta2 = 0;

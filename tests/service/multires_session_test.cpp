@@ -20,23 +20,35 @@ namespace {
 
 using std::chrono::milliseconds;
 
-TEST(MultiresSessionTest, MovesAreCoarseAndRefinementConvergesTheFullMesh) {
+// Two workers; sessions above 1,000 vertices move on a 1,000-vertex coarse level.
+ServiceOptions multires_options(int refine_budget, milliseconds refine_delay) {
   ServiceOptions options;
   options.workers = 2;
   options.multires_above = 1000;
   options.multires_coarse_vertices = 1000;
-  options.refine_budget = 600;
-  options.refine_delay = milliseconds(0);
-  DeformationService service(options);
+  options.refine_budget = refine_budget;
+  options.refine_delay = refine_delay;
+  return options;
+}
+
+// A session on the cylinder sample (4,802 vertices) with its suggested handles set.
+Result<CreatedSession> cylinder_with_handles(DeformationService& service) {
   CreateSessionRequest create;
-  create.sample = "cylinder";  // 4,802 vertices
-  Result<CreatedSession> created = service.create_session(create);
+  create.sample = "cylinder";
+  MD_ASSIGN_OR_RETURN(CreatedSession created, service.create_session(create));
+  SetHandlesRequest handles;
+  handles.groups = created.suggested_groups;
+  MD_RETURN_IF_ERROR(service.set_handles(created.id, created.edit_token, handles).status());
+  return created;
+}
+
+TEST(MultiresSessionTest, MovesAreCoarseAndRefinementConvergesTheFullMesh) {
+  const ServiceOptions options = multires_options(600, milliseconds(0));
+  DeformationService service(options);
+  Result<CreatedSession> created = cylinder_with_handles(service);
   ASSERT_TRUE(created.ok()) << created.status().to_string();
   ASSERT_GT(created->info.vertices, 1000) << "the sample must be above the multires threshold";
   const std::vector<HandleGroup> groups = created->suggested_groups;
-  SetHandlesRequest handles;
-  handles.groups = groups;
-  ASSERT_TRUE(service.set_handles(created->id, created->edit_token, handles).ok());
 
   Result<Subscription> watch = service.watch(created->id, created->view_token);
   ASSERT_TRUE(watch.ok());
@@ -55,9 +67,8 @@ TEST(MultiresSessionTest, MovesAreCoarseAndRefinementConvergesTheFullMesh) {
     single_options.multires_above = 0;
     single_options.refine_budget = 0;
     DeformationService single(single_options);
-    Result<CreatedSession> other = single.create_session(create);
-    ASSERT_TRUE(other.ok());
-    ASSERT_TRUE(single.set_handles(other->id, other->edit_token, handles).ok());
+    Result<CreatedSession> other = cylinder_with_handles(single);
+    ASSERT_TRUE(other.ok()) << other.status().to_string();
     Result<DeformResult> full = single.move_handles(other->id, other->edit_token, move);
     ASSERT_TRUE(full.ok()) << full.status().to_string();
     EXPECT_TRUE(full->converged);
@@ -119,20 +130,9 @@ TEST(MultiresSessionTest, FullSolverIsBuiltDuringADragAndRefinementWaitsForRest)
   // off the strand from the first move on (not only once the handles rest), and its install
   // mid-drag starts no refinement slice, which the next move would only preempt after the slice
   // took a core and delayed that move. With a rest delay longer than the test, no slice may run.
-  ServiceOptions options;
-  options.workers = 2;
-  options.multires_above = 1000;
-  options.multires_coarse_vertices = 1000;
-  options.refine_budget = 30;
-  options.refine_delay = milliseconds(600'000);
-  DeformationService service(options);
-  CreateSessionRequest create;
-  create.sample = "cylinder";  // 4,802 vertices
-  Result<CreatedSession> created = service.create_session(create);
+  DeformationService service(multires_options(30, milliseconds(600'000)));
+  Result<CreatedSession> created = cylinder_with_handles(service);
   ASSERT_TRUE(created.ok()) << created.status().to_string();
-  SetHandlesRequest handles;
-  handles.groups = created->suggested_groups;
-  ASSERT_TRUE(service.set_handles(created->id, created->edit_token, handles).ok());
 
   auto drag_to = [&](int step) {
     MoveRequest move;
