@@ -137,8 +137,9 @@ inline Status write_file(const std::filesystem::path& path, const std::string& t
   return Status::success();
 }
 
-/// main() of a benchmark (the solvers' heap settings first, core/allocator.h): --help/-h prints `usage` and exits 0; `run` returning an error prints
-/// it (and the usage, for a bad flag) and exits 1, as does an escaped exception.
+/// main() of a benchmark, after the solvers' heap settings (core/allocator.h): --help/-h prints
+/// `usage` and exits 0; `run` returning an error prints it (and the usage, for a bad flag) and
+/// exits 1, as does an escaped exception.
 template <typename Usage, typename Run>
 int bench_main(int argc, char** argv, const char* name, Usage&& usage, Run&& run) {
   core::keep_freed_heap_for_solver_arrays();  // as the server and the CLI do

@@ -61,23 +61,25 @@ EdgeTable build_edge_table(const Triangles& F, int vertex_count) {
         other[static_cast<std::size_t>(i)] = rows[static_cast<std::size_t>(i - first)].first;
         by_lo[static_cast<std::size_t>(i)] = rows[static_cast<std::size_t>(i - first)].second;
       }
-    }
-    for (int i = first + 1; i < end && end - first <= kInsertionSortMax; ++i) {
-      const int key = other[static_cast<std::size_t>(i)];
-      const int corner = by_lo[static_cast<std::size_t>(i)];
-      int j = i - 1;
-      for (; j >= first && other[static_cast<std::size_t>(j)] > key; --j) {
-        other[static_cast<std::size_t>(j) + 1] = other[static_cast<std::size_t>(j)];
-        by_lo[static_cast<std::size_t>(j) + 1] = by_lo[static_cast<std::size_t>(j)];
+    } else {
+      for (int i = first + 1; i < end; ++i) {
+        const int key = other[static_cast<std::size_t>(i)];
+        const int corner = by_lo[static_cast<std::size_t>(i)];
+        int j = i - 1;
+        for (; j >= first && other[static_cast<std::size_t>(j)] > key; --j) {
+          other[static_cast<std::size_t>(j) + 1] = other[static_cast<std::size_t>(j)];
+          by_lo[static_cast<std::size_t>(j) + 1] = by_lo[static_cast<std::size_t>(j)];
+        }
+        other[static_cast<std::size_t>(j) + 1] = key;
+        by_lo[static_cast<std::size_t>(j) + 1] = corner;
       }
-      other[static_cast<std::size_t>(j) + 1] = key;
-      by_lo[static_cast<std::size_t>(j) + 1] = corner;
     }
     for (int i = first; i < end; ++i) {
-      if (i == first || other[static_cast<std::size_t>(i)] != other[static_cast<std::size_t>(i) - 1]) {
+      const int hi = other[static_cast<std::size_t>(i)];
+      if (i == first || hi != other[static_cast<std::size_t>(i) - 1]) {
         t.offsets.push_back(i);
         t.lo.push_back(v);
-        t.hi.push_back(other[static_cast<std::size_t>(i)]);
+        t.hi.push_back(hi);
       }
       const int corner = by_lo[static_cast<std::size_t>(i)];
       t.corners[static_cast<std::size_t>(i)] = corner;

@@ -42,6 +42,19 @@ void corner_block(const Positions& V, const Triangles& F, Eigen::Index first, Ei
   }
 }
 
+// The interior edges [first, end): edge e's slot e - first gets |n0 x n1| in cross_norm and
+// n0 . n1 in dot for the unit normals N of its two faces, the arguments of its dihedral angle's
+// atan2.
+void dihedral_block(const Positions& N, const MeshTopology& topology, Eigen::Index first,
+                    Eigen::Index end, double* cross_norm, double* dot) {
+  for (Eigen::Index e = first; e < end; ++e) {
+    const Eigen::Vector3d n0 = N.row(topology.edge_faces(e, 0));
+    const Eigen::Vector3d n1 = N.row(topology.edge_faces(e, 1));
+    cross_norm[e - first] = n0.cross(n1).norm();
+    dot[e - first] = n0.dot(n1);
+  }
+}
+
 double rms(const Eigen::VectorXd& x) {
   return x.size() == 0 ? 0.0 : std::sqrt(x.squaredNorm() / static_cast<double>(x.size()));
 }
@@ -100,12 +113,8 @@ Eigen::VectorXd dihedral_angles(const Positions& V, const Triangles& F,
   for (Eigen::Index b = 0; b < blocks; ++b) {
     const Eigen::Index first = b * kBlock, end = std::min(ne, first + kBlock);
     std::array<double, kBlock> cross_norm;
-    for (Eigen::Index e = first; e < end; ++e) {
-      const Eigen::Vector3d n0 = N.row(topology.edge_faces(e, 0));
-      const Eigen::Vector3d n1 = N.row(topology.edge_faces(e, 1));
-      cross_norm[static_cast<std::size_t>(e - first)] = n0.cross(n1).norm();
-      phi(e) = n0.dot(n1);  // the angle's cosine part until the batched atan2
-    }
+    // phi holds the dot products until the batched atan2.
+    dihedral_block(N, topology, first, end, cross_norm.data(), phi.data() + first);
     atan2_nonnegative(cross_norm.data(), phi.data() + first, phi.data() + first, end - first);
   }
   return phi;
@@ -171,12 +180,7 @@ AngleErrors angle_errors(const Measures& rest, const Positions& V, const Triangl
 #pragma omp for schedule(static)
     for (Eigen::Index b = 0; b < edge_blocks; ++b) {
       const Eigen::Index first = b * kBlock, end = std::min(ne, first + kBlock);
-      for (Eigen::Index e = first; e < end; ++e) {
-        const Eigen::Vector3d n0 = N.row(topology.edge_faces(e, 0));
-        const Eigen::Vector3d n1 = N.row(topology.edge_faces(e, 1));
-        cross_norm[static_cast<std::size_t>(e - first)] = n0.cross(n1).norm();
-        angle[static_cast<std::size_t>(e - first)] = n0.dot(n1);
-      }
+      dihedral_block(N, topology, first, end, cross_norm.data(), angle.data());
       atan2_nonnegative(cross_norm.data(), angle.data(), angle.data(), end - first);
       double phi2 = 0;
       for (Eigen::Index e = first; e < end; ++e) {

@@ -53,8 +53,8 @@ Result<MeshTopology> build_topology(const Triangles& F, int vertex_count) {
                        " faces share it (first: face " + std::to_string(f0) + ")");
     }
     if (count == 2) {
-      interior.push_back(
-          {edges.lo[e], edges.hi[e], f0, edges.corners[static_cast<std::size_t>(edges.offsets[e]) + 1] / 3});
+      const int f1 = edges.corners[static_cast<std::size_t>(edges.offsets[e]) + 1] / 3;
+      interior.push_back({edges.lo[e], edges.hi[e], f0, f1});
     } else {
       ++t.boundary_edge_count;
     }
@@ -77,7 +77,9 @@ Result<MeshTopology> build_topology(const Triangles& F, int vertex_count) {
   t.vf_faces.resize(static_cast<std::size_t>(3 * t.face_count));
   std::vector<int> fill(t.vf_offsets.begin(), t.vf_offsets.end() - 1);
   for (int f = 0; f < t.face_count; ++f) {
-    for (int k = 0; k < 3; ++k) t.vf_faces[static_cast<std::size_t>(fill[static_cast<std::size_t>(F(f, k))]++)] = f;
+    for (int k = 0; k < 3; ++k) {
+      t.vf_faces[static_cast<std::size_t>(fill[static_cast<std::size_t>(F(f, k))]++)] = f;
+    }
   }
   // Vertex -> neighbours from the sorted edges: a vertex v meets its smaller neighbours (edges
   // (u, v), u < v) before its larger ones (edges (v, w)), each group ascending: sorted lists.

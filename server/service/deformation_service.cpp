@@ -579,24 +579,20 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
   // What refinement needs first (the full-resolution solver of a multiresolution session,
   // seconds at 10^5 vertices) is built off the strand at once, during the drag, so that
   // refinement can start as soon as the handles rest; its install schedules refinement again.
-  if (session->background_build_running()) return;
-  if (std::optional<Session::BackgroundBuild> build = session->take_background_build()) {
-    run_background_build(session, std::move(*build));
-    return;
-  }
+  if (start_background_build(session)) return;
+  // A move arrived or committed within the rest delay. (By value: the timer below keeps it.)
+  auto dragging = [this, session] {
+    return std::chrono::steady_clock::now() - session->last_move_time() < options_.refine_delay;
+  };
   // A slice that starts while moves keep coming (e.g. the full-resolution solver of a
   // multiresolution session installed mid-drag) would be preempted by the next move after
   // taking a core from it, and delay it until it stops: wait for the rest delay as after a move.
-  const bool dragging =
-      std::chrono::steady_clock::now() - session->last_move_time() < options_.refine_delay;
-  if ((after_move || dragging) && options_.refine_delay.count() > 0) {
+  if ((after_move || dragging()) && options_.refine_delay.count() > 0) {
     // Start once the handles rest: every move posts a timer, and only the one whose move is
     // still the last when it fires goes on (the others see a newer move, arrived or committed,
     // and drop out).
-    delays_.post_after(options_.refine_delay, [this, session] {
-      if (std::chrono::steady_clock::now() - session->last_move_time() < options_.refine_delay) {
-        return;
-      }
+    delays_.post_after(options_.refine_delay, [this, session, dragging] {
+      if (dragging()) return;
       post(session, [this, session] { schedule_refinement(session, /*after_move=*/false); },
            /*is_refinement=*/true);
     });
@@ -608,14 +604,8 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
         [this, session] {
           // An edit queued meanwhile runs first and schedules refinement again after itself.
           if (session->has_queued_edits() || shutdown_.stop_requested()) return;
-          // Precompute refinement needs (the full-resolution solver of a multiresolution
-          // session) is built off the strand, so moves keep running on the coarse level;
-          // refinement resumes once it is installed.
-          if (session->background_build_running()) return;
-          if (std::optional<Session::BackgroundBuild> build = session->take_background_build()) {
-            run_background_build(session, std::move(*build));
-            return;
-          }
+          // A build refinement needs that became due since (a deformer built meanwhile).
+          if (start_background_build(session)) return;
           const Result<std::optional<DeformResult>> refined = run_guarded(
               "refinement", [&]() -> Result<std::optional<DeformResult>> {
                 const CallStop slice({}, shutdown_.get_token());
@@ -636,6 +626,14 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
         },
         /*is_refinement=*/true);
   });
+}
+
+bool DeformationService::start_background_build(const std::shared_ptr<Session>& session) {
+  if (session->background_build_running()) return true;
+  std::optional<Session::BackgroundBuild> build = session->take_background_build();
+  if (!build) return false;
+  run_background_build(session, std::move(*build));
+  return true;
 }
 
 void DeformationService::run_background_build(const std::shared_ptr<Session>& session,

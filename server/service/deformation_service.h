@@ -184,6 +184,10 @@ class DeformationService {
   /// when no edit of any session waits) and, after it, the next. `after_move`, or a move that
   /// arrived or committed within ServiceOptions::refine_delay: wait for that much rest first.
   void schedule_refinement(const std::shared_ptr<Session>& session, bool after_move);
+  /// Starts the background build refinement needs (Session::take_background_build ->
+  /// run_background_build). Strand only. @return true if one is running now (started here or
+  /// before): refinement waits for its install, which schedules refinement again.
+  bool start_background_build(const std::shared_ptr<Session>& session);
   /// Runs a session's background build (Session::take_background_build) on the pool's background
   /// class, off the strand, then installs it on the strand and resumes refinement.
   void run_background_build(const std::shared_ptr<Session>& session,

@@ -53,7 +53,9 @@ TEST(Topology, EdgeTableGroupsHalfEdgesAsASortOfAllOfThemWould) {
   std::iota(rim.begin(), rim.end(), 1);
   std::shuffle(rim.begin(), rim.end(), std::mt19937(5));
   Triangles fan(305, 3);
-  for (int i = 0; i < 300; ++i) fan.row(i) << 0, rim[static_cast<std::size_t>(i)], rim[static_cast<std::size_t>(i) + 1];
+  for (int i = 0; i < 300; ++i) {
+    fan.row(i) << 0, rim[static_cast<std::size_t>(i)], rim[static_cast<std::size_t>(i) + 1];
+  }
   for (int i = 0; i < 5; ++i) fan.row(300 + i) << 302 + i, rim[7], 0;
   expect_edge_table_matches_sort(fan, 307);
   // The fan's topology: vertex 0's neighbours sorted, each edge once.
