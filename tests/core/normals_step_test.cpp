@@ -215,6 +215,34 @@ TEST(NormalsStep, EachSweepIsALocalRotationFitThenTheGlobalStep) {
   }
 }
 
+TEST(NormalsStep, AWarmSweepRefinesEveryRotationAsTheScalarIterationDoes) {
+  // update_normals refines the fans' rotations several at a time (independent lanes side by
+  // side); each must be what refine_rotation gives for that fan alone, including the fans left
+  // over when the vertex count is not a multiple of the batch.
+  bool remainder_seen = false;
+  for (const Case& c : cases()) {
+    SCOPED_TRACE(c.name);
+    remainder_seen = remainder_seen || c.topology.vertex_count % 4 != 0;
+    RowPositions N = c.N;
+    Quats rotations = identities(c.topology.vertex_count);
+    update_normals(c.N0, c.mesh.F, c.topology, N, rotations, false, 1, 0.0, 1);
+    for (int sweep = 0; sweep < 3; ++sweep) {
+      SCOPED_TRACE(sweep);
+      const RowPositions before = N;
+      Quats expected = rotations;
+      for (int v = 0; v < c.topology.vertex_count; ++v) {
+        refine_rotation(fan_covariance(c, before, v), expected[v], 3);
+      }
+      update_normals(c.N0, c.mesh.F, c.topology, N, rotations, true, 1, 0.0, 1);
+      for (int v = 0; v < c.topology.vertex_count; ++v) {
+        EXPECT_LT((rotations[v].coeffs() - expected[v].coeffs()).cwiseAbs().maxCoeff(), 1e-14)
+            << "vertex " << v;
+      }
+    }
+  }
+  EXPECT_TRUE(remainder_seen);
+}
+
 TEST(NormalsStep, UnconstrainedItConvergesToARotationOfTheRestNormals) {
   // Step one alone has no constraint: its energy reaches zero exactly on the rotations of the
   // rest normals (one rotation for every vertex), and the iteration gets there.
