@@ -176,26 +176,39 @@ double ArapSolver::Impl::fit_rotations(const RowPositions& P,
                                        std::vector<Eigen::Matrix3d>& R) const {
   std::vector<double> per_vertex(nv);
   const bool parallel = nv > 2000 && threads > 1;
+  // Four fans at a time: their fits side by side (closest_rotations), each exactly the fan's own.
+  constexpr int kBatch = 4;
+  const int blocks = (nv + kBatch - 1) / kBatch;
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
-  for (int i = 0; i < nv; ++i) {
-    const Eigen::Vector3d p = P.row(i).transpose();
-    // S = sum_j w_ij e'_ij e_ij^T; R_i maximises trace(R^T S), i.e. minimises the fan's energy.
-    Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
-    for (int k = topology.vv_offsets[i]; k < topology.vv_offsets[i + 1]; ++k) {
-      const int j = topology.vv_neighbors[k];
-      S.noalias() += (weight[k] * (p - P.row(j).transpose())) * rest_edge[k].transpose();
+  for (int block = 0; block < blocks; ++block) {
+    const int first = block * kBatch;
+    const int count = std::min(kBatch, nv - first);
+    Eigen::Matrix3d S[kBatch];
+    for (int l = 0; l < count; ++l) {
+      const int i = first + l;
+      const Eigen::Vector3d p = P.row(i).transpose();
+      // S = sum_j w_ij e'_ij e_ij^T; R_i maximises trace(R^T S), i.e. minimises the fan's energy.
+      S[l].setZero();
+      for (int k = topology.vv_offsets[i]; k < topology.vv_offsets[i + 1]; ++k) {
+        const int j = topology.vv_neighbors[k];
+        S[l].noalias() += (weight[k] * (p - P.row(j).transpose())) * rest_edge[k].transpose();
+      }
     }
     // An exact fit, whatever the previous rotation was, keeps the alternation a proper
     // block-coordinate descent. (Mueller's iteration warm-started from the previous rotation was
     // tried: it is not exact within a few steps, and was no faster than Eigen's Jacobi SVD. The
-    // closed form below is exact to round-off and about 4x cheaper than the SVD.)
-    R[i] = closest_rotation(S);
-    double e = 0;
-    for (int k = topology.vv_offsets[i]; k < topology.vv_offsets[i + 1]; ++k) {
-      const int j = topology.vv_neighbors[k];
-      e += weight[k] * ((p - P.row(j).transpose()) - R[i] * rest_edge[k]).squaredNorm();
+    // closed form is exact to round-off and about 4x cheaper than the SVD.)
+    closest_rotations(S, R.data() + first, count);
+    for (int l = 0; l < count; ++l) {
+      const int i = first + l;
+      const Eigen::Vector3d p = P.row(i).transpose();
+      double e = 0;
+      for (int k = topology.vv_offsets[i]; k < topology.vv_offsets[i + 1]; ++k) {
+        const int j = topology.vv_neighbors[k];
+        e += weight[k] * ((p - P.row(j).transpose()) - R[i] * rest_edge[k]).squaredNorm();
+      }
+      per_vertex[i] = e;
     }
-    per_vertex[i] = e;
   }
   double energy = 0;
   for (double e : per_vertex) energy += e;  // serial: the same sum for any thread count

@@ -158,20 +158,33 @@ void ScaleControl::update_rotations(const Eigen::VectorXd& x, const RowPositions
     // e_k e0_k^T (the fit is -2 s_f tr(R^T M3) + const, the tie -2 beta A_f tr(R^T N N0^T) +
     // const): the rotation of the polar decomposition.
     per_face_.resize(nf_);
+    constexpr int kBatch = 4;  // four faces' fits side by side (closest_rotations)
+    const int blocks = (nf_ + kBatch - 1) / kBatch;
 #pragma omp parallel for schedule(static) num_threads(threads_) if (parallel)
-    for (int f = 0; f < nf_; ++f) {
-      Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
-      for (int k = 0; k < 3; ++k) {
-        const size_t c = 3 * static_cast<size_t>(f) + k;
-        const Eigen::Vector3d e = edge(x, f, k);
-        M.noalias() += weight_[c] * e * rest_edge_[c].transpose();
+    for (int block = 0; block < blocks; ++block) {
+      const int first = block * kBatch;
+      const int count = std::min(kBatch, nf_ - first);
+      Eigen::Matrix3d M[kBatch], R[kBatch];
+      for (int l = 0; l < count; ++l) {
+        const int f = first + l;
+        M[l].setZero();
+        for (int k = 0; k < 3; ++k) {
+          const size_t c = 3 * static_cast<size_t>(f) + k;
+          const Eigen::Vector3d e = edge(x, f, k);
+          M[l].noalias() += weight_[c] * e * rest_edge_[c].transpose();
+        }
+        const Eigen::Vector3d n = N.row(f).transpose();
+        const Eigen::Vector3d n0 = N0_.row(f).transpose();
+        M[l] = s_(f) * M[l] + (normal_tie_ * area_(f)) * n * n0.transpose();
       }
-      const Eigen::Vector3d n = N.row(f).transpose();
-      const Eigen::Vector3d n0 = N0_.row(f).transpose();
-      M = s_(f) * M + (normal_tie_ * area_(f)) * n * n0.transpose();
-      const Eigen::Matrix3d R = closest_rotation(M);
-      set_frame(f, R);
-      per_face_[f] = normal_tie_ * area_(f) * (R * n0 - n).squaredNorm();
+      closest_rotations(M, R, count);
+      for (int l = 0; l < count; ++l) {
+        const int f = first + l;
+        set_frame(f, R[l]);
+        const Eigen::Vector3d n = N.row(f).transpose();
+        const Eigen::Vector3d n0 = N0_.row(f).transpose();
+        per_face_[f] = normal_tie_ * area_(f) * (R[l] * n0 - n).squaredNorm();
+      }
     }
     for (int f = 0; f < nf_; ++f) tie_energy_ += per_face_[f];
     return;
