@@ -29,8 +29,8 @@ namespace {
 /// refine_rotation() for kLanes fans at once, each lane's arithmetic that of the scalar
 /// iteration (a lane that has converged keeps its q): the scalar iteration is one long chain of
 /// dependent operations (quaternion, matrix, cross products, a division, a square root), so a
-/// fan at a time leaves the core waiting; independent lanes side by side fill it, and the
-/// lane loops vectorise.
+/// fan at a time leaves the core waiting; independent lanes side by side fill its pipeline
+/// (instruction-level parallelism: GCC does not vectorise these loops, -fopt-info-vec).
 constexpr int kLanes = 4;
 struct RotationBatch {
   double b[9][kLanes];  // B(i, j) at b[3 i + j]
