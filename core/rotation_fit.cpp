@@ -80,7 +80,6 @@ Eigen::Matrix3d closest_rotation(const Eigen::Matrix3d& S) {
   return Eigen::Quaterniond(q(0), q(1), q(2), q(3)).toRotationMatrix();
 }
 
-
 namespace {
 
 constexpr int kLanes = 4;
@@ -96,7 +95,7 @@ inline double det3(double a00, double a01, double a02, double a10, double a11, d
 /// column), in lanes that the compiler can keep side by side; lanes that need the SVD fallback
 /// (a zero matrix, a near-double top eigenvalue) are marked and done by the scalar function.
 void closest_rotations_batch(const Eigen::Matrix3d* S, Eigen::Matrix3d* R) {
-  double a[10][kLanes];  // N - lambda I, upper triangle: 00 01 02 03 11 12 13 22 23 33
+  double a[10][kLanes];  // Horn's N, upper triangle: 00 01 02 03 11 12 13 22 23 33
   double lambda[kLanes], c0[kLanes], c1[kLanes], c2[kLanes];
   bool fallback[kLanes];
   for (int l = 0; l < kLanes; ++l) {
