@@ -14,8 +14,8 @@ namespace meshdeform::core {
 /// moves at 187k: solve p50 516-591 -> 406-415 ms); on one thread at 47k the difference is within
 /// the noise (per outer iteration) and 5-15% of the precompute. Peak resident memory is the same.
 /// Sets glibc's mmap threshold to 32 MiB (larger blocks, e.g. big factors, still go back to the
-/// kernel when freed) and its trim threshold to 256 MiB. Call once at the start of main(), before other threads
-/// start; no effect with other C libraries.
+/// kernel when freed) and its trim threshold to 256 MiB. Call once at the start of main(), before
+/// other threads start; no effect with other C libraries.
 void keep_freed_heap_for_solver_arrays();
 
 }  // namespace meshdeform::core
