@@ -58,6 +58,7 @@ struct Options {
   int max_iterations = 60;
   double tolerance = 1e-4;
   int threads = 1;
+  int split_above = core::MultiresSettings{}.split_above_vertices;
   bool single = true;
   bool refine = true;
   std::string out_dir = MESHDEFORM_BENCH_RESULTS_DIR;
@@ -76,7 +77,9 @@ void print_usage(std::ostream& out) {
          "  --move-iterations N     coarse outer iterations per move (1)\n"
          "  --max-iterations N      cap of the converging solves (60)\n"
          "  --tolerance-exp N       converged at a relative energy change below 10^-N (4)\n"
-         "  --threads N             solver OpenMP threads (1)\n"
+         "  --threads N             solver OpenMP threads, and the hierarchy's (1)\n"
+         "  --split-above N         decimate meshes above N vertices in two halves (50000;\n"
+         "                          0 never)\n"
          "  --no-single             skip the single-level reference\n"
          "  --no-refine             skip the coarse convergence and the full-resolution\n"
          "                          refinement (interactive part only)\n"
@@ -122,6 +125,7 @@ Result<Options> parse_options(int argc, char** argv) {
     return Status::success();
   });
   flags.integer("--threads", o.threads, 0);
+  flags.integer("--split-above", o.split_above, 0);
   flags.flag("--no-single", [&] { o.single = false; });
   flags.flag("--no-refine", [&] { o.refine = false; });
   flags.text("--out-dir", o.out_dir);
@@ -185,6 +189,8 @@ json run_multires(const Model& model, const Options& options) {
                                              ? core::ConstraintLevels::KeepAll
                                              : core::ConstraintLevels::KeepBorders;
   settings.solver.threads = options.threads;
+  settings.hierarchy.threads = std::max(1, options.threads);
+  settings.hierarchy.split_above_vertices = options.split_above;
   auto start = std::chrono::steady_clock::now();
   core::MultiresDeformer deformer = value_or_throw(
       core::MultiresDeformer::create(V0, F, model.setup.constrained, settings));
@@ -356,7 +362,9 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
   out << "- edit: Spot " << options.edit << " (core::make_spot_edit); coarse level target "
       << options.coarse_vertices << " vertices, constrained vertices locked: "
       << (options.constraints == "all" ? "all (KeepAll)" : "region borders (KeepBorders)")
-      << "; solver threads " << options.threads << ", default settings (rigidity "
+      << "; solver and hierarchy threads " << options.threads
+      << ", the first level decimated in two halves above " << options.split_above
+      << " vertices (0: never), default settings (rigidity "
       << core::kDefaultRigidity << ", Anderson window " << core::SolveOptions{}.anderson_window
       << ")\n";
   out << "- drag: " << options.moves << " moves from rest to the edit along T^s (s = k/"
@@ -495,7 +503,8 @@ json to_json(const MachineInfo& machine, const std::string& load_end, const Opti
                     {"move_iterations", options.move_iterations},
                     {"max_iterations", options.max_iterations},
                     {"tolerance", options.tolerance},
-                    {"threads", options.threads}};
+                    {"threads", options.threads},
+                    {"split_above", options.split_above}};
   out["targets"] = {{"warm_move_p50_ms_187k", kMoveP50TargetMs},
                     {"setup_s_187k", kSetupTargetSeconds},
                     {"peak_mib_187k", kMemory187kTargetMiB},

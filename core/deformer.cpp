@@ -252,6 +252,7 @@ Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& 
         multires.hierarchy.level_vertices = {std::max(settings.multires_coarse_vertices, 3)};
         // Big handle regions would keep the coarse level large: only their borders are kept.
         multires.hierarchy.constraint_levels = ConstraintLevels::KeepBorders;
+        multires.hierarchy.threads = std::max(1, settings.threads);
         MD_ASSIGN_OR_RETURN(MultiresDeformer built,
                             MultiresDeformer::create(V0, F, constrained, multires, progress, stop));
         return std::unique_ptr<Deformer>(

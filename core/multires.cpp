@@ -1,19 +1,22 @@
 #include "core/multires.h"
 
 #include <algorithm>
+#include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <exception>
 #include <limits>
 #include <optional>
 #include <random>
+#include <thread>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include <Eigen/Geometry>
 #include <OpenMesh/Tools/Decimater/BaseDecimaterT.hh>
-#include <OpenMesh/Tools/Decimater/ModAspectRatioT.hh>
 #include <OpenMesh/Tools/Decimater/ModBaseT.hh>
 #include <OpenMesh/Tools/Decimater/ModNormalFlippingT.hh>
 #include <OpenMesh/Tools/Decimater/ModQuadricT.hh>  // QuadricT, with the traits it needs first
@@ -107,30 +110,95 @@ class ModBoundaryQuadricT : public OpenMesh::Decimater::ModBaseT<MeshT> {
     Base::mesh().property(quadrics_, ci.v1) += Base::mesh().property(quadrics_, ci.v0);
   }
 
+  /// The accumulated quadric of a vertex (its fine faces' and those it absorbed).
+  const OpenMesh::Geometry::Quadricd& quadric(typename MeshT::VertexHandle v) {
+    return Base::mesh().property(quadrics_, v);
+  }
+  void set_quadric(typename MeshT::VertexHandle v, const OpenMesh::Geometry::Quadricd& q) {
+    Base::mesh().property(quadrics_, v) = q;
+  }
+
  private:
   double boundary_weight_ = 0;
   OpenMesh::VPropHandleT<OpenMesh::Geometry::Quadricd> quadrics_;
 };
 
-/// Forwards the decimater's progress and stops it on request.
+/// Refuses collapses that would leave a face around the removed vertex with an aspect ratio
+/// (longest edge over its height) above the limit, unless they improve the worst face of the
+/// one-ring: the rule of OpenMesh's ModAspectRatioT in binary mode, with the ratios before the
+/// collapse computed from the current one-ring (ModAspectRatioT caches them per face and
+/// refreshes them before a collapse, from the positions the collapse is about to change).
+/// Stateless, so that two decimaters over disjoint parts of one mesh can share nothing.
+template <class MeshT>
+class ModAspectLimitT : public OpenMesh::Decimater::ModBaseT<MeshT> {
+ public:
+  DECIMATING_MODULE(ModAspectLimitT, MeshT, AspectLimit);
+
+  explicit ModAspectLimitT(MeshT& mesh) : Base(mesh, true) {}
+
+  /// The largest aspect ratio a collapse may create; >= 1.
+  void set_max_aspect_ratio(double ratio) { min_inverse_ = 1.0 / ratio; }
+
+  float collapse_priority(const CollapseInfo& ci) override {
+    const MeshT& mesh = Base::mesh();
+    double before = 1.0, after = 1.0;  // smallest inverse aspect ratio of the one-ring
+    for (const auto f : mesh.vf_range(ci.v0)) {
+      auto fv = mesh.cfv_iter(f);
+      const auto a = *fv, b = *(++fv), c = *(++fv);
+      before = std::min(before, inverse_aspect(mesh.point(a), mesh.point(b), mesh.point(c)));
+      if (a == ci.v1 || b == ci.v1 || c == ci.v1) continue;  // removed by the collapse
+      const auto at = [&](typename MeshT::VertexHandle v) -> const typename MeshT::Point& {
+        return v == ci.v0 ? ci.p1 : mesh.point(v);
+      };
+      after = std::min(after, inverse_aspect(at(a), at(b), at(c)));
+    }
+    return after > before || after > min_inverse_ ? float(Base::LEGAL_COLLAPSE)
+                                                  : float(Base::ILLEGAL_COLLAPSE);
+  }
+
+ private:
+  /// Height over longest edge of a triangle (1 / aspect ratio; 0 when degenerate).
+  static double inverse_aspect(const OpenMesh::Vec3d& p0, const OpenMesh::Vec3d& p1,
+                               const OpenMesh::Vec3d& p2) {
+    const OpenMesh::Vec3d d0 = p0 - p1, d1 = p1 - p2, d2 = p2 - p0;
+    const double longest = std::max({d0.sqrnorm(), d1.sqrnorm(), d2.sqrnorm()});
+    const double twice_area = (d0 % d2).norm();
+    return longest > 0 ? twice_area / longest : 0.0;
+  }
+
+  double min_inverse_ = 0.1;
+};
+
+/// Forwards the decimater's progress and stops it on request. The collapses of every decimater
+/// that shares `done` add up there; only an observer given a callback reports (the calling
+/// thread's: the callback need not be thread-safe).
 class StopObserver : public OpenMesh::Decimater::Observer {
  public:
-  StopObserver(const std::stop_token& stop, const BuildProgress& progress, size_t done_before,
-               size_t total)
-      : Observer(256), stop_(stop), progress_(progress), done_before_(done_before),
+  StopObserver(const std::stop_token& stop, const BuildProgress* progress,
+               std::atomic<size_t>& done, size_t total)
+      : Observer(256), stop_(stop), progress_(progress), done_(done),
         total_(std::max<size_t>(total, 1)) {}
   void notify(size_t step) override {
-    if (progress_) {
-      progress_("decimate", std::min(1.0, static_cast<double>(done_before_ + step) /
-                                              static_cast<double>(total_)));
+    const size_t all = done_.fetch_add(step - counted_) + (step - counted_);
+    counted_ = step;
+    if (progress_ != nullptr && *progress_) {
+      (*progress_)("decimate",
+                   std::min(1.0, static_cast<double>(all) / static_cast<double>(total_)));
     }
+  }
+  /// Counts the collapses after the last notification (call once the decimater returns).
+  void finish(size_t collapses) {
+    done_.fetch_add(collapses - counted_);
+    counted_ = collapses;
   }
   bool abort() const override { return stop_.stop_requested(); }
 
  private:
   const std::stop_token& stop_;
-  const BuildProgress& progress_;
-  size_t done_before_, total_;
+  const BuildProgress* progress_;
+  std::atomic<size_t>& done_;
+  size_t total_;
+  size_t counted_ = 0;
 };
 
 /// Multiple-choice decimation (Wu & Kobbelt 2002, "Fast mesh decimation by multiple-choice
@@ -148,10 +216,25 @@ class MultipleChoiceDecimaterT : public OpenMesh::Decimater::BaseDecimaterT<Mesh
 
   MultipleChoiceDecimaterT(MeshT& mesh, int samples, std::uint64_t seed)
       : Base(mesh), mesh_(mesh), samples_(samples), engine_(seed) {
-    candidates_.reserve(mesh.n_halfedges());
-    for (const auto h : mesh.halfedges()) {
-      if (!mesh.status(mesh.from_vertex_handle(h)).locked()) candidates_.push_back(h.idx());
+    use_candidates([](int) { return true; });
+  }
+
+  /// Draws from now on only the half-edges out of unlocked vertices v with from(v) true.
+  template <class From>
+  void use_candidates(From&& from) {
+    candidates_.clear();
+    for (const auto h : mesh_.halfedges()) {  // skips deleted half-edges
+      const auto v = mesh_.from_vertex_handle(h);
+      if (!mesh_.status(v).locked() && from(v.idx())) candidates_.push_back(h.idx());
     }
+  }
+
+  /// Collapses only into vertices v with region[v] == own (nullptr: into any vertex). A
+  /// half-edge into another region is dropped from the draws for good: its target never moves
+  /// while the restriction holds (the split decimation never collapses those vertices).
+  void restrict_targets(const std::vector<std::uint8_t>* region, std::uint8_t own) {
+    target_region_ = region;
+    own_region_ = own;
   }
 
   /// Up to `collapses` collapses; fewer when no legal collapse turns up in many draws in a row.
@@ -170,7 +253,10 @@ class MultipleChoiceDecimaterT : public OpenMesh::Decimater::BaseDecimaterT<Mesh
       for (int k = 0; k < samples_ && !candidates_.empty(); ++k) {
         const size_t slot = static_cast<size_t>(engine_() % candidates_.size());
         const typename MeshT::HalfedgeHandle h(candidates_[slot]);
-        if (mesh_.status(h).deleted() || mesh_.status(mesh_.from_vertex_handle(h)).locked()) {
+        if (mesh_.status(h).deleted() || mesh_.status(mesh_.from_vertex_handle(h)).locked() ||
+            (target_region_ != nullptr &&
+             (*target_region_)[static_cast<size_t>(mesh_.to_vertex_handle(h).idx())] !=
+                 own_region_)) {
           candidates_[slot] = candidates_.back();  // gone for good
           candidates_.pop_back();
           --k;
@@ -212,7 +298,173 @@ class MultipleChoiceDecimaterT : public OpenMesh::Decimater::BaseDecimaterT<Mesh
   int samples_;
   std::mt19937_64 engine_;
   std::vector<int> candidates_;  // half-edges not yet known to be deleted or locked
+  const std::vector<std::uint8_t>* target_region_ = nullptr;
+  std::uint8_t own_region_ = 0;
 };
+
+/// A MultipleChoiceDecimaterT over a mesh with the hierarchy's modules, set from the settings.
+class ConfiguredDecimater {
+ public:
+  ConfiguredDecimater(OmMesh& om, const MultiresSettings& settings, std::uint64_t seed)
+      : decimater_(om, settings.samples, seed) {
+    decimater_.add(quadric_);
+    decimater_.add(normal_flipping_);
+    decimater_.add(aspect_limit_);
+    decimater_.module(quadric_).set_boundary_weight(settings.boundary_weight);
+    decimater_.module(normal_flipping_)
+        .set_max_normal_deviation(settings.max_normal_deviation_degrees);
+    decimater_.module(aspect_limit_).set_max_aspect_ratio(settings.max_aspect_ratio);
+  }
+  ConfiguredDecimater(const ConfiguredDecimater&) = delete;
+  ConfiguredDecimater& operator=(const ConfiguredDecimater&) = delete;
+
+  bool initialize() { return decimater_.initialize(); }
+  MultipleChoiceDecimaterT<OmMesh>& decimater() { return decimater_; }
+  ModBoundaryQuadricT<OmMesh>& quadrics() { return decimater_.module(quadric_); }
+
+  /// Up to `collapses` collapses (fewer when nothing legal is left or on a stop request).
+  size_t decimate(size_t collapses, StopObserver& observer) {
+    ModBoundaryQuadricT<OmMesh>& quadric_module = quadrics();
+    decimater_.set_observer(&observer);
+    const size_t done = decimater_.decimate(
+        collapses, [&](const auto& ci) { return quadric_module.collapse_priority(ci); });
+    decimater_.set_observer(nullptr);
+    observer.finish(done);
+    return done;
+  }
+
+ private:
+  MultipleChoiceDecimaterT<OmMesh> decimater_;
+  OpenMesh::Decimater::ModHandleT<ModBoundaryQuadricT<OmMesh>> quadric_;
+  OpenMesh::Decimater::ModNormalFlippingT<OmMesh>::Handle normal_flipping_;
+  OpenMesh::Decimater::ModHandleT<ModAspectLimitT<OmMesh>> aspect_limit_;
+};
+
+constexpr std::uint8_t kBand = 2;
+
+/// The regions of a split decimation: 0 and 1 for the insides of the two halves (split at the
+/// median of the unlocked vertices along the bounding box's longest axis, ties by index), kBand
+/// for the vertices with a neighbour in the other half (two vertices wide: one on each side).
+/// No vertex of one inside is a neighbour of the other inside or of the band vertices next to
+/// it, and collapses inside a half only connect it to vertices it already touches, so the two
+/// decimaters read and write disjoint elements of the mesh.
+std::vector<std::uint8_t> split_regions(const OmMesh& om, const MeshTopology& topology) {
+  const int n = topology.vertex_count;
+  Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector3d high = -low;
+  for (int v = 0; v < n; ++v) {
+    const Eigen::Vector3d p = detail::to_eigen(om.point(OmMesh::VertexHandle(v)));
+    low = low.cwiseMin(p);
+    high = high.cwiseMax(p);
+  }
+  Eigen::Index axis = 0;
+  (high - low).maxCoeff(&axis);
+  const auto key = [&](int v) {
+    return std::pair(om.point(OmMesh::VertexHandle(v))[static_cast<int>(axis)], v);
+  };
+  std::vector<int> unlocked;
+  unlocked.reserve(static_cast<size_t>(n));
+  for (int v = 0; v < n; ++v) {
+    if (!om.status(OmMesh::VertexHandle(v)).locked()) unlocked.push_back(v);
+  }
+  std::vector<std::uint8_t> side(static_cast<size_t>(n), 0);
+  if (!unlocked.empty()) {
+    const auto middle = unlocked.begin() + static_cast<std::ptrdiff_t>(unlocked.size() / 2);
+    std::nth_element(unlocked.begin(), middle, unlocked.end(),
+                     [&](int a, int b) { return key(a) < key(b); });
+    const auto pivot = key(*middle);
+    for (int v = 0; v < n; ++v) side[static_cast<size_t>(v)] = key(v) < pivot ? 0 : 1;
+  }
+  std::vector<std::uint8_t> region(side);
+  for (int v = 0; v < n; ++v) {
+    for (int k = topology.vv_offsets[v]; k < topology.vv_offsets[v + 1]; ++k) {
+      if (side[static_cast<size_t>(topology.vv_neighbors[k])] != side[static_cast<size_t>(v)]) {
+        region[static_cast<size_t>(v)] = kBand;
+        break;
+      }
+    }
+  }
+  return region;
+}
+
+/// The first level's decimation in two halves (MultiresSettings::split_above_vertices): each
+/// half's inside by its own decimater, on two threads when settings.threads allows, with the
+/// band along the cut untouched; then the band by `decimater`. Each region loses the same
+/// share of its unlocked vertices, so the density stays even across the cut.
+/// @return the number of collapses; Cancelled on a stop request.
+Result<size_t> decimate_in_halves(OmMesh& om, const MeshTopology& topology,
+                                  ConfiguredDecimater& decimater,
+                                  const MultiresSettings& settings,
+                                  const BuildProgress& progress, std::atomic<size_t>& done,
+                                  size_t total, const std::stop_token& stop) {
+  const std::vector<std::uint8_t> region = split_regions(om, topology);
+  std::array<size_t, 3> unlocked{0, 0, 0};
+  for (const auto v : om.vertices()) {
+    if (!om.status(v).locked()) ++unlocked[region[static_cast<size_t>(v.idx())]];
+  }
+  const size_t all_unlocked = unlocked[0] + unlocked[1] + unlocked[2];
+  const size_t locked = om.n_vertices() - all_unlocked;
+  const auto target = static_cast<size_t>(settings.level_vertices.front());
+  const double keep = target > locked && all_unlocked > 0
+                          ? std::min(1.0, static_cast<double>(target - locked) /
+                                              static_cast<double>(all_unlocked))
+                          : 0.0;
+  const auto share = [&](size_t count) {
+    return count - static_cast<size_t>(std::llround(keep * static_cast<double>(count)));
+  };
+
+  ConfiguredDecimater second(om, settings, settings.seed ^ 0x9e3779b97f4a7c15ULL);
+  if (!second.initialize()) {
+    return Error(ErrorCode::Internal, "OpenMesh decimater failed to initialise");
+  }
+  decimater.decimater().use_candidates(
+      [&](int v) { return region[static_cast<size_t>(v)] == 0; });
+  decimater.decimater().restrict_targets(&region, 0);
+  second.decimater().use_candidates([&](int v) { return region[static_cast<size_t>(v)] == 1; });
+  second.decimater().restrict_targets(&region, 1);
+
+  StopObserver first_observer(stop, &progress, done, total);
+  StopObserver second_observer(stop, nullptr, done, total);
+  size_t first_collapses = 0, second_collapses = 0;
+  std::exception_ptr second_error;
+  const auto run_second = [&] {
+    try {
+      second_collapses = second.decimate(share(unlocked[1]), second_observer);
+    } catch (...) {
+      second_error = std::current_exception();
+    }
+  };
+  if (settings.threads >= 2) {
+    std::thread worker(run_second);
+    try {
+      first_collapses = decimater.decimate(share(unlocked[0]), first_observer);
+    } catch (...) {
+      worker.join();
+      throw;
+    }
+    worker.join();
+  } else {
+    first_collapses = decimater.decimate(share(unlocked[0]), first_observer);
+    run_second();
+  }
+  if (second_error) std::rethrow_exception(second_error);
+  if (stop.stop_requested()) return cancelled("mesh hierarchy");
+
+  // The first decimater goes on over the whole mesh with the second half's quadrics.
+  for (const auto v : om.vertices()) {
+    if (region[static_cast<size_t>(v.idx())] == 1) {
+      decimater.quadrics().set_quadric(v, second.quadrics().quadric(v));
+    }
+  }
+  decimater.decimater().restrict_targets(nullptr, 0);
+  decimater.decimater().use_candidates(
+      [&](int v) { return region[static_cast<size_t>(v)] == kBand; });
+  StopObserver band_observer(stop, &progress, done, total);
+  const size_t band_collapses = decimater.decimate(share(unlocked[2]), band_observer);
+  if (stop.stop_requested()) return cancelled("mesh hierarchy");
+  decimater.decimater().use_candidates([](int) { return true; });
+  return first_collapses + second_collapses + band_collapses;
+}
 
 /// The live part of the decimated mesh as a level (vertex order = fine index order).
 MeshLevel snapshot(const OmMesh& om, const std::vector<int>& constrained_row) {
@@ -268,6 +520,12 @@ Status check_settings(const MultiresSettings& settings) {
   }
   if (settings.samples < 1) {
     return Error(ErrorCode::InvalidArgument, "samples must be >= 1");
+  }
+  if (settings.split_above_vertices < 0) {
+    return Error(ErrorCode::InvalidArgument, "split_above_vertices must be >= 0 (0: never split)");
+  }
+  if (settings.threads < 1) {
+    return Error(ErrorCode::InvalidArgument, "threads must be >= 1");
   }
   if (!(settings.max_aspect_ratio >= 1) || !std::isfinite(settings.max_aspect_ratio)) {
     return Error(ErrorCode::InvalidArgument, "max_aspect_ratio must be finite and >= 1");
@@ -346,18 +604,7 @@ Result<MeshHierarchy> MeshHierarchy::build_checked(const Positions& V, const Tri
 
     om.request_face_normals();  // ModNormalFlippingT compares against them
     om.update_face_normals();
-    MultipleChoiceDecimaterT<OmMesh> decimater(om, settings.samples, settings.seed);
-    OpenMesh::Decimater::ModHandleT<ModBoundaryQuadricT<OmMesh>> quadric;
-    OpenMesh::Decimater::ModNormalFlippingT<OmMesh>::Handle normal_flipping;
-    OpenMesh::Decimater::ModAspectRatioT<OmMesh>::Handle aspect_ratio;
-    decimater.add(quadric);
-    decimater.add(normal_flipping);
-    decimater.add(aspect_ratio);
-    decimater.module(quadric).set_boundary_weight(settings.boundary_weight);
-    decimater.module(normal_flipping)
-        .set_max_normal_deviation(settings.max_normal_deviation_degrees);
-    decimater.module(aspect_ratio).set_aspect_ratio(static_cast<float>(settings.max_aspect_ratio));
-    decimater.module(aspect_ratio).set_binary(true);
+    ConfiguredDecimater decimater(om, settings, settings.seed);
     if (!decimater.initialize()) {
       return Error(ErrorCode::Internal, "OpenMesh decimater failed to initialise");
     }
@@ -366,21 +613,22 @@ Result<MeshHierarchy> MeshHierarchy::build_checked(const Positions& V, const Tri
     const size_t total = alive > static_cast<size_t>(settings.level_vertices.back())
                              ? alive - static_cast<size_t>(settings.level_vertices.back())
                              : 0;
-    size_t done = 0;
-    std::vector<MeshLevel> coarse;
+    std::atomic<size_t> done{0};
     report_progress(progress, "decimate", 0.0);
+    if (settings.split_above_vertices > 0 && n > settings.split_above_vertices &&
+        alive > static_cast<size_t>(settings.level_vertices.front())) {
+      MD_ASSIGN_OR_RETURN(const size_t collapses,
+                          decimate_in_halves(om, topology, decimater, settings, progress, done,
+                                             total, stop));
+      alive -= collapses;
+    }
+    std::vector<MeshLevel> coarse;
     for (size_t k = 0; k < settings.level_vertices.size(); ++k) {
       const auto target = static_cast<size_t>(settings.level_vertices[k]);
       if (alive > target) {
-        StopObserver observer(stop, progress, done, total);
-        decimater.set_observer(&observer);
-        ModBoundaryQuadricT<OmMesh>& quadric_module = decimater.module(quadric);
-        const size_t collapses = decimater.decimate(
-            alive - target, [&](const auto& ci) { return quadric_module.collapse_priority(ci); });
-        decimater.set_observer(nullptr);
+        StopObserver observer(stop, &progress, done, total);
+        alive -= decimater.decimate(alive - target, observer);
         if (stop.stop_requested()) return cancelled("mesh hierarchy");
-        alive -= collapses;
-        done += collapses;
       }
       coarse.push_back(snapshot(om, constrained_row));
     }

@@ -257,6 +257,80 @@ TEST(MeshHierarchy, IsDeterministic) {
   }
 }
 
+double mean_edge_length(const Positions& V, const Triangles& F) {
+  double sum = 0;
+  for (Eigen::Index f = 0; f < F.rows(); ++f) {
+    for (int k = 0; k < 3; ++k) sum += (V.row(F(f, k)) - V.row(F(f, (k + 1) % 3))).norm();
+  }
+  return sum / static_cast<double>(3 * F.rows());
+}
+
+/// How many times denser than on average the level is in the slab of half-width `half_width`
+/// around the plane x[axis] = middle: (level vertices in the slab / fine vertices in the slab) /
+/// (level vertices / fine vertices).
+double slab_density_ratio(const MeshLevel& fine, const MeshLevel& level, int axis, double middle,
+                          double half_width) {
+  const auto in_slab = [&](const Positions& V) {
+    int count = 0;
+    for (Eigen::Index i = 0; i < V.rows(); ++i) count += std::abs(V(i, axis) - middle) < half_width;
+    return count;
+  };
+  const double slab = static_cast<double>(in_slab(level.V)) / in_slab(fine.V);
+  return slab / (static_cast<double>(level.V.rows()) / static_cast<double>(fine.V.rows()));
+}
+
+TEST(MeshHierarchy, ASplitDecimationKeepsTheInvariantsAndTheCutDoesNotShow) {
+  const Edit& spot = spot_bend();
+  const Positions& V = spot.mesh.V;
+  // The cut runs across the longest axis of the bounding box, at the median of the unlocked
+  // vertices; with KeepBorders most vertices are unlocked, so near the median of all of them.
+  const Eigen::RowVector3d extent = V.colwise().maxCoeff() - V.colwise().minCoeff();
+  Eigen::Index axis = 0;
+  extent.maxCoeff(&axis);
+  std::vector<double> along(V.col(axis).data(), V.col(axis).data() + V.rows());
+  std::nth_element(along.begin(), along.begin() + static_cast<long>(along.size() / 2), along.end());
+  const double middle = along[along.size() / 2];
+  const double edge = mean_edge_length(V, spot.mesh.F);
+
+  for (const ConstraintLevels mode : {ConstraintLevels::KeepBorders, ConstraintLevels::KeepAll}) {
+    const bool keep_all = mode == ConstraintLevels::KeepAll;
+    SCOPED_TRACE(keep_all ? "KeepAll" : "KeepBorders");
+    MultiresSettings settings;
+    settings.constraint_levels = mode;
+    settings.level_vertices = {keep_all ? 6000 : 1500, keep_all ? 5200 : 600};
+    settings.split_above_vertices = 0;
+    auto whole = MeshHierarchy::build(V, spot.mesh.F, spot.setup.constrained, settings);
+    ASSERT_TRUE(whole.ok()) << whole.status().to_string();
+    settings.split_above_vertices = 5000;  // Spot 12k is split
+    std::vector<MeshHierarchy> split;
+    for (const int threads : {1, 2}) {
+      settings.threads = threads;
+      auto built = MeshHierarchy::build(V, spot.mesh.F, spot.setup.constrained, settings);
+      ASSERT_TRUE(built.ok()) << built.status().to_string();
+      split.push_back(std::move(*built));
+    }
+    const MeshHierarchy& h = split.front();
+    ASSERT_EQ(h.level_count(), 3);
+    for (int k = 1; k < 3; ++k) {
+      expect_valid_level(h, k, spot.setup.constrained, keep_all);
+      EXPECT_EQ(h.level(k).V.rows(), settings.level_vertices[static_cast<size_t>(k - 1)]);
+      // The same levels on one thread and on two.
+      EXPECT_EQ(h.level(k).to_fine, split.back().level(k).to_fine);
+      EXPECT_EQ(h.level(k).F, split.back().level(k).F);
+      // A split decimation is a different one (other draws), not the whole mesh's.
+      EXPECT_NE(h.level(k).to_fine, whole->level(k).to_fine);
+    }
+    // The band along the cut is decimated like the rest: the level is not much denser next to
+    // the cut than a decimation of the whole mesh is there (without the band's own pass, the
+    // KeepBorders slab came out at 2.3 times the average density, against 1.1 unsplit).
+    const double near_cut = slab_density_ratio(h.level(0), h.level(1), static_cast<int>(axis),
+                                               middle, 3 * edge);
+    const double unsplit = slab_density_ratio(whole->level(0), whole->level(1),
+                                              static_cast<int>(axis), middle, 3 * edge);
+    EXPECT_LT(near_cut, 1.5 * unsplit + 0.25) << "split " << near_cut << ", whole " << unsplit;
+  }
+}
+
 TEST(MeshHierarchy, StopRequestStopsTheBuild) {
   const Edit& spot = spot_bend();
   MultiresSettings settings;
@@ -284,6 +358,27 @@ TEST(MeshHierarchy, StopRequestStopsTheBuild) {
   EXPECT_TRUE(std::is_sorted(fractions.begin(), fractions.end()));
   EXPECT_LT(fractions.back(), 0.5) << "the decimation went on after the stop request";
 
+  // The same with the first level decimated in two halves on two threads: the progress
+  // (reported on the calling thread only) counts both halves, and a stop ends both.
+  settings.split_above_vertices = 5000;
+  settings.threads = 2;
+  std::stop_source during_split;
+  fractions.clear();
+  auto stopped_split = MeshHierarchy::build(
+      spot.mesh.V, spot.mesh.F, spot.setup.constrained, settings,
+      [&, caller = std::this_thread::get_id()](std::string_view phase, double fraction) {
+        EXPECT_EQ(std::this_thread::get_id(), caller);
+        if (phase != "decimate") return;
+        fractions.push_back(fraction);
+        if (fraction > 0.3) during_split.request_stop();
+      },
+      during_split.get_token());
+  EXPECT_EQ(stopped_split.status().code(), ErrorCode::Cancelled);
+  ASSERT_FALSE(fractions.empty());
+  EXPECT_TRUE(std::is_sorted(fractions.begin(), fractions.end()));
+  EXPECT_LT(fractions.back(), 0.5) << "the decimation went on after the stop request";
+  settings.split_above_vertices = MultiresSettings{}.split_above_vertices;
+
   // Unstopped, the same callback reports the phase to its end.
   fractions.clear();
   auto done = MeshHierarchy::build(spot.mesh.V, spot.mesh.F, spot.setup.constrained, settings,
@@ -306,6 +401,20 @@ TEST(MeshHierarchy, RejectsBadInput) {
   repeated << 3, 3;
   EXPECT_EQ(MeshHierarchy::build(cactus.mesh.V, cactus.mesh.F, repeated).status().code(),
             ErrorCode::InvalidArgument);
+  MultiresSettings negative_split;
+  negative_split.split_above_vertices = -1;
+  EXPECT_EQ(MeshHierarchy::build(cactus.mesh.V, cactus.mesh.F, cactus.setup.constrained,
+                                 negative_split)
+                .status()
+                .code(),
+            ErrorCode::InvalidArgument);
+  MultiresSettings no_threads;
+  no_threads.threads = 0;
+  EXPECT_EQ(
+      MeshHierarchy::build(cactus.mesh.V, cactus.mesh.F, cactus.setup.constrained, no_threads)
+          .status()
+          .code(),
+      ErrorCode::InvalidArgument);
   Triangles broken = cactus.mesh.F;
   broken(0, 1) = broken(0, 0);
   EXPECT_EQ(MeshHierarchy::build(cactus.mesh.V, broken, cactus.setup.constrained).status().code(),
@@ -464,55 +573,62 @@ TEST(MultiresDeformer, RefinedFromTheProlongedStartMatchesTheSingleLevelSolve) {
   ASSERT_TRUE(single.ok()) << single.status().to_string();
   const AngleErrors reference = errors_of(single->V);
 
-  MultiresDeformerSettings settings;
-  settings.hierarchy.level_vertices = {500};
-  std::vector<std::string> phases;
-  auto deformer = MultiresDeformer::create(
-      cactus.mesh.V, cactus.mesh.F, cactus.setup.constrained, settings,
-      [&](std::string_view phase, double) {
-        if (phases.empty() || phases.back() != phase) phases.emplace_back(phase);
-      });
-  ASSERT_TRUE(deformer.ok()) << deformer.status().to_string();
-  EXPECT_EQ(deformer->coarse_level(), 1);
-  EXPECT_EQ(deformer->build_report().coarse_vertices, 500);
-  EXPECT_EQ(phases, (std::vector<std::string>{"decimate", "validate", "prolongation",
-                                              "coarse_precompute"}));
-  EXPECT_EQ(deformer->fine_solver(), nullptr);
+  // The whole mesh decimated at once, and in two halves (as meshes above
+  // MultiresSettings::split_above_vertices are) on two threads.
+  for (const int split_above : {0, 1000}) {
+    SCOPED_TRACE(split_above == 0 ? "decimated whole" : "decimated in two halves");
+    MultiresDeformerSettings settings;
+    settings.hierarchy.level_vertices = {500};
+    settings.hierarchy.split_above_vertices = split_above;
+    settings.hierarchy.threads = 2;
+    std::vector<std::string> phases;
+    auto deformer = MultiresDeformer::create(
+        cactus.mesh.V, cactus.mesh.F, cactus.setup.constrained, settings,
+        [&](std::string_view phase, double) {
+          if (phases.empty() || phases.back() != phase) phases.emplace_back(phase);
+        });
+    ASSERT_TRUE(deformer.ok()) << deformer.status().to_string();
+    EXPECT_EQ(deformer->coarse_level(), 1);
+    EXPECT_EQ(deformer->build_report().coarse_vertices, 500);
+    EXPECT_EQ(phases, (std::vector<std::string>{"decimate", "validate", "prolongation",
+                                                "coarse_precompute"}));
+    EXPECT_EQ(deformer->fine_solver(), nullptr);
 
-  // Interactive move: the coarse solve, prolonged. Constrained vertices land exactly on the
-  // coarse solution's (they are coarse vertices).
-  SolveOptions coarse_options = converge;
-  auto move = deformer->move(cactus.setup.targets, coarse_options);
-  ASSERT_TRUE(move.ok()) << move.status().to_string();
-  ASSERT_EQ(move->V.rows(), cactus.mesh.V.rows());
-  const MeshLevel& level = deformer->hierarchy().level(1);
-  for (Eigen::Index j = 0; j < level.constrained.size(); ++j) {
-    EXPECT_EQ(move->V.row(level.to_fine(level.constrained(j))),
-              move->coarse.V.row(level.constrained(j)));
-  }
-  EXPECT_EQ(deformer->positions(), move->V);
-  const AngleErrors prolonged = errors_of(move->V);
+    // Interactive move: the coarse solve, prolonged. Constrained vertices land exactly on the
+    // coarse solution's (they are coarse vertices).
+    SolveOptions coarse_options = converge;
+    auto move = deformer->move(cactus.setup.targets, coarse_options);
+    ASSERT_TRUE(move.ok()) << move.status().to_string();
+    ASSERT_EQ(move->V.rows(), cactus.mesh.V.rows());
+    const MeshLevel& level = deformer->hierarchy().level(1);
+    for (Eigen::Index j = 0; j < level.constrained.size(); ++j) {
+      EXPECT_EQ(move->V.row(level.to_fine(level.constrained(j))),
+                move->coarse.V.row(level.constrained(j)));
+    }
+    EXPECT_EQ(deformer->positions(), move->V);
+    const AngleErrors prolonged = errors_of(move->V);
 
-  // Background refinement from the prolonged positions.
-  auto refined = deformer->refine(cactus.setup.targets, converge);
-  ASSERT_TRUE(refined.ok()) << refined.status().to_string();
-  ASSERT_NE(deformer->fine_solver(), nullptr);
-  EXPECT_TRUE(refined->converged);
-  ASSERT_TRUE(single->converged);
-  EXPECT_LT(refined->iterations, single->iterations);
-  // It started where the move ended (iteration 0 is the starting iterate's energy, not the
-  // Laplacian guess's): the first recorded energy is below the single-level start's.
-  EXPECT_LT(refined->history.front().energy, single->history.front().energy);
-  const AngleErrors multires = errors_of(refined->V);
-  for (const auto& [what, got, want] :
-       {std::tuple{"E_theta", multires.e_theta, reference.e_theta},
-        std::tuple{"E_phi", multires.e_phi, reference.e_phi},
-        std::tuple{"area", multires.area_log_rms, reference.area_log_rms}}) {
-    EXPECT_NEAR(got, want, 0.02 * want) << what << " (prolonged start: E_theta "
-                                        << prolonged.e_theta << ", E_phi " << prolonged.e_phi
-                                        << ")";
+    // Background refinement from the prolonged positions.
+    auto refined = deformer->refine(cactus.setup.targets, converge);
+    ASSERT_TRUE(refined.ok()) << refined.status().to_string();
+    ASSERT_NE(deformer->fine_solver(), nullptr);
+    EXPECT_TRUE(refined->converged);
+    ASSERT_TRUE(single->converged);
+    EXPECT_LT(refined->iterations, single->iterations);
+    // It started where the move ended (iteration 0 is the starting iterate's energy, not the
+    // Laplacian guess's): the first recorded energy is below the single-level start's.
+    EXPECT_LT(refined->history.front().energy, single->history.front().energy);
+    const AngleErrors multires = errors_of(refined->V);
+    for (const auto& [what, got, want] :
+         {std::tuple{"E_theta", multires.e_theta, reference.e_theta},
+          std::tuple{"E_phi", multires.e_phi, reference.e_phi},
+          std::tuple{"area", multires.area_log_rms, reference.area_log_rms}}) {
+      EXPECT_NEAR(got, want, 0.02 * want) << what << " (prolonged start: E_theta "
+                                          << prolonged.e_theta << ", E_phi " << prolonged.e_phi
+                                          << ")";
+    }
+    EXPECT_EQ(deformer->positions(), refined->V);
   }
-  EXPECT_EQ(deformer->positions(), refined->V);
 }
 
 TEST(MultiresDeformer, RejectsALevelOutOfRangeAndWrongTargets) {
