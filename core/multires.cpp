@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <exception>
 #include <limits>
+#include <numbers>
 #include <optional>
 #include <random>
 #include <thread>
@@ -18,7 +19,6 @@
 #include <Eigen/Geometry>
 #include <OpenMesh/Tools/Decimater/BaseDecimaterT.hh>
 #include <OpenMesh/Tools/Decimater/ModBaseT.hh>
-#include <OpenMesh/Tools/Decimater/ModNormalFlippingT.hh>
 #include <OpenMesh/Tools/Decimater/ModQuadricT.hh>  // QuadricT, with the traits it needs first
 #include <OpenMesh/Tools/Decimater/Observer.hh>
 
@@ -123,21 +123,29 @@ class ModBoundaryQuadricT : public OpenMesh::Decimater::ModBaseT<MeshT> {
   OpenMesh::VPropHandleT<OpenMesh::Geometry::Quadricd> quadrics_;
 };
 
-/// Refuses collapses that would leave a face around the removed vertex with an aspect ratio
-/// (longest edge over its height) above the limit, unless they improve the worst face of the
-/// one-ring: the rule of OpenMesh's ModAspectRatioT in binary mode, with the ratios before the
-/// collapse computed from the current one-ring (ModAspectRatioT caches them per face and
-/// refreshes them before a collapse, from the positions the collapse is about to change).
-/// Stateless, so that two decimaters over disjoint parts of one mesh can share nothing.
+/// The one-ring rules of a collapse, in one pass over the faces around the removed vertex:
+///  - no face normal may turn by more than the maximum deviation (OpenMesh's ModNormalFlippingT);
+///  - no face may be left with an aspect ratio (longest edge over its height) above the limit,
+///    unless the collapse improves the worst face of the one-ring (OpenMesh's ModAspectRatioT in
+///    binary mode).
+/// Both compare against the current one-ring, computed here: OpenMesh's modules read face
+/// normals and ratios stored per face, which the decimater has to refresh after every collapse
+/// (the normals of about six faces), and ModNormalFlippingT moves the vertex in the mesh to
+/// price the collapse. This module keeps no state and writes nothing, so two decimaters over
+/// disjoint parts of one mesh share nothing through it.
 template <class MeshT>
-class ModAspectLimitT : public OpenMesh::Decimater::ModBaseT<MeshT> {
+class ModOneRingT : public OpenMesh::Decimater::ModBaseT<MeshT> {
  public:
-  DECIMATING_MODULE(ModAspectLimitT, MeshT, AspectLimit);
+  DECIMATING_MODULE(ModOneRingT, MeshT, OneRing);
 
-  explicit ModAspectLimitT(MeshT& mesh) : Base(mesh, true) {}
+  explicit ModOneRingT(MeshT& mesh) : Base(mesh, true) {}
 
+  /// The largest rotation of a face normal, in degrees (0, 180].
+  void set_max_normal_deviation(double degrees) {
+    min_cos_ = std::cos(degrees * std::numbers::pi / 180.0);
+  }
   /// The largest aspect ratio a collapse may create; >= 1.
-  void set_max_aspect_ratio(double ratio) { min_inverse_ = 1.0 / ratio; }
+  void set_max_aspect_ratio(double ratio) { min_inverse_aspect_ = 1.0 / ratio; }
 
   float collapse_priority(const CollapseInfo& ci) override {
     const MeshT& mesh = Base::mesh();
@@ -145,18 +153,30 @@ class ModAspectLimitT : public OpenMesh::Decimater::ModBaseT<MeshT> {
     for (const auto f : mesh.vf_range(ci.v0)) {
       auto fv = mesh.cfv_iter(f);
       const auto a = *fv, b = *(++fv), c = *(++fv);
-      before = std::min(before, inverse_aspect(mesh.point(a), mesh.point(b), mesh.point(c)));
+      const OpenMesh::Vec3d &pa = mesh.point(a), &pb = mesh.point(b), &pc = mesh.point(c);
+      before = std::min(before, inverse_aspect(pa, pb, pc));
       if (a == ci.v1 || b == ci.v1 || c == ci.v1) continue;  // removed by the collapse
-      const auto at = [&](typename MeshT::VertexHandle v) -> const typename MeshT::Point& {
-        return v == ci.v0 ? ci.p1 : mesh.point(v);
-      };
-      after = std::min(after, inverse_aspect(at(a), at(b), at(c)));
+      const OpenMesh::Vec3d& qa = a == ci.v0 ? ci.p1 : pa;
+      const OpenMesh::Vec3d& qb = b == ci.v0 ? ci.p1 : pb;
+      const OpenMesh::Vec3d& qc = c == ci.v0 ? ci.p1 : pc;
+      const double turn = OpenMesh::dot(unit_normal(pa, pb, pc), unit_normal(qa, qb, qc));
+      if (turn < min_cos_) return float(Base::ILLEGAL_COLLAPSE);
+      after = std::min(after, inverse_aspect(qa, qb, qc));
     }
-    return after > before || after > min_inverse_ ? float(Base::LEGAL_COLLAPSE)
-                                                  : float(Base::ILLEGAL_COLLAPSE);
+    return after > before || after > min_inverse_aspect_ ? float(Base::LEGAL_COLLAPSE)
+                                                         : float(Base::ILLEGAL_COLLAPSE);
   }
 
  private:
+  /// The unit normal of a triangle, zero when degenerate (PolyMeshT::calc_face_normal's
+  /// arithmetic).
+  static OpenMesh::Vec3d unit_normal(const OpenMesh::Vec3d& p0, const OpenMesh::Vec3d& p1,
+                                     const OpenMesh::Vec3d& p2) {
+    OpenMesh::Vec3d n = (p2 - p1) % (p0 - p1);
+    const double length = n.norm();
+    return length != 0.0 ? n *= (1.0 / length) : n;
+  }
+
   /// Height over longest edge of a triangle (1 / aspect ratio; 0 when degenerate).
   static double inverse_aspect(const OpenMesh::Vec3d& p0, const OpenMesh::Vec3d& p1,
                                const OpenMesh::Vec3d& p2) {
@@ -166,7 +186,8 @@ class ModAspectLimitT : public OpenMesh::Decimater::ModBaseT<MeshT> {
     return longest > 0 ? twice_area / longest : 0.0;
   }
 
-  double min_inverse_ = 0.1;
+  double min_cos_ = std::cos(std::numbers::pi / 4);
+  double min_inverse_aspect_ = 0.1;
 };
 
 /// Forwards the decimater's progress and stops it on request. The collapses of every decimater
@@ -243,7 +264,6 @@ class MultipleChoiceDecimaterT : public OpenMesh::Decimater::BaseDecimaterT<Mesh
   template <class Cost>
   size_t decimate(size_t collapses, Cost&& cost) {
     if (!this->is_initialized()) return 0;
-    const bool update_normals = mesh_.has_face_normals();
     size_t done = 0;
     int fruitless = 0;
     std::vector<std::pair<float, int>> drawn;
@@ -283,9 +303,6 @@ class MultipleChoiceDecimaterT : public OpenMesh::Decimater::BaseDecimaterT<Mesh
       this->preprocess_collapse(ci);
       mesh_.collapse(best);
       ++done;
-      if (update_normals) {
-        for (const auto f : mesh_.vf_range(ci.v1)) mesh_.set_normal(f, mesh_.calc_face_normal(f));
-      }
       this->postprocess_collapse(ci);
       if (!this->notify_observer(done)) break;
     }
@@ -308,12 +325,10 @@ class ConfiguredDecimater {
   ConfiguredDecimater(OmMesh& om, const MultiresSettings& settings, std::uint64_t seed)
       : decimater_(om, settings.samples, seed) {
     decimater_.add(quadric_);
-    decimater_.add(normal_flipping_);
-    decimater_.add(aspect_limit_);
+    decimater_.add(one_ring_);
     decimater_.module(quadric_).set_boundary_weight(settings.boundary_weight);
-    decimater_.module(normal_flipping_)
-        .set_max_normal_deviation(settings.max_normal_deviation_degrees);
-    decimater_.module(aspect_limit_).set_max_aspect_ratio(settings.max_aspect_ratio);
+    decimater_.module(one_ring_).set_max_normal_deviation(settings.max_normal_deviation_degrees);
+    decimater_.module(one_ring_).set_max_aspect_ratio(settings.max_aspect_ratio);
   }
   ConfiguredDecimater(const ConfiguredDecimater&) = delete;
   ConfiguredDecimater& operator=(const ConfiguredDecimater&) = delete;
@@ -336,8 +351,7 @@ class ConfiguredDecimater {
  private:
   MultipleChoiceDecimaterT<OmMesh> decimater_;
   OpenMesh::Decimater::ModHandleT<ModBoundaryQuadricT<OmMesh>> quadric_;
-  OpenMesh::Decimater::ModNormalFlippingT<OmMesh>::Handle normal_flipping_;
-  OpenMesh::Decimater::ModHandleT<ModAspectLimitT<OmMesh>> aspect_limit_;
+  OpenMesh::Decimater::ModHandleT<ModOneRingT<OmMesh>> one_ring_;
 };
 
 constexpr std::uint8_t kBand = 2;
@@ -602,8 +616,6 @@ Result<MeshHierarchy> MeshHierarchy::build_checked(const Positions& V, const Tri
       }
     }
 
-    om.request_face_normals();  // ModNormalFlippingT compares against them
-    om.update_face_normals();
     ConfiguredDecimater decimater(om, settings, settings.seed);
     if (!decimater.initialize()) {
       return Error(ErrorCode::Internal, "OpenMesh decimater failed to initialise");
