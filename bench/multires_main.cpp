@@ -18,6 +18,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <Eigen/Core>
@@ -189,7 +190,9 @@ json run_multires(const Model& model, const Options& options) {
                                              ? core::ConstraintLevels::KeepAll
                                              : core::ConstraintLevels::KeepBorders;
   settings.solver.threads = options.threads;
-  settings.hierarchy.threads = std::max(1, options.threads);
+  settings.hierarchy.threads =
+      options.threads > 0 ? options.threads
+                          : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
   settings.hierarchy.split_above_vertices = options.split_above;
   auto start = std::chrono::steady_clock::now();
   core::MultiresDeformer deformer = value_or_throw(

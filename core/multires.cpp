@@ -423,8 +423,11 @@ Result<size_t> decimate_in_halves(OmMesh& om, const MeshTopology& topology,
                           ? std::min(1.0, static_cast<double>(target - locked) /
                                               static_cast<double>(all_unlocked))
                           : 0.0;
+  // Rounded towards fewer collapses, so that the halves and the band never overshoot the
+  // target together; the level's own pass afterwards makes up the difference.
   const auto share = [&](size_t count) {
-    return count - static_cast<size_t>(std::llround(keep * static_cast<double>(count)));
+    const auto kept = static_cast<size_t>(std::ceil(keep * static_cast<double>(count)));
+    return count - std::min(count, kept);
   };
 
   ConfiguredDecimater second(om, settings, settings.seed ^ 0x9e3779b97f4a7c15ULL);
@@ -473,8 +476,10 @@ Result<size_t> decimate_in_halves(OmMesh& om, const MeshTopology& topology,
   decimater.decimater().restrict_targets(nullptr, 0);
   decimater.decimater().use_candidates(
       [&](int v) { return region[static_cast<size_t>(v)] == kBand; });
+  const size_t alive = om.n_vertices() - first_collapses - second_collapses;
+  const size_t band_share = std::min(share(unlocked[2]), alive > target ? alive - target : 0);
   StopObserver band_observer(stop, &progress, done, total);
-  const size_t band_collapses = decimater.decimate(share(unlocked[2]), band_observer);
+  const size_t band_collapses = decimater.decimate(band_share, band_observer);
   if (stop.stop_requested()) return cancelled("mesh hierarchy");
   decimater.decimater().use_candidates([](int) { return true; });
   return first_collapses + second_collapses + band_collapses;

@@ -102,11 +102,12 @@ struct MultiresSettings {
   /// face) relative to the face quadrics; >= 0. 0 lets open borders shrink.
   double boundary_weight = 100.0;
   /// Meshes with more vertices than this are decimated to the first level in two halves: the
-  /// vertices are split at the median of the bounding box's longest axis, each half's inside is
-  /// decimated by its own decimater (its own draws, seeded from `seed`) while a band two
-  /// vertices wide along the cut stays untouched, then the band is decimated and the level
-  /// finished over the whole mesh. The halves touch disjoint parts of the mesh, so they can run
-  /// on two threads; the result does not depend on `threads`. 0 never splits.
+  /// vertices are split at the median of the unlocked ones along the bounding box's longest
+  /// axis, each half's inside is decimated by its own decimater (its own draws, seeded from
+  /// `seed`) while a band two vertices wide along the cut stays untouched, then the band is
+  /// decimated and the level finished over the whole mesh. The halves touch disjoint parts of
+  /// the mesh, so they can run on two threads; the result does not depend on `threads`. 0 never
+  /// splits.
   int split_above_vertices = 50000;
   /// Threads for a split decimation (1 or more; only two are used). 1 runs the halves in turn.
   int threads = 1;
