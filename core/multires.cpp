@@ -11,8 +11,8 @@
 #include <numbers>
 #include <optional>
 #include <random>
-#include <thread>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -362,20 +362,12 @@ constexpr std::uint8_t kBand = 2;
 /// No vertex of one inside is a neighbour of the other inside or of the band vertices next to
 /// it, and collapses inside a half only connect it to vertices it already touches, so the two
 /// decimaters read and write disjoint elements of the mesh.
-std::vector<std::uint8_t> split_regions(const OmMesh& om, const MeshTopology& topology) {
+std::vector<std::uint8_t> split_regions(const Positions& V, const OmMesh& om,
+                                        const MeshTopology& topology) {
   const int n = topology.vertex_count;
-  Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
-  Eigen::Vector3d high = -low;
-  for (int v = 0; v < n; ++v) {
-    const Eigen::Vector3d p = detail::to_eigen(om.point(OmMesh::VertexHandle(v)));
-    low = low.cwiseMin(p);
-    high = high.cwiseMax(p);
-  }
   Eigen::Index axis = 0;
-  (high - low).maxCoeff(&axis);
-  const auto key = [&](int v) {
-    return std::pair(om.point(OmMesh::VertexHandle(v))[static_cast<int>(axis)], v);
-  };
+  (V.colwise().maxCoeff() - V.colwise().minCoeff()).maxCoeff(&axis);
+  const auto key = [&](int v) { return std::pair(V(v, axis), v); };
   std::vector<int> unlocked;
   unlocked.reserve(static_cast<size_t>(n));
   for (int v = 0; v < n; ++v) {
@@ -406,12 +398,12 @@ std::vector<std::uint8_t> split_regions(const OmMesh& om, const MeshTopology& to
 /// band along the cut untouched; then the band by `decimater`. Each region loses the same
 /// share of its unlocked vertices, so the density stays even across the cut.
 /// @return the number of collapses; Cancelled on a stop request.
-Result<size_t> decimate_in_halves(OmMesh& om, const MeshTopology& topology,
+Result<size_t> decimate_in_halves(const Positions& V, OmMesh& om, const MeshTopology& topology,
                                   ConfiguredDecimater& decimater,
                                   const MultiresSettings& settings,
                                   const BuildProgress& progress, std::atomic<size_t>& done,
                                   size_t total, const std::stop_token& stop) {
-  const std::vector<std::uint8_t> region = split_regions(om, topology);
+  const std::vector<std::uint8_t> region = split_regions(V, om, topology);
   std::array<size_t, 3> unlocked{0, 0, 0};
   for (const auto v : om.vertices()) {
     if (!om.status(v).locked()) ++unlocked[region[static_cast<size_t>(v.idx())]];
@@ -635,8 +627,8 @@ Result<MeshHierarchy> MeshHierarchy::build_checked(const Positions& V, const Tri
     if (settings.split_above_vertices > 0 && n > settings.split_above_vertices &&
         alive > static_cast<size_t>(settings.level_vertices.front())) {
       MD_ASSIGN_OR_RETURN(const size_t collapses,
-                          decimate_in_halves(om, topology, decimater, settings, progress, done,
-                                             total, stop));
+                          decimate_in_halves(V, om, topology, decimater, settings, progress,
+                                             done, total, stop));
       alive -= collapses;
     }
     std::vector<MeshLevel> coarse;
