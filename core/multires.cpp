@@ -26,6 +26,7 @@
 #include "core/laplacian.h"
 #include "core/openmesh_adapter.h"
 #include "core/sparse_cholesky.h"
+#include "core/split_cholesky.h"
 #include "core/topology.h"
 #include "core/validate.h"
 
@@ -693,7 +694,7 @@ struct Prolongation::Impl {
   Eigen::VectorXi coarse_to_fine;
   std::vector<int> free_vertices;  // fine vertices that are not coarse, ascending
   SparseMatrix L_fc;               // #free x #coarse block of the Laplacian
-  SparseCholesky cholesky;         // of the #free x #free block
+  SplitCholesky cholesky;          // of the #free x #free block
   std::vector<int> tangent_neighbor;  // #V: the neighbour that fixes the tangent direction
   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> detail;  // frame coords / scale
 
@@ -763,16 +764,20 @@ int Prolongation::coarse_vertex_count() const { return impl_->nc; }
 
 Result<Prolongation> Prolongation::create(const Positions& V, const Triangles& F,
                                           const Eigen::VectorXi& coarse_to_fine,
-                                          std::stop_token stop) {
+                                          std::stop_token stop, int threads) {
+  if (threads < 1) {
+    return Error(ErrorCode::InvalidArgument,
+                 "prolongation threads must be >= 1, got " + std::to_string(threads));
+  }
   MD_RETURN_IF_ERROR(validate_triangle_mesh(V, F));
   MD_ASSIGN_OR_RETURN(const MeshTopology topology, build_topology(F, static_cast<int>(V.rows())));
-  return create_checked(V, F, topology, coarse_to_fine, stop);
+  return create_checked(V, F, topology, coarse_to_fine, stop, threads);
 }
 
 Result<Prolongation> Prolongation::create_checked(const Positions& V, const Triangles& F,
                                                   const MeshTopology& topology,
                                                   const Eigen::VectorXi& coarse_to_fine,
-                                                  const std::stop_token& stop) {
+                                                  const std::stop_token& stop, int threads) {
   return guard_exceptions("building the prolongation", ErrorCode::Internal,
                           [&]() -> Result<Prolongation> {
     const int n = static_cast<int>(V.rows());
@@ -817,11 +822,11 @@ Result<Prolongation> Prolongation::create_checked(const Positions& V, const Tria
       SparseMatrix L_ff(nf, nf);
       L_ff.setFromTriplets(ff.begin(), ff.end());
       L_ff.makeCompressed();
-      // Kept for one back-substitution per move: the simplicial form solves faster.
-      s.cholesky.set_simplicial_solves(true);
-      MD_RETURN_IF_ERROR(s.cholesky.analyze(L_ff));
-      if (stop.stop_requested()) return cancelled("prolongation");
-      MD_RETURN_IF_ERROR(s.cholesky.factorize(L_ff));
+      Positions free_points(nf, 3);
+      for (int k = 0; k < nf; ++k) free_points.row(k) = V.row(s.free_vertices[static_cast<size_t>(k)]);
+      SplitCholeskySettings split;
+      split.threads = threads;
+      MD_RETURN_IF_ERROR(s.cholesky.factorize(L_ff, free_points, split, stop));
     }
     if (stop.stop_requested()) return cancelled("prolongation");
 
@@ -836,6 +841,9 @@ Result<Prolongation> Prolongation::create_checked(const Positions& V, const Tria
     s.detail.resize(n, 3);
     for (int i = 0; i < n; ++i) {
       // The most tangential neighbour: its edge direction is the least sensitive to the normal.
+      // Near-ties (regular meshes are full of exact ones) go to the first neighbour, so that
+      // round-off in B (e.g. one thread or two) cannot flip the choice and the frame with it.
+      constexpr double kTie = 1e-9;
       const Eigen::Vector3d normal = normal_sum.row(i).normalized();
       double best = -1;
       for (int k = topology.vv_offsets[i]; k < topology.vv_offsets[i + 1]; ++k) {
@@ -844,7 +852,7 @@ Result<Prolongation> Prolongation::create_checked(const Positions& V, const Tria
         const double length = edge.norm();
         if (!(length > 0)) continue;
         const double tangential = (edge - normal.dot(edge) * normal).norm() / length;
-        if (tangential > best) {
+        if (tangential > best + kTie) {
           best = tangential;
           s.tangent_neighbor[static_cast<size_t>(i)] = j;
         }
@@ -951,7 +959,8 @@ Result<MultiresDeformer> MultiresDeformer::create(const Positions& V, const Tria
   start = Clock::now();
   report_progress(progress, "prolongation", 0.0);
   MD_ASSIGN_OR_RETURN(Prolongation prolongation,
-                      Prolongation::create_checked(V, F, topology, level.to_fine, stop));
+                      Prolongation::create_checked(V, F, topology, level.to_fine, stop,
+                                                   settings.hierarchy.threads));
   s.prolongation.emplace(std::move(prolongation));
   report_progress(progress, "prolongation", 1.0);
   s.report.prolongation_seconds = seconds_since(start);

@@ -110,6 +110,7 @@ struct MultiresSettings {
   /// splits.
   int split_above_vertices = 50000;
   /// Threads for a split decimation (1 or more; only two are used). 1 runs the halves in turn.
+  /// MultiresDeformer also gives them to its Prolongation (its factorization and solves).
   int threads = 1;
 };
 
@@ -175,12 +176,17 @@ class Prolongation {
   /// @param[in] coarse_to_fine  #Vc distinct fine indices of the coarse vertices (a level's
   ///                            to_fine); every connected component must hold one.
   /// @param[in] stop            checked before and after the factorization.
-  /// @return the operator; InvalidArgument for a bad index or a component without a coarse
-  ///         vertex; NumericalFailure if the factorization fails or the rest base surface has a
-  ///         degenerate vertex frame (naming the vertex); Cancelled.
+  /// @param[in] threads         >= 1; with 2 or more a large base system (20k free vertices
+  ///                            and up) is factored in two halves side by side, and apply()
+  ///                            solves them side by side too (core/split_cholesky.h: half the
+  ///                            factorization time at 187k vertices). The result is the same
+  ///                            to round-off.
+  /// @return the operator; InvalidArgument for a bad index, a component without a coarse
+  ///         vertex or threads < 1; NumericalFailure if the factorization fails or the rest
+  ///         base surface has a degenerate vertex frame (naming the vertex); Cancelled.
   [[nodiscard]] static Result<Prolongation> create(const Positions& V, const Triangles& F,
                                                    const Eigen::VectorXi& coarse_to_fine,
-                                                   std::stop_token stop = {});
+                                                   std::stop_token stop = {}, int threads = 1);
 
   /// Fine positions for #Vc x 3 coarse positions (row i for coarse_to_fine(i)); coarse
   /// vertices land exactly on their coarse positions.
@@ -201,7 +207,8 @@ class Prolongation {
   [[nodiscard]] static Result<Prolongation> create_checked(const Positions& V, const Triangles& F,
                                                            const MeshTopology& topology,
                                                            const Eigen::VectorXi& coarse_to_fine,
-                                                           const std::stop_token& stop);
+                                                           const std::stop_token& stop,
+                                                           int threads);
   struct Impl;
   explicit Prolongation(std::unique_ptr<Impl> impl);
   std::unique_ptr<Impl> impl_;

@@ -521,6 +521,41 @@ TEST(Prolongation, DetailsFollowALocalBendWithoutSeams) {
   EXPECT_LT(ours.e_phi, exact.e_phi + 0.02);
 }
 
+TEST(Prolongation, TwoThreadsGiveTheOneThreadResult) {
+  // 25,921 vertices, every 16th coarse: 24k free vertices, above the size from which two threads
+  // factor and solve the base system in two halves (core/split_cholesky.h).
+  const MeshData plane = make_bumpy_plane(161).mesh;
+  Eigen::VectorXi coarse_to_fine((plane.V.rows() + 15) / 16);
+  for (Eigen::Index i = 0; i < coarse_to_fine.size(); ++i) {
+    coarse_to_fine(i) = static_cast<int>(16 * i);
+  }
+  Positions coarse_rest(coarse_to_fine.size(), 3);
+  for (Eigen::Index i = 0; i < coarse_to_fine.size(); ++i) {
+    coarse_rest.row(i) = plane.V.row(coarse_to_fine(i));
+  }
+  // A smooth non-affine deformation of the coarse vertices (a twist and a bulge).
+  Positions coarse = coarse_rest;
+  for (Eigen::Index i = 0; i < coarse.rows(); ++i) {
+    const double x = coarse(i, 0), y = coarse(i, 1), angle = 0.3 * x;
+    coarse(i, 1) = std::cos(angle) * y - std::sin(angle) * coarse(i, 2);
+    coarse(i, 2) = std::sin(angle) * y + std::cos(angle) * coarse(i, 2) + 0.2 * std::exp(-x * x);
+  }
+  auto one = Prolongation::create(plane.V, plane.F, coarse_to_fine, {}, 1);
+  auto two = Prolongation::create(plane.V, plane.F, coarse_to_fine, {}, 2);
+  ASSERT_TRUE(one.ok()) << one.status().to_string();
+  ASSERT_TRUE(two.ok()) << two.status().to_string();
+  const double diagonal = bbox_diagonal(plane);
+  auto rest = two->apply(coarse_rest);
+  ASSERT_TRUE(rest.ok());
+  EXPECT_LT((*rest - plane.V).cwiseAbs().maxCoeff(), test::kExactTol * diagonal);
+  auto a = one->apply(coarse), b = two->apply(coarse);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_GT((*a - plane.V).cwiseAbs().maxCoeff(), 0.01 * diagonal);  // it did deform
+  EXPECT_LT((*a - *b).cwiseAbs().maxCoeff(), 1e-10 * diagonal);
+  EXPECT_EQ(Prolongation::create(plane.V, plane.F, coarse_to_fine, {}, 0).status().code(),
+            ErrorCode::InvalidArgument);
+}
+
 TEST(Prolongation, RejectsBadInput) {
   const Edit cactus = edit_of(make_cactus(1));
   Eigen::VectorXi out_of_range(1);
