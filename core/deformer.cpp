@@ -229,12 +229,16 @@ Result<StartFrom> parse_start(std::string_view name) {
                    "\" (expected auto, laplacian, previous, rigid, propagated or paper)");
 }
 
-Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& V0,
-                                                const Triangles& F,
-                                                const Eigen::VectorXi& constrained,
-                                                const DeformerSettings& settings,
-                                                std::stop_token stop,
-                                                const BuildProgress& progress) {
+namespace {
+
+/// make_deformer; `checked` (may be null) is the topology of a mesh the caller validated.
+Result<std::unique_ptr<Deformer>> make_deformer_impl(Method method, const Positions& V0,
+                                                     const Triangles& F,
+                                                     const MeshTopology* checked,
+                                                     const Eigen::VectorXi& constrained,
+                                                     const DeformerSettings& settings,
+                                                     std::stop_token stop,
+                                                     const BuildProgress& progress) {
   if (stop.stop_requested()) {
     return Error(ErrorCode::Cancelled, "precompute cancelled (deadline or client)");
   }
@@ -253,8 +257,11 @@ Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& 
         // Big handle regions would keep the coarse level large: only their borders are kept.
         multires.hierarchy.constraint_levels = ConstraintLevels::KeepBorders;
         multires.hierarchy.threads = std::max(1, settings.threads);
-        MD_ASSIGN_OR_RETURN(MultiresDeformer built,
-                            MultiresDeformer::create(V0, F, constrained, multires, progress, stop));
+        MD_ASSIGN_OR_RETURN(
+            MultiresDeformer built,
+            checked != nullptr
+                ? MultiresDeformer::create(V0, F, *checked, constrained, multires, progress, stop)
+                : MultiresDeformer::create(V0, F, constrained, multires, progress, stop));
         return std::unique_ptr<Deformer>(
             std::make_unique<MultiresScaleAwareDeformer>(std::move(built), constrained));
       }
@@ -265,14 +272,21 @@ Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& 
       ArapSettings s;
       s.threads = settings.threads;
       report_progress(progress, "factorize", 0.0);
-      MD_ASSIGN_OR_RETURN(ArapSolver solver, ArapSolver::create(V0, F, constrained, s));
+      MD_ASSIGN_OR_RETURN(ArapSolver solver,
+                          checked != nullptr ? ArapSolver::create(V0, F, *checked, constrained, s)
+                                             : ArapSolver::create(V0, F, constrained, s));
       report_progress(progress, "factorize", 1.0);
       return std::unique_ptr<Deformer>(std::make_unique<ArapDeformer>(std::move(solver)));
     }
     case Method::Laplacian: {
       report_progress(progress, "factorize", 0.0);
-      MD_RETURN_IF_ERROR(validate_triangle_mesh(V0, F));
-      MD_ASSIGN_OR_RETURN(MeshTopology topology, build_topology(F, static_cast<int>(V0.rows())));
+      MeshTopology topology;
+      if (checked != nullptr) {
+        topology = *checked;
+      } else {
+        MD_RETURN_IF_ERROR(validate_triangle_mesh(V0, F));
+        MD_ASSIGN_OR_RETURN(topology, build_topology(F, static_cast<int>(V0.rows())));
+      }
       MD_ASSIGN_OR_RETURN(LaplacianEditor editor,
                           LaplacianEditor::create(V0, F, topology, constrained,
                                                   settings.laplacian_weights, settings.lambda));
@@ -283,6 +297,29 @@ Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& 
   }
   return Error(ErrorCode::InvalidArgument,
                "unknown method " + std::to_string(static_cast<int>(method)));
+}
+
+}  // namespace
+
+Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& V0,
+                                                const Triangles& F,
+                                                const Eigen::VectorXi& constrained,
+                                                const DeformerSettings& settings,
+                                                std::stop_token stop,
+                                                const BuildProgress& progress) {
+  return make_deformer_impl(method, V0, F, nullptr, constrained, settings, std::move(stop),
+                            progress);
+}
+
+Result<std::unique_ptr<Deformer>> make_deformer(Method method, const Positions& V0,
+                                                const Triangles& F, const MeshTopology& topology,
+                                                const Eigen::VectorXi& constrained,
+                                                const DeformerSettings& settings,
+                                                std::stop_token stop,
+                                                const BuildProgress& progress) {
+  MD_ASSERT(topology.vertex_count == V0.rows() && topology.face_count == F.rows());
+  return make_deformer_impl(method, V0, F, &topology, constrained, settings, std::move(stop),
+                            progress);
 }
 
 }  // namespace meshdeform::core

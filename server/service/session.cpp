@@ -298,8 +298,8 @@ void Session::init_deformer_cache() {
                                         std::stop_token stop, const core::BuildProgress& progress)
       -> Result<std::unique_ptr<core::Deformer>> {
     MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
-                        core::make_deformer(method, rest_.V, rest_.F, constrained, settings_, stop,
-                                            progress));
+                        core::make_deformer(method, rest_.V, rest_.F, topology_, constrained,
+                                            settings_, stop, progress));
     counters_->deformer_constructions.fetch_add(1);
     return deformer;
   };

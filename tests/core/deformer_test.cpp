@@ -5,6 +5,8 @@
 #include <gtest/gtest.h>
 
 #include <stop_token>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -77,6 +79,42 @@ TEST(Deformer, EveryMethodBendsTowardTheTargets) {
     EXPECT_EQ(d.positions(), report->V);
     d.reset();
     EXPECT_EQ(d.positions(), bend.mesh.V);
+  }
+}
+
+TEST(Deformer, AGivenTopologyGivesTheSameDeformerAsValidatingAgain) {
+  // What a server session does: validate and build the topology once at upload, then hand the
+  // topology to every make_deformer (multiresolution forced on this small mesh).
+  const Bend bend = make_bend(16);
+  auto topology = build_topology(bend.mesh.F, static_cast<int>(bend.mesh.V.rows()));
+  ASSERT_TRUE(topology.ok());
+  DeformerSettings multires;
+  multires.multires_above = 100;
+  multires.multires_coarse_vertices = 120;
+  ASSERT_GT(bend.mesh.V.rows(), 2 * multires.multires_coarse_vertices);
+  for (const auto& [method, settings] :
+       {std::pair{Method::ScaleAware, DeformerSettings{}}, std::pair{Method::ScaleAware, multires},
+        std::pair{Method::Arap, DeformerSettings{}},
+        std::pair{Method::Laplacian, DeformerSettings{}}}) {
+    SCOPED_TRACE(std::string(method_name(method)) +
+                 (settings.multires_above > 0 ? " multires" : ""));
+    auto validated = make_deformer(method, bend.mesh.V, bend.mesh.F, bend.constrained, settings);
+    auto given = make_deformer(method, bend.mesh.V, bend.mesh.F, *topology, bend.constrained,
+                               settings);
+    ASSERT_TRUE(validated.ok()) << validated.status().to_string();
+    ASSERT_TRUE(given.ok()) << given.status().to_string();
+    auto a = (*validated)->solve(bend.targets);
+    auto b = (*given)->solve(bend.targets);
+    ASSERT_TRUE(a.ok() && b.ok());
+    EXPECT_EQ(a->V, b->V);
+    EXPECT_GT((a->V - bend.mesh.V).cwiseAbs().maxCoeff(), 0.0);
+    // The constrained indices are still checked.
+    Eigen::VectorXi bad = bend.constrained;
+    bad(0) = static_cast<int>(bend.mesh.V.rows());
+    EXPECT_EQ(make_deformer(method, bend.mesh.V, bend.mesh.F, *topology, bad, settings)
+                  .status()
+                  .code(),
+              ErrorCode::InvalidArgument);
   }
 }
 
