@@ -43,7 +43,9 @@
 /// sparse factor with the sparsity of L, kept in simplicial form for its few right-hand sides,
 /// so a prolongation is three back-substitutions and two linear passes over the mesh (measured
 /// 55-70 ms at 187k vertices, 280-350 ms at 750k, most of it the back-substitutions); a
-/// bi-Laplacian factor is several times denser. The harmonic base is smooth only between coarse vertices (it has a kink at each),
+/// bi-Laplacian factor is several times denser. With two threads the factor is split in two
+/// halves of the mesh and a small dense separator block (core/split_cholesky.h), factored and
+/// solved side by side: half the set-up's factorization time at 187k. The harmonic base is smooth only between coarse vertices (it has a kink at each),
 /// but the details absorb that at rest and follow it under near-rigid local motion.
 ///
 /// `MultiresDeformer` drives the two levels: interactive moves solve on the coarse level and
