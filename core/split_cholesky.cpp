@@ -75,6 +75,7 @@ struct SplitCholesky::Half {
   cholmod_common common{};
   cholmod_factor* factor = nullptr;
   Eigen::MatrixXd L33;         // trailing m x m block of the factor (lower triangular)
+  Eigen::MatrixXd L33_L33t;    // L33 L33' (lower triangle), until the Schur complement is formed
   std::vector<int> sep_order;  // factor column ni + k holds separator unknown sep_order[k]
 
   Half() {
@@ -124,6 +125,8 @@ struct SplitCholesky::Half {
       if (Perm[column] < ni()) return false;
       for (int p = Lp[column]; p < Lp[column] + Lnz[column]; ++p) L33(Li[p] - ni(), k) = Lx[p];
     }
+    L33_L33t.setZero(m, m);
+    L33_L33t.selfadjointView<Eigen::Lower>().rankUpdate(L33);
     return true;
   }
 
@@ -275,24 +278,25 @@ Result<bool> SplitCholesky::Impl::try_split(const SparseMatrix& A, const Positio
   if (stop.stop_requested()) return Error(ErrorCode::Cancelled, "factorization cancelled");
 
   bool ok[2] = {false, false};
-  on_two_threads([&](int h) { ok[h] = halves[h]->factorize(); });
+  on_two_threads([&](int h) {
+    ok[h] = halves[h]->factorize();
+    halves[h]->M = SparseMatrix();  // CHOLMOD's factor holds what the solves need
+  });
   if (!ok[0] || !ok[1]) return false;
   if (stop.stop_requested()) return Error(ErrorCode::Cancelled, "factorization cancelled");
 
   // Schur = C - sum D_i + sum L33_i L33_i' (in separator order).
   for (int h = 0; h < 2; ++h) {
-    const Half& half = *halves[h];
-    Eigen::MatrixXd product = Eigen::MatrixXd::Zero(m, m);
-    product.selfadjointView<Eigen::Lower>().rankUpdate(half.L33);
+    Half& half = *halves[h];
     for (int b = 0; b < m; ++b) {
       for (int a = b; a < m; ++a) {
         const int i = half.sep_order[static_cast<size_t>(a)];
         const int j = half.sep_order[static_cast<size_t>(b)];
-        schur_matrix(i, j) += product(a, b);
-        if (i != j) schur_matrix(j, i) += product(a, b);
+        schur_matrix(i, j) += half.L33_L33t(a, b);
+        if (i != j) schur_matrix(j, i) += half.L33_L33t(a, b);
       }
     }
-    halves[h]->M = SparseMatrix();
+    half.L33_L33t = Eigen::MatrixXd();
   }
   schur.compute(schur_matrix);
   return schur.info() == Eigen::Success;
