@@ -126,7 +126,7 @@ struct SplitCholesky::Half {
       for (int p = Lp[column]; p < Lp[column] + Lnz[column]; ++p) L33(Li[p] - ni(), k) = Lx[p];
     }
     L33_L33t.setZero(m, m);
-    L33_L33t.selfadjointView<Eigen::Lower>().rankUpdate(L33);
+    if (m > 0) L33_L33t.selfadjointView<Eigen::Lower>().rankUpdate(L33);  // (Eigen: no empties)
     return true;
   }
 
@@ -153,7 +153,8 @@ struct SplitCholesky::Half {
     if (y == nullptr) throw std::bad_alloc();
     Eigen::MatrixXd out = Eigen::Map<const Eigen::MatrixXd>(static_cast<const double*>(y->x), n, k);
     cholmod_free_dense(&y, &work.common);
-    g = -(L33.triangularView<Eigen::Lower>() * out.bottomRows(m));
+    g.setZero(m, k);
+    if (m > 0) g.noalias() -= L33.triangularView<Eigen::Lower>() * out.bottomRows(m);
     return out;
   }
 
@@ -162,8 +163,10 @@ struct SplitCholesky::Half {
             Eigen::MatrixXd& x) const {
     const int n = ni() + m;
     const auto k = static_cast<int>(y.cols());
-    y.bottomRows(m) =
-        L33.triangularView<Eigen::Lower>().transpose() * x_separator_factor_order;
+    if (m > 0) {
+      y.bottomRows(m) =
+          L33.triangularView<Eigen::Lower>().transpose() * x_separator_factor_order;
+    }
     Workspace work;
     cholmod_dense view{};
     view.nrow = static_cast<size_t>(n);
@@ -298,6 +301,7 @@ Result<bool> SplitCholesky::Impl::try_split(const SparseMatrix& A, const Positio
     }
     half.L33_L33t = Eigen::MatrixXd();
   }
+  if (m == 0) return true;  // two components: nothing couples the halves
   schur.compute(schur_matrix);
   return schur.info() == Eigen::Success;
 }
@@ -343,7 +347,7 @@ Eigen::MatrixXd SplitCholesky::solve(const Eigen::MatrixXd& b) const {
       rhs.row(s.halves[h]->sep_order[static_cast<size_t>(k)]) -= g[h].row(k);
     }
   }
-  const Eigen::MatrixXd x_separator = s.schur.solve(rhs);
+  const Eigen::MatrixXd x_separator = m > 0 ? Eigen::MatrixXd(s.schur.solve(rhs)) : rhs;
   Eigen::MatrixXd x(b.rows(), b.cols());
   on_two_threads([&](int h) {
     const Half& half = *s.halves[h];
