@@ -194,19 +194,26 @@ class ModOneRingT : public OpenMesh::Decimater::ModBaseT<MeshT> {
 
 /// Forwards the decimater's progress and stops it on request. The collapses of every decimater
 /// that shares `done` add up there; only an observer given a callback reports (the calling
-/// thread's: the callback need not be thread-safe).
+/// thread's: the callback need not be thread-safe), and only when the fraction moved by
+/// kMinStep since its last report: a server streams every report to the client, and at 187k
+/// vertices a report every 256 collapses was 690 messages in 1.3 s.
 class StopObserver : public OpenMesh::Decimater::Observer {
  public:
   StopObserver(const std::stop_token& stop, const BuildProgress* progress,
                std::atomic<size_t>& done, size_t total)
       : Observer(256), stop_(stop), progress_(progress), done_(done),
-        total_(std::max<size_t>(total, 1)) {}
+        total_(std::max<size_t>(total, 1)),
+        reported_(static_cast<double>(done.load()) / static_cast<double>(total_)) {}
   void notify(size_t step) override {
     const size_t all = done_.fetch_add(step - counted_) + (step - counted_);
     counted_ = step;
     if (progress_ != nullptr && *progress_) {
-      (*progress_)("decimate",
-                   std::min(1.0, static_cast<double>(all) / static_cast<double>(total_)));
+      const double fraction =
+          std::min(1.0, static_cast<double>(all) / static_cast<double>(total_));
+      if (fraction >= reported_ + kMinStep) {
+        (*progress_)("decimate", fraction);
+        reported_ = fraction;
+      }
     }
   }
   /// Counts the collapses after the last notification (call once the decimater returns).
@@ -222,6 +229,8 @@ class StopObserver : public OpenMesh::Decimater::Observer {
   std::atomic<size_t>& done_;
   size_t total_;
   size_t counted_ = 0;
+  static constexpr double kMinStep = 0.01;
+  double reported_;  // the last fraction reported (by this observer or, before, another one)
 };
 
 /// Multiple-choice decimation (Wu & Kobbelt 2002, "Fast mesh decimation by multiple-choice

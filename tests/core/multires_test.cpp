@@ -389,6 +389,29 @@ TEST(MeshHierarchy, StopRequestStopsTheBuild) {
   EXPECT_DOUBLE_EQ(fractions.back(), 1.0);
 }
 
+TEST(MeshHierarchy, ProgressReportsAreAtLeastOnePercentApart) {
+  // A server streams every report to its client. 32,761 vertices to 1,000 is 31.8k collapses:
+  // the decimater's observer fires every 256 (0.8%), more often than is worth a message.
+  const DeformationBenchmark plane = make_bumpy_plane(181);
+  MultiresSettings settings;
+  settings.level_vertices = {8000, 1000};  // observers of two levels and of the split halves
+  settings.split_above_vertices = 20000;
+  settings.threads = 2;
+  std::vector<double> fractions;
+  auto built = MeshHierarchy::build(plane.mesh.V, plane.mesh.F, Eigen::VectorXi(), settings,
+                                    [&](std::string_view phase, double fraction) {
+                                      if (phase == "decimate") fractions.push_back(fraction);
+                                    });
+  ASSERT_TRUE(built.ok()) << built.status().to_string();
+  ASSERT_GT(fractions.size(), 20u);  // still a progress bar
+  EXPECT_EQ(fractions.front(), 0.0);
+  EXPECT_EQ(fractions.back(), 1.0);
+  for (size_t i = 1; i + 1 < fractions.size(); ++i) {
+    EXPECT_GE(fractions[i] - fractions[i - 1], 0.01 - 1e-12) << i;
+  }
+  EXPECT_LE(fractions.size(), 102u);
+}
+
 TEST(MeshHierarchy, RejectsBadInput) {
   const Edit cactus = edit_of(make_cactus(1));
   MultiresSettings increasing;
