@@ -836,7 +836,9 @@ Result<Prolongation> Prolongation::create_checked(const Positions& V, const Tria
       L_ff.setFromTriplets(ff.begin(), ff.end());
       L_ff.makeCompressed();
       Positions free_points(nf, 3);
-      for (int k = 0; k < nf; ++k) free_points.row(k) = V.row(s.free_vertices[static_cast<size_t>(k)]);
+      for (int k = 0; k < nf; ++k) {
+        free_points.row(k) = V.row(s.free_vertices[static_cast<size_t>(k)]);
+      }
       SplitCholeskySettings split;
       split.threads = threads;
       MD_RETURN_IF_ERROR(s.cholesky.factorize(L_ff, free_points, split, stop));

@@ -1,5 +1,8 @@
 #include "core/split_cholesky.h"
 
+#include <cholmod.h>
+
+#include <Eigen/Cholesky>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -9,9 +12,6 @@
 #include <thread>
 #include <utility>
 #include <vector>
-
-#include <cholmod.h>
-#include <Eigen/Cholesky>
 
 namespace meshdeform::core {
 namespace {
@@ -71,7 +71,7 @@ struct Workspace {
 struct SplitCholesky::Half {
   std::vector<int> interior;  // rows of A, ascending
   int m = 0;
-  SparseMatrix M;              // lower triangle
+  SparseMatrix M;  // lower triangle
   cholmod_common common{};
   cholmod_factor* factor = nullptr;
   Eigen::MatrixXd L33;         // trailing m x m block of the factor (lower triangular)
@@ -164,8 +164,7 @@ struct SplitCholesky::Half {
     const int n = ni() + m;
     const auto k = static_cast<int>(y.cols());
     if (m > 0) {
-      y.bottomRows(m) =
-          L33.triangularView<Eigen::Lower>().transpose() * x_separator_factor_order;
+      y.bottomRows(m) = L33.triangularView<Eigen::Lower>().transpose() * x_separator_factor_order;
     }
     Workspace work;
     cholmod_dense view{};
@@ -183,7 +182,8 @@ struct SplitCholesky::Half {
     for (int c = 0; c < k; ++c) {
       for (int j = 0; j < n; ++j) {
         const int local = Perm[j];
-        if (local < ni()) x(interior[static_cast<size_t>(local)], c) = wx[static_cast<size_t>(c) * n + j];
+        if (local < ni())
+          x(interior[static_cast<size_t>(local)], c) = wx[static_cast<size_t>(c) * n + j];
       }
     }
     cholmod_free_dense(&w, &work.common);
@@ -357,7 +357,8 @@ Eigen::MatrixXd SplitCholesky::solve(const Eigen::MatrixXd& b) const {
     }
     half.back(y[h], in_factor_order, x);
   });
-  for (Eigen::Index k = 0; k < m; ++k) x.row(s.separator[static_cast<size_t>(k)]) = x_separator.row(k);
+  for (Eigen::Index k = 0; k < m; ++k)
+    x.row(s.separator[static_cast<size_t>(k)]) = x_separator.row(k);
   return x;
 }
 

@@ -29,10 +29,9 @@
 /// it is only used with two. Smaller systems, separators above `max_separator` and a half that
 /// is not positive definite (A not diagonally dominant) factor the whole system instead.
 
+#include <Eigen/Core>
 #include <memory>
 #include <stop_token>
-
-#include <Eigen/Core>
 
 #include "core/mesh_data.h"
 #include "core/sparse_cholesky.h"
