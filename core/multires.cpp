@@ -25,6 +25,7 @@
 
 #include "core/constraints.h"
 #include "core/laplacian.h"
+#include "core/median_split.h"
 #include "core/openmesh_adapter.h"
 #include "core/sparse_cholesky.h"
 #include "core/split_cholesky.h"
@@ -376,22 +377,12 @@ constexpr std::uint8_t kBand = 2;
 std::vector<std::uint8_t> split_regions(const Positions& V, const OmMesh& om,
                                         const MeshTopology& topology) {
   const int n = topology.vertex_count;
-  Eigen::Index axis = 0;
-  (V.colwise().maxCoeff() - V.colwise().minCoeff()).maxCoeff(&axis);
-  const auto key = [&](int v) { return std::pair(V(v, axis), v); };
   std::vector<int> unlocked;
   unlocked.reserve(static_cast<size_t>(n));
   for (int v = 0; v < n; ++v) {
     if (!om.status(OmMesh::VertexHandle(v)).locked()) unlocked.push_back(v);
   }
-  std::vector<std::uint8_t> side(static_cast<size_t>(n), 0);
-  if (!unlocked.empty()) {
-    const auto middle = unlocked.begin() + static_cast<std::ptrdiff_t>(unlocked.size() / 2);
-    std::nth_element(unlocked.begin(), middle, unlocked.end(),
-                     [&](int a, int b) { return key(a) < key(b); });
-    const auto pivot = key(*middle);
-    for (int v = 0; v < n; ++v) side[static_cast<size_t>(v)] = key(v) < pivot ? 0 : 1;
-  }
+  const std::vector<std::uint8_t> side = median_sides(V, std::move(unlocked));
   std::vector<std::uint8_t> region(side);
   for (int v = 0; v < n; ++v) {
     for (int k = topology.vv_offsets[v]; k < topology.vv_offsets[v + 1]; ++k) {

@@ -3,6 +3,7 @@
 #include <cholmod.h>
 
 #include <Eigen/Cholesky>
+#include <Eigen/CholmodSupport>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -12,6 +13,8 @@
 #include <thread>
 #include <utility>
 #include <vector>
+
+#include "core/median_split.h"
 
 namespace meshdeform::core {
 namespace {
@@ -35,24 +38,6 @@ void on_two_threads(const Body& body) {
   }
   second.join();
   if (failure) std::rethrow_exception(failure);
-}
-
-/// A CHOLMOD view of the lower triangle stored in a compressed Eigen matrix.
-cholmod_sparse lower_view(SparseMatrix& A) {
-  cholmod_sparse view{};
-  view.nrow = static_cast<size_t>(A.rows());
-  view.ncol = static_cast<size_t>(A.cols());
-  view.nzmax = static_cast<size_t>(A.nonZeros());
-  view.p = A.outerIndexPtr();
-  view.i = A.innerIndexPtr();
-  view.x = A.valuePtr();
-  view.stype = -1;
-  view.itype = CHOLMOD_INT;
-  view.xtype = CHOLMOD_REAL;
-  view.dtype = CHOLMOD_DOUBLE;
-  view.sorted = 1;
-  view.packed = 1;
-  return view;
 }
 
 /// One CHOLMOD workspace for the duration of a call (so const solves may run concurrently).
@@ -95,7 +80,7 @@ struct SplitCholesky::Half {
   /// positive definite or CHOLMOD did not keep the separator last.
   bool factorize() {
     const int n = ni() + m;
-    cholmod_sparse view = lower_view(M);
+    cholmod_sparse view = Eigen::viewAsCholmod(std::as_const(M).selfadjointView<Eigen::Lower>());
     std::vector<int> member(static_cast<size_t>(n), 0);
     std::fill(member.begin() + ni(), member.end(), 1);
     std::vector<int> perm(static_cast<size_t>(n));
@@ -136,20 +121,16 @@ struct SplitCholesky::Half {
     const int n = ni() + m;
     const auto k = static_cast<int>(b.cols());
     const int* Perm = static_cast<const int*>(factor->Perm);
-    Workspace work;
-    cholmod_dense* z = cholmod_allocate_dense(static_cast<size_t>(n), static_cast<size_t>(k),
-                                              static_cast<size_t>(n), CHOLMOD_REAL, &work.common);
-    if (z == nullptr) throw std::bad_alloc();
-    auto* zx = static_cast<double*>(z->x);
+    Eigen::MatrixXd z(n, k);
     for (int c = 0; c < k; ++c) {
       for (int j = 0; j < n; ++j) {
         const int local = Perm[j];
-        zx[static_cast<size_t>(c) * n + j] =
-            local < ni() ? b(interior[static_cast<size_t>(local)], c) : 0.0;
+        z(j, c) = local < ni() ? b(interior[static_cast<size_t>(local)], c) : 0.0;
       }
     }
-    cholmod_dense* y = cholmod_solve(CHOLMOD_L, factor, z, &work.common);
-    cholmod_free_dense(&z, &work.common);
+    Workspace work;
+    cholmod_dense view = Eigen::viewAsCholmod(z);
+    cholmod_dense* y = cholmod_solve(CHOLMOD_L, factor, &view, &work.common);
     if (y == nullptr) throw std::bad_alloc();
     Eigen::MatrixXd out = Eigen::Map<const Eigen::MatrixXd>(static_cast<const double*>(y->x), n, k);
     cholmod_free_dense(&y, &work.common);
@@ -167,14 +148,7 @@ struct SplitCholesky::Half {
       y.bottomRows(m) = L33.triangularView<Eigen::Lower>().transpose() * x_separator_factor_order;
     }
     Workspace work;
-    cholmod_dense view{};
-    view.nrow = static_cast<size_t>(n);
-    view.ncol = static_cast<size_t>(k);
-    view.nzmax = static_cast<size_t>(n) * static_cast<size_t>(k);
-    view.d = static_cast<size_t>(n);
-    view.x = y.data();
-    view.xtype = CHOLMOD_REAL;
-    view.dtype = CHOLMOD_DOUBLE;
+    cholmod_dense view = Eigen::viewAsCholmod(y);
     cholmod_dense* w = cholmod_solve(CHOLMOD_Lt, factor, &view, &work.common);
     if (w == nullptr) throw std::bad_alloc();
     const auto* wx = static_cast<const double*>(w->x);
@@ -207,21 +181,15 @@ Result<bool> SplitCholesky::Impl::try_split(const SparseMatrix& A, const Positio
                                             const SplitCholeskySettings& settings,
                                             const std::stop_token& stop) {
   const auto n = static_cast<int>(A.rows());
-  // Median along the bounding box's longest axis (ties by index: deterministic).
-  Eigen::Index axis = 0;
-  (points.colwise().maxCoeff() - points.colwise().minCoeff()).maxCoeff(&axis);
-  std::vector<int> order(static_cast<size_t>(n));
-  std::iota(order.begin(), order.end(), 0);
-  const auto middle = order.begin() + n / 2;
-  std::nth_element(order.begin(), middle, order.end(), [&](int a, int b) {
-    return std::pair(points(a, axis), a) < std::pair(points(b, axis), b);
-  });
-  std::vector<std::uint8_t> part(static_cast<size_t>(n), 0);  // 0, 1 interior; 2 separator
-  for (auto it = middle; it != order.end(); ++it) part[static_cast<size_t>(*it)] = 1;
-  for (auto it = order.begin(); it != middle; ++it) {
-    for (SparseMatrix::InnerIterator e(A, *it); e; ++e) {
+  std::vector<int> all(static_cast<size_t>(n));
+  std::iota(all.begin(), all.end(), 0);
+  // 0, 1: the interiors; 2: the separator, side 0's unknowns with a neighbour on side 1.
+  std::vector<std::uint8_t> part = median_sides(points, std::move(all));
+  for (int v = 0; v < n; ++v) {
+    if (part[static_cast<size_t>(v)] != 0) continue;
+    for (SparseMatrix::InnerIterator e(A, v); e; ++e) {
       if (part[static_cast<size_t>(e.row())] == 1) {
-        part[static_cast<size_t>(*it)] = 2;
+        part[static_cast<size_t>(v)] = 2;
         break;
       }
     }
