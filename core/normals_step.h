@@ -23,7 +23,8 @@ using RowPositions = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
 /// of deformations"): cheap, and exact at convergence when warm-started.
 void refine_rotation(const Eigen::Matrix3d& B, Eigen::Quaterniond& q, int max_iterations);
 
-/// The same rotation from an SVD (Kabsch, reflection removed): used when no warm start exists.
+/// The same rotation from an SVD (Kabsch, reflection removed): closest_rotation()'s fallback
+/// where the best rotation is not unique.
 Eigen::Quaterniond kabsch_rotation(const Eigen::Matrix3d& B);
 
 /// Runs local/global sweeps until the normals move less than `tolerance` (max over faces of the
@@ -31,7 +32,8 @@ Eigen::Quaterniond kabsch_rotation(const Eigen::Matrix3d& B);
 /// @param[in]     N0         #F x 3 rest unit normals.
 /// @param[in,out] N          #F x 3 current unit normals, updated.
 /// @param[in,out] rotations  #V per-vertex rotations, warm start and result.
-/// @param[in]     warm       whether `rotations` hold a previous result (else Kabsch first).
+/// @param[in]     warm       whether `rotations` hold a previous result (else a closed-form fit,
+///                           closest_rotations(), first).
 /// @return the number of sweeps run.
 int update_normals(const RowPositions& N0, const Triangles& F, const MeshTopology& topology,
                    RowPositions& N, std::vector<Eigen::Quaterniond>& rotations, bool warm,
