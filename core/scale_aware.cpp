@@ -177,6 +177,9 @@ struct ScaleAwareSolver::Impl {
                      double* coupling) const;
   void multiply_joint(const Eigen::VectorXd& in, Eigen::VectorXd& out, double rigidity) const;
   Eigen::VectorXd precondition_joint(const Eigen::VectorXd& r, double rigidity) const;
+  PcgOutcome pcg_schur(const Eigen::VectorXd& b, Eigen::VectorXd& x, double rigidity,
+                       double reduction, double tolerance, int max_iterations,
+                       const std::stop_token& stop);
   PcgOutcome pcg_joint(const Eigen::VectorXd& b, Eigen::VectorXd& sol, double rigidity,
                        double reduction, double tolerance, int max_iterations,
                        const std::stop_token& stop) const;
@@ -206,6 +209,8 @@ struct ScaleAwareSolver::Impl {
   /// M u for corner k (3f + c) of a face with normal n, M = l R(n, theta) (rodrigues()), or
   /// M^T u with sign -1: l (cos u + sign sin n x u + (1 - cos)(n . u) n).
   void build_edge_form();
+  // Whether the joint system's two preconditioner solves run side by side (precondition_joint).
+  bool side_by_side_solves() const { return threads > 1 && nv > 2000; }
   Eigen::Vector3d corner_apply(int k, const Eigen::Vector3d& n, const Eigen::Vector3d& u,
                                double sign) const {
     const double c = corner_cos(k);
@@ -801,8 +806,7 @@ Eigen::VectorXd ScaleAwareSolver::Impl::precondition_joint(const Eigen::VectorXd
   Eigen::VectorXd out(r.size());
   // Two independent triangular solves (the x block's n x n factor with three right-hand sides,
   // H's #F x #F factor): sequential by nature, but they can run side by side.
-  const bool side_by_side = threads > 1 && nv > 2000;
-#pragma omp parallel sections num_threads(2) if (side_by_side)
+#pragma omp parallel sections num_threads(2) if (side_by_side_solves())
   {
 #pragma omp section
     out.head(n3) = precondition(r.head(n3));
@@ -849,6 +853,75 @@ PcgOutcome ScaleAwareSolver::Impl::pcg_joint(const Eigen::VectorXd& b, Eigen::Ve
     p = z + (rz_next / rz) * p;
     rz = rz_next;
   }
+  return out;
+}
+
+// Step two with scale control, the scales eliminated: the joint system's second row gives
+// s = H^-1 (r + C x), and substituting it leaves the Schur complement
+//   S x = (A + rho L - rho C^T H^-1 C) x = b + rho C^T H^-1 r,
+// the same solution. CG on S minimises min_s of the joint energy over x, so every step lowers the
+// joint energy (as the joint CG does). Preconditioned with the x block's factor alone: the joint
+// system's block-diagonal preconditioner leaves the x-s coupling in the spectrum, S does not
+// (measured: 15-25% fewer steps on the irregular models and the Spot edits, results equal to the
+// joint solve's to the PCG tolerance). A step costs what a joint step costs: C p, one solve with
+// H's factor and the face pass for S p (the joint step: the face pass, H p and the same two
+// solves), but its two solves depend on each other, where the joint step's can run side by
+// side: on two threads the joint system is faster (side_by_side_solves()). Precondition: the scales are the exact minimiser for x (step one ends
+// with update_scales()), so H^-1 C x is known without a solve. Returns the scales for the result.
+PcgOutcome ScaleAwareSolver::Impl::pcg_schur(const Eigen::VectorXd& b, Eigen::VectorXd& x,
+                                             double rigidity, double reduction, double tolerance,
+                                             int max_iterations, const std::stop_token& stop) {
+  PcgOutcome out;
+  ScaleControl& sc = *scale_control;
+  const Eigen::VectorXd scale_rhs = sc.scale_rhs();
+  // H^-1 r: zero with a free reference scale (r = 0).
+  const Eigen::VectorXd hr = scale_rhs.cwiseAbs().maxCoeff() > 0
+                                 ? sc.solve_scale_matrix(scale_rhs)
+                                 : Eigen::VectorXd::Zero(scale_rhs.size());
+  Eigen::VectorXd b_reduced = b;
+  sc.add_coupling_transpose(hr, rigidity, b_reduced);
+  std::vector<double> coupling(nf);  // multiply_free's (C x) output, unused here
+  Eigen::VectorXd hcx = sc.scale_unknowns_vector() - hr;  // H^-1 C x for the current x
+  Eigen::VectorXd Ap(x.size());
+  multiply_free(x.data(), Ap.data(), hcx.data(), coupling.data());
+  Eigen::VectorXd r = b_reduced - Ap;
+  const double threshold = std::max(tolerance * b_reduced.norm(), reduction * r.norm());
+  auto finish = [&]() { sc.set_scale_unknowns(hr + hcx); };
+  if (r.norm() <= threshold) {
+    out.converged = true;
+    finish();
+    return out;
+  }
+  Eigen::VectorXd z = precondition(r);
+  Eigen::VectorXd p = z;
+  Eigen::VectorXd cp, hcp;
+  double rz = r.dot(z);
+  for (int it = 0; it < max_iterations; ++it) {
+    if (stop.stop_requested()) {
+      out.cancelled = true;
+      return out;
+    }
+    sc.multiply_coupling(p, cp);
+    hcp = sc.solve_scale_matrix(cp);
+    multiply_free(p.data(), Ap.data(), hcp.data(), coupling.data());
+    const double pAp = p.dot(Ap);
+    if (!(pAp > 0)) break;
+    const double alpha = rz / pAp;
+    x.noalias() += alpha * p;
+    hcx.noalias() += alpha * hcp;
+    r.noalias() -= alpha * Ap;
+    ++out.iterations;
+    if (r.norm() <= threshold) {
+      out.converged = true;
+      finish();
+      return out;
+    }
+    z = precondition(r);
+    const double rz_next = r.dot(z);
+    p = z + (rz_next / rz) * p;
+    rz = rz_next;
+  }
+  finish();
   return out;
 }
 
@@ -1129,8 +1202,13 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
                                              s.cholesky.factor_flops() / s.pcg_iteration_flops),
                             4, 200)
                : 500;
+    // With scale control, one thread solves the Schur complement (fewer steps, its two solves
+    // one after the other); with the joint system's two solves side by side on two threads, the
+    // joint system is faster (pcg_schur()).
+    const bool schur = rho > 0 && !lagged && !s.side_by_side_solves();
     auto run_pcg = [&]() -> PcgOutcome {
       if (rho == 0) return s.pcg(b, x, reduction, tolerance, max_pcg, stop);
+      if (schur) return s.pcg_schur(b, x, rho, reduction, tolerance, max_pcg, stop);
       Eigen::VectorXd joint(b_joint.size());
       joint << x, s.scale_control->scale_unknowns_vector();
       const PcgOutcome o = s.pcg_joint(b_joint, joint, rho, reduction, tolerance, max_pcg, stop);

@@ -42,7 +42,12 @@ struct ScaleAwareSettings {
   StepTwoPreconditioner preconditioner = StepTwoPreconditioner::BlockTrace;
   /// OpenMP threads for the per-vertex and per-face loops; 0 means all hardware threads.
   /// Default 1: a service solves many sessions side by side, and on a loaded 2-core machine
-  /// extra threads per solve only contend (measured 4x slower). Results do not depend on it.
+  /// extra threads per solve only contend (measured 4x slower). Results do not depend on it,
+  /// with one exception: with scale control (rigidity > 0) one thread solves step two's Schur
+  /// complement in the scales (fewer PCG steps), two or more threads on a mesh of more than
+  /// 2,000 vertices the joint system (its two preconditioner solves side by side, faster
+  /// there); the two agree to the PCG tolerance, and any two thread counts of 2 or more give
+  /// the same bits.
   /// With 2 or more, create() also builds the scale term's system (every solve at rigidity > 0
   /// needs it) on a second thread beside the rigid start's ARAP factorization.
   int threads = 1;

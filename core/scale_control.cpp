@@ -261,6 +261,8 @@ Eigen::VectorXd ScaleControl::scale_rhs() const {
 
 void ScaleControl::multiply_coupling(const Eigen::VectorXd& x, Eigen::VectorXd& out) const {
   out.setZero(scale_unknowns());
+  const bool parallel = nf_ > 4000 && threads_ > 1;
+#pragma omp parallel for schedule(static) num_threads(threads_) if (parallel)
   for (int f = 0; f < nf_; ++f) {
     double b = 0;
     for (int k = 0; k < 3; ++k) {
