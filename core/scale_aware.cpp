@@ -115,7 +115,7 @@ struct ScaleAwareSolver::Impl {
   // alone): a face's Eq. 12 energy sum_c ||r_c||^2 is e^T K_f e in its edges e1 = v1 - v0,
   // e2 = v2 - v0, and with M_c = l_c R(n, theta_c) (M^T M = l^2 I, M + M^T and M - M^T in n) the
   // blocks of K_f are alpha I + beta n n^T (diagonal) and gamma I + delta [n]x + epsilon n n^T
-  // (off-diagonal): seven numbers and the normal give the face's product (see edge_form()).
+  // (off-diagonal): seven numbers and the normal give the face's product (build_edge_form()).
   static constexpr int kEdgeForm = 7;
   std::vector<double> edge_form;
   SparseCholesky cholesky;
@@ -206,11 +206,11 @@ struct ScaleAwareSolver::Impl {
   /// Interior edges of `pos` whose dihedral angle moved by more than 90 degrees from the rest
   /// (a crease the rest shape does not have; core::count_folds).
   int folds_of(const Eigen::VectorXd& pos) const;
-  /// M u for corner k (3f + c) of a face with normal n, M = l R(n, theta) (rodrigues()), or
-  /// M^T u with sign -1: l (cos u + sign sin n x u + (1 - cos)(n . u) n).
   void build_edge_form();
   // Whether the joint system's two preconditioner solves run side by side (precondition_joint).
   bool side_by_side_solves() const { return threads > 1 && nv > 2000; }
+  /// M u for corner k (3f + c) of a face with normal n, M = l R(n, theta) (rodrigues()), or
+  /// M^T u with sign -1: l (cos u + sign sin n x u + (1 - cos)(n . u) n).
   Eigen::Vector3d corner_apply(int k, const Eigen::Vector3d& n, const Eigen::Vector3d& u,
                                double sign) const {
     const double c = corner_cos(k);
@@ -659,8 +659,9 @@ void ScaleAwareSolver::Impl::multiply_free(const double* in, double* out, const 
                                            double* coupling) const {
   // Per face, G^T G of Eq. 12's corner residuals r = M (v_a - v_b) + v_d - v_a (a, b, d the
   // corner's vertex and the next two) as the face's edge form (build_edge_form(): 2.5x fewer
-  // flops than forming r and M^T r corner by corner); plus rho times the face's cotangent block; with `scale`, the joint
-  // system's coupling in the same pass (the face's -rho s_f C^T column, and (C x)_f). Each face
+  // flops than forming r and M^T r corner by corner); plus rho times the face's cotangent
+  // block; with `scale`, the joint system's coupling in the same pass (the face's
+  // -rho s_f C^T column, and (C x)_f). Each face
   // writes its three vertex sums to its own slot, and each vertex then gathers its faces' slots
   // in a fixed order: no races, and the same sums at any thread count.
   const bool parallel = nv > 2000 && threads > 1;
@@ -885,8 +886,9 @@ PcgOutcome ScaleAwareSolver::Impl::pcg_joint(const Eigen::VectorXd& b, Eigen::Ve
 // joint solve's to the PCG tolerance). A step costs what a joint step costs: C p, one solve with
 // H's factor and the face pass for S p (the joint step: the face pass, H p and the same two
 // solves), but its two solves depend on each other, where the joint step's can run side by
-// side: on two threads the joint system is faster (side_by_side_solves()). Precondition: the scales are the exact minimiser for x (step one ends
-// with update_scales()), so H^-1 C x is known without a solve. Returns the scales for the result.
+// side: on two threads the joint system is faster (side_by_side_solves()). Precondition: the
+// scales are the exact minimiser for x (step one ends with update_scales()), so H^-1 C x is
+// known without a solve. Leaves the scales of the result in the scale control.
 PcgOutcome ScaleAwareSolver::Impl::pcg_schur(const Eigen::VectorXd& b, Eigen::VectorXd& x,
                                              double rigidity, double reduction, double tolerance,
                                              int max_iterations, const std::stop_token& stop) {
