@@ -1195,14 +1195,18 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
 
     // Step two: A(N) x = b by PCG with the cached factor, refactoring when that is cheaper.
     auto phase = Clock::now();
-    Eigen::VectorXd b_joint;
-    if (rho > 0) {
+    const bool lagged = s.settings.preconditioner == StepTwoPreconditioner::LaggedCholesky;
+    // With scale control, one thread solves the Schur complement (fewer steps, its two solves
+    // one after the other); with the joint system's two solves side by side on two threads, the
+    // joint system is faster (pcg_schur()).
+    const bool schur = rho > 0 && !lagged && !s.side_by_side_solves();
+    Eigen::VectorXd b_joint;  // the joint system's right-hand side (pcg_schur() forms its own)
+    if (rho > 0 && !schur) {
       b_joint.resize(b.size() + s.scale_control->scale_unknowns());
       b_joint << b, rho * s.scale_control->scale_rhs();
     }
     info.assemble_seconds += seconds_since(phase);
     phase = Clock::now();
-    const bool lagged = s.settings.preconditioner == StepTwoPreconditioner::LaggedCholesky;
     if (lagged && s.refactor_pending) {
       MD_RETURN_IF_ERROR(s.cholesky.factorize(s.A));
       s.refactor_pending = false;
@@ -1223,10 +1227,6 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
                                              s.cholesky.factor_flops() / s.pcg_iteration_flops),
                             4, 200)
                : 500;
-    // With scale control, one thread solves the Schur complement (fewer steps, its two solves
-    // one after the other); with the joint system's two solves side by side on two threads, the
-    // joint system is faster (pcg_schur()).
-    const bool schur = rho > 0 && !lagged && !s.side_by_side_solves();
     auto run_pcg = [&]() -> PcgOutcome {
       if (rho == 0) return s.pcg(b, x, reduction, tolerance, max_pcg, stop);
       if (schur) return s.pcg_schur(b, x, rho, reduction, tolerance, max_pcg, stop);
