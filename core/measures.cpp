@@ -21,31 +21,41 @@ double area_log_error2(double rest_area, double area) {
   return log_ratio * log_ratio;
 }
 
-// The corners of faces [first, end): corner c = 3 (f - first) + k (at F(f, k), between
-// e1 = F(f, k+1) - F(f, k) and e2 = F(f, k+2) - F(f, k)) gets |e1 x e2| in cross_norm[c] and
-// e1 . e2 in dot[c], the arguments of its angle's atan2 (accurate near 0 and pi, unlike acos of
-// a normalised dot product); also_per_corner(f, k, e1, e2, |e1 x e2|) does what else a caller
-// needs there.
-template <typename PerCorner>
-void corner_block(const Positions& V, const Triangles& F, Eigen::Index first, Eigen::Index end,
-                  double* cross_norm, double* dot, PerCorner&& also_per_corner) {
+// The faces [first, end): the corners of face f get slots c = 3 (f - first) + k (corner k at
+// F(f, k), between e1 = F(f, k+1) - F(f, k) and e2 = F(f, k+2) - F(f, k)), with e1 . e2 in
+// dot[c] and |e1 x e2| in cross_norm[c], the arguments of the angle's atan2 (accurate near 0 and
+// pi, unlike acos of a normalised dot product). |e1 x e2| is twice the face's area at each of
+// its corners, so it is computed once, from n = (b - a) x (c - a); per_face(f, a, b, c, n, |n|)
+// does what else a caller needs there (areas, normals, length ratios). One pass, three position
+// reads a face: this is a server session's full-resolution metric after every move.
+template <typename Points, typename PerFace>
+void face_block(const Points& V, const Triangles& F, Eigen::Index first, Eigen::Index end,
+                double* cross_norm, double* dot, PerFace&& per_face) {
   for (Eigen::Index f = first; f < end; ++f) {
-    for (int k = 0; k < 3; ++k) {
-      const Eigen::Vector3d v = V.row(F(f, k));
-      const Eigen::Vector3d e1 = Eigen::Vector3d(V.row(F(f, (k + 1) % 3))) - v;
-      const Eigen::Vector3d e2 = Eigen::Vector3d(V.row(F(f, (k + 2) % 3))) - v;
-      const double c = e1.cross(e2).norm();
-      cross_norm[3 * (f - first) + k] = c;
-      dot[3 * (f - first) + k] = e1.dot(e2);
-      also_per_corner(f, k, e1, e2, c);
-    }
+    const Eigen::Vector3d a = V.row(F(f, 0)), b = V.row(F(f, 1)), c = V.row(F(f, 2));
+    const Eigen::Vector3d ab = b - a, bc = c - b, ca = a - c;
+    const Eigen::Vector3d n = ab.cross(c - a);
+    const double len = n.norm();
+    double* cn = cross_norm + 3 * (f - first);
+    double* d = dot + 3 * (f - first);
+    cn[0] = cn[1] = cn[2] = len;
+    d[0] = ab.dot(c - a);   // at a: (b - a) . (c - a)
+    d[1] = bc.dot(a - b);   // at b: (c - b) . (a - b)
+    d[2] = ca.dot(b - c);   // at c: (a - c) . (b - c)
+    per_face(f, a, b, c, n, len);
   }
+}
+
+// A face's unit normal n / |n| (zero for a zero-area face), as face_normals computes it.
+Eigen::Vector3d unit_normal(const Eigen::Vector3d& n, double len) {
+  return len > 0 ? Eigen::Vector3d(n / len) : Eigen::Vector3d::Zero();
 }
 
 // The interior edges [first, end): edge e's slot e - first gets |n0 x n1| in cross_norm and
 // n0 . n1 in dot for the unit normals N of its two faces, the arguments of its dihedral angle's
 // atan2.
-void dihedral_block(const Positions& N, const MeshTopology& topology, Eigen::Index first,
+template <typename Normals>
+void dihedral_block(const Normals& N, const MeshTopology& topology, Eigen::Index first,
                     Eigen::Index end, double* cross_norm, double* dot) {
   for (Eigen::Index e = first; e < end; ++e) {
     const Eigen::Vector3d n0 = N.row(topology.edge_faces(e, 0));
@@ -66,8 +76,7 @@ Positions face_normals(const Positions& V, const Triangles& F) {
   for (Eigen::Index f = 0; f < F.rows(); ++f) {
     const Eigen::Vector3d a = V.row(F(f, 0)), b = V.row(F(f, 1)), c = V.row(F(f, 2));
     const Eigen::Vector3d n = (b - a).cross(c - a);
-    const double len = n.norm();
-    N.row(f) = len > 0 ? Eigen::Vector3d(n / len) : Eigen::Vector3d::Zero();
+    N.row(f) = unit_normal(n, n.norm());
   }
   return N;
 }
@@ -89,13 +98,16 @@ Measures compute_measures(const Positions& V, const Triangles& F, const MeshTopo
     // theta holds the dot products until the batched atan2.
     std::array<double, 3 * kBlock> cross_norm;
     double* theta = m.theta.data() + 3 * first;
-    corner_block(V, F, first, end, cross_norm.data(), theta,
-                 [&m](Eigen::Index f, int k, const Eigen::Vector3d& e1, const Eigen::Vector3d& e2,
-                      double c) {
-                   const double l1 = e1.norm();
-                   m.ratio(3 * f + k) = l1 > 0 ? e2.norm() / l1 : 0.0;
-                   if (k == 0) m.area(f) = 0.5 * c;
-                 });
+    face_block(V, F, first, end, cross_norm.data(), theta,
+               [&m](Eigen::Index f, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                    const Eigen::Vector3d& c, const Eigen::Vector3d&, double len) {
+                 // |e2| / |e1| at each corner: |ca| / |ab|, |ab| / |bc|, |bc| / |ca|.
+                 const double lab = (b - a).norm(), lbc = (c - b).norm(), lca = (a - c).norm();
+                 m.ratio(3 * f) = lab > 0 ? lca / lab : 0.0;
+                 m.ratio(3 * f + 1) = lbc > 0 ? lab / lbc : 0.0;
+                 m.ratio(3 * f + 2) = lca > 0 ? lbc / lca : 0.0;
+                 m.area(f) = 0.5 * len;
+               });
     atan2_nonnegative(cross_norm.data(), theta, theta, 3 * (end - first));
   }
   m.phi = dihedral_angles(V, F, topology, threads);
@@ -149,7 +161,12 @@ AngleErrors angle_errors(const Measures& rest, const Positions& V, const Triangl
   const Eigen::Index edge_blocks = (ne + kBlock - 1) / kBlock;
   // Per-block sums, added in block order afterwards: the same value at any thread count.
   Eigen::VectorXd theta_sum(face_blocks), area_sum(face_blocks), phi_sum(edge_blocks);
+  // Unit face normals (face_normals), for the dihedral angles: row-major, so that an edge's
+  // two normals are two reads, not six strided ones.
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> N(nf, 3);
   const bool parallel = threads > 1 && nf > 8000;
+  // Row-major positions: a vertex is one read of 24 bytes, not three strided ones.
+  const Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> P = V;
 #pragma omp parallel num_threads(threads) if (parallel)
   {
     std::array<double, 3 * kBlock> cross_norm, angle;
@@ -157,11 +174,12 @@ AngleErrors angle_errors(const Measures& rest, const Positions& V, const Triangl
     for (Eigen::Index b = 0; b < face_blocks; ++b) {
       const Eigen::Index first = b * kBlock, end = std::min(nf, first + kBlock);
       double area_log2 = 0;
-      corner_block(V, F, first, end, cross_norm.data(), angle.data(),
-                   [&](Eigen::Index f, int k, const Eigen::Vector3d&, const Eigen::Vector3d&,
-                       double c) {
-                     if (k == 0) area_log2 += area_log_error2(rest.area(f), 0.5 * c);
-                   });
+      face_block(P, F, first, end, cross_norm.data(), angle.data(),
+                 [&](Eigen::Index f, const Eigen::Vector3d&, const Eigen::Vector3d&,
+                     const Eigen::Vector3d&, const Eigen::Vector3d& n, double len) {
+                   area_log2 += area_log_error2(rest.area(f), 0.5 * len);
+                   N.row(f) = unit_normal(n, len);
+                 });
       const Eigen::Index corners = 3 * (end - first);
       atan2_nonnegative(cross_norm.data(), angle.data(), angle.data(), corners);
       double theta2 = 0;
@@ -172,11 +190,6 @@ AngleErrors angle_errors(const Measures& rest, const Positions& V, const Triangl
       theta_sum(b) = theta2;
       area_sum(b) = area_log2;
     }
-  }
-  const Positions N = face_normals(V, F);
-#pragma omp parallel num_threads(threads) if (parallel)
-  {
-    std::array<double, kBlock> cross_norm, angle;
 #pragma omp for schedule(static)
     for (Eigen::Index b = 0; b < edge_blocks; ++b) {
       const Eigen::Index first = b * kBlock, end = std::min(ne, first + kBlock);
