@@ -857,6 +857,7 @@ Result<std::vector<SharedLogEntry>> RedisStateStore::read_log(const SessionId& i
     entry.revision = *revision;
     if (entry.result) {
       auto result = std::make_shared<DeformResult>(*entry.result);
+      result->encoded = std::make_shared<BytesMemo>();
       result->revision = *revision;
       entry.result = std::move(result);
     }

@@ -90,9 +90,12 @@ std::size_t estimate_session_bytes(int vertices, int faces, int cached_deformers
   const auto v = static_cast<std::size_t>(std::max(vertices, 0));
   const auto f = static_cast<std::size_t>(std::max(faces, 0));
   // Rest + current + kept revisions + anchors/targets (24 B per vertex each), topology CSR arrays
-  // (~64 B per vertex), faces (12 B) and measures (theta, ratio, phi, area: ~100 B per face).
+  // (~64 B per vertex), faces (12 B) and measures (theta, ratio, phi, area: ~100 B per face),
+  // and the newest revision's wire encodings (DeformResult::encoded: float32 and meshopt, up to
+  // 12 B per vertex each).
   const std::size_t base =
-      v * (24 * (3 + static_cast<std::size_t>(std::max(kept_revisions, 0))) + 64) + f * 112 + 4096;
+      v * (24 * (3 + static_cast<std::size_t>(std::max(kept_revisions, 0))) + 64 + 24) +
+      f * 112 + 4096;
   // One charge for every method, the largest one's: measured heap of a built and solved
   // deformer on Spot at 187k vertices (issue 15): scale-aware 5.1 KB per vertex (the Laplacian
   // guess's bi-Laplacian factor, the n x n and #F x #F preconditioner factors, the scale term's
@@ -631,8 +634,7 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
   {
     std::lock_guard lock(state_mutex_);
     result->revision = ++revision_;
-    history_.push_back(result);
-    while (static_cast<int>(history_.size()) > options_.kept_revisions) history_.pop_front();
+    push_history_locked(result);
     targets_ = targets;
     last_method_ = method;
     if (edit != nullptr) edit_ = *edit;
@@ -837,6 +839,14 @@ Result<std::shared_ptr<const Positions>> Session::positions_at(
 
 std::shared_ptr<const DeformResult> Session::snapshot_locked() const { return history_.back(); }
 
+void Session::push_history_locked(std::shared_ptr<const DeformResult> result) {
+  // Responses and watchers encode the newest revision; an older one's bytes are rarely wanted
+  // again (a lagging watcher skips to the newest), and at 10^5 vertices they are megabytes.
+  if (!history_.empty()) history_.back()->encoded->clear();
+  history_.push_back(std::move(result));
+  while (static_cast<int>(history_.size()) > options_.kept_revisions) history_.pop_front();
+}
+
 std::shared_ptr<Watcher> Session::add_watcher() {
   auto watcher = std::make_shared<Watcher>();
   std::lock_guard lock(state_mutex_);
@@ -995,6 +1005,7 @@ bool Session::apply_shared_locked(const SharedLogEntry& logged) {
     previous = history_.back()->positions;
   }
   auto result = std::make_shared<DeformResult>(*logged.result);
+  result->encoded = std::make_shared<BytesMemo>();  // its changed lists are recomputed here
   result->changed.clear();
   for (int v = 0; v < nv; ++v) {
     if (V.row(v) != previous->row(v)) result->changed.push_back(v);
@@ -1006,8 +1017,7 @@ bool Session::apply_shared_locked(const SharedLogEntry& logged) {
   {
     std::lock_guard lock(state_mutex_);
     revision_ = logged.revision;
-    history_.push_back(result);
-    while (static_cast<int>(history_.size()) > options_.kept_revisions) history_.pop_front();
+    push_history_locked(result);
     targets_ = logged.targets;
     last_method_ = result->method;
     if (logged.edit) edit_ = *logged.edit;
@@ -1069,8 +1079,7 @@ Status Session::reload_shared_locked() {
       new_revision = state.revision > revision_;
       if (state.revision <= revision_) history_.clear();  // went back: older copies are void
       revision_ = state.revision;
-      history_.push_back(current);
-      while (static_cast<int>(history_.size()) > options_.kept_revisions) history_.pop_front();
+      push_history_locked(current);
     }
     watchers = watchers_;
   }

@@ -274,6 +274,9 @@ class Session : public std::enable_shared_from_this<Session> {
     double rigidity = 0;  ///< scale control of the move being refined
   };
   std::shared_ptr<const DeformResult> snapshot_locked() const;
+  /// Appends a revision to history_ (dropping the oldest beyond kept_revisions) and clears the
+  /// previous newest's encodings. state_mutex_ held.
+  void push_history_locked(std::shared_ptr<const DeformResult> result);
 
   SessionId id_;
   Token edit_token_, view_token_;

@@ -21,6 +21,7 @@
 #include "core/mesh_data.h"
 #include "core/ora.h"
 #include "server/service/admission.h"
+#include "server/service/bytes_memo.h"
 
 namespace meshdeform::service {
 
@@ -166,6 +167,11 @@ struct DeformResult {
   /// revision's targets, not by a move; editor is "refinement".
   bool refinement = false;
   int pcg_iterations = 0;       ///< conjugate-gradient iterations of step two in this solve
+  /// The positions in the transport's wire encodings, made once for the move's response and
+  /// every watcher. Copies share it: a copy whose positions or changed lists then change takes
+  /// a new memo. The session clears it when a newer revision commits (only the newest is worth
+  /// keeping encoded).
+  std::shared_ptr<BytesMemo> encoded = std::make_shared<BytesMemo>();
 };
 
 /// What a watcher receives.

@@ -288,13 +288,31 @@ void result_metrics_to_proto(const service::DeformResult& result, v1::DeformResu
   out->set_pcg_iterations(static_cast<std::uint32_t>(std::max(result.pcg_iterations, 0)));
 }
 
-void positions_to_proto(const Positions& rows, v1::PositionEncoding encoding,
+// Which of a result's position arrays to send.
+enum class Rows { Positions = 0, Changed = 1 };
+
+// A result's positions or changed positions: doubles in `doubles` for UNSPECIFIED, else packed
+// into `packed`, once per result and encoding (service::DeformResult::encoded): the move's
+// response and every watcher's update of a revision share the bytes.
+void positions_to_proto(const service::DeformResult& result, Rows rows,
+                        v1::PositionEncoding encoding,
                         google::protobuf::RepeatedField<double>* doubles, std::string* packed) {
+  const Positions& values = rows == Rows::Positions ? *result.positions : result.changed_positions;
   if (encoding == v1::POSITION_ENCODING_UNSPECIFIED) {
-    wire::rows_to_proto(rows, doubles);
-  } else {
-    pack_positions(rows, encoding, packed);
+    wire::rows_to_proto(values, doubles);
+    return;
   }
+  if (!result.encoded) {
+    pack_positions(values, encoding, packed);
+    return;
+  }
+  const int key = 2 * static_cast<int>(encoding) + static_cast<int>(rows);
+  const std::shared_ptr<const std::string> bytes = result.encoded->get(key, [&] {
+    std::string out;
+    pack_positions(values, encoding, &out);
+    return out;
+  });
+  packed->append(*bytes);
 }
 }  // namespace
 
@@ -309,15 +327,16 @@ void result_to_proto(const service::DeformResult& result, bool full_positions,
       static_cast<double>(result.changed.size()) >
           kDenseFraction * static_cast<double>(result.positions->rows())) {
     out->set_dense(true);
-    pack_positions(*result.positions, encoding, out->mutable_packed_positions());
+    positions_to_proto(result, Rows::Positions, encoding, out->mutable_positions(),
+                       out->mutable_packed_positions());
     return;
   }
   // The service's indices are >= 0: all of them are written.
   (void)wire::indices_to_proto(result.changed, out->mutable_changed_indices());
-  positions_to_proto(result.changed_positions, encoding, out->mutable_changed_positions(),
+  positions_to_proto(result, Rows::Changed, encoding, out->mutable_changed_positions(),
                      out->mutable_packed_changed_positions());
   if (full_positions && result.positions) {
-    positions_to_proto(*result.positions, encoding, out->mutable_positions(),
+    positions_to_proto(result, Rows::Positions, encoding, out->mutable_positions(),
                        out->mutable_packed_positions());
   }
 }
@@ -333,7 +352,7 @@ void update_to_proto(const service::DeformUpdate& update, v1::PositionEncoding e
     result_metrics_to_proto(*update.result, result);
     result->set_encoding(encoding);
     if (update.result->positions) {
-      positions_to_proto(*update.result->positions, encoding, result->mutable_positions(),
+      positions_to_proto(*update.result, Rows::Positions, encoding, result->mutable_positions(),
                          result->mutable_packed_positions());
     }
   } else {

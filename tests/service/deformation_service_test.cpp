@@ -592,6 +592,35 @@ TEST(WatchTest, TwoWatchersSeeEveryRevision) {
   EXPECT_FALSE((*w2)->wait_take(milliseconds(50)).has_value());
 }
 
+TEST(WatchTest, OnlyTheNewestRevisionKeepsItsEncodedBytes) {
+  // The transport encodes a revision's positions once into its memo (DeformResult::encoded),
+  // shared by the response and every watcher; a newer commit clears the older one's.
+  DeformationService service(small_options());
+  Fixture f = create_with_handles(service, "cylinder_small");
+  auto watcher = service.watch(f.created.id, f.created.view_token);
+  ASSERT_TRUE(watcher.ok());
+  ASSERT_TRUE((*watcher)->try_take().has_value());  // the join snapshot
+  std::vector<std::shared_ptr<const DeformResult>> seen;
+  for (int step = 1; step <= 2; ++step) {
+    Result<DeformResult> r =
+        service.move_handles(f.created.id, f.created.edit_token, bend_move(10.0 * step));
+    ASSERT_TRUE(r.ok()) << message_of(r);
+    auto update = (*watcher)->wait_take(milliseconds(1000));
+    ASSERT_TRUE(update.has_value());
+    seen.push_back(update->result);
+    // The response's copy shares the watcher's memo: bytes made through one are there for both.
+    ASSERT_TRUE(r->encoded);
+    EXPECT_EQ(r->encoded.get(), update->result->encoded.get());
+    int made = 0;
+    r->encoded->get(7, [&] { ++made; return std::string(100, 'x'); });
+    update->result->encoded->get(7, [&] { ++made; return std::string(); });
+    EXPECT_EQ(made, 1);
+    EXPECT_EQ(update->result->encoded->bytes(), 100u);
+  }
+  EXPECT_EQ(seen[0]->encoded->bytes(), 0u) << "revision 1's bytes outlived revision 2's commit";
+  EXPECT_EQ(seen[1]->encoded->bytes(), 100u);
+}
+
 TEST(WatchTest, SlowWatcherSkipsToNewestWithoutBlockingTheEditor) {
   DeformationService service(small_options());
   Fixture f = create_with_handles(service, "cylinder_small");

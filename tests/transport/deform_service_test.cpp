@@ -27,6 +27,7 @@
 #include "meshdeform/v1/deformation.grpc.pb.h"
 #include "server/service/deformation_service.h"
 #include "server/transport/deform_service_impl.h"
+#include "server/transport/proto_convert.h"
 #include "server/transport/server_setup.h"
 #include "tests/support/mesh_factories.h"
 
@@ -836,6 +837,49 @@ TEST_F(DeformServiceTest, CompactEncodingsCarryTheSamePositions) {
   const std::size_t meshopt = responses[2].ByteSizeLong();
   EXPECT_LT(floats, doubles * 6 / 10) << doubles << " vs " << floats;
   EXPECT_LT(meshopt, floats) << floats << " vs " << meshopt;
+}
+
+TEST(ProtoConvertTest, ARevisionIsEncodedOnceForItsResponseAndEveryWatcher) {
+  // A dense result (every vertex changed): the response, a watcher's delta and a joining
+  // watcher's snapshot all send the same packed positions, made once into the result's memo.
+  service::DeformResult result;
+  Positions V(50, 3);
+  for (int i = 0; i < 50; ++i) V.row(i) << 0.1 * i, std::sin(0.3 * i), 1.0 - 0.02 * i;
+  result.positions = std::make_shared<const Positions>(V);
+  for (int i = 0; i < 50; ++i) result.changed.push_back(i);
+  result.changed_positions = V;
+  v1::DeformResult response;
+  transport::result_to_proto(result, false, v1::POSITION_ENCODING_MESHOPT, &response);
+  ASSERT_TRUE(response.dense());
+  const std::size_t encoded = result.encoded->bytes();
+  EXPECT_EQ(encoded, response.packed_positions().size());
+  service::DeformUpdate delta{std::make_shared<const service::DeformResult>(result), false, 0};
+  service::DeformUpdate snapshot{delta.result, true, 0};
+  v1::DeformUpdate delta_proto, snapshot_proto;
+  transport::update_to_proto(delta, v1::POSITION_ENCODING_MESHOPT, &delta_proto);
+  transport::update_to_proto(snapshot, v1::POSITION_ENCODING_MESHOPT, &snapshot_proto);
+  EXPECT_EQ(delta_proto.result().packed_positions(), response.packed_positions());
+  EXPECT_EQ(snapshot_proto.result().packed_positions(), response.packed_positions());
+  EXPECT_EQ(result.encoded->bytes(), encoded) << "the same revision was encoded again";
+  const std::vector<float> decoded = unpack(response.packed_positions(),
+                                            v1::POSITION_ENCODING_MESHOPT, 50);
+  for (int i = 0; i < 50; ++i) {
+    for (int c = 0; c < 3; ++c) {
+      ASSERT_EQ(decoded[static_cast<std::size_t>(3 * i + c)], static_cast<float>(V(i, c)));
+    }
+  }
+  // Another encoding is another entry; a copy with other positions takes a new memo (the
+  // memo's contract), and then sends its own positions.
+  v1::DeformResult floats;
+  transport::result_to_proto(result, false, v1::POSITION_ENCODING_FLOAT32, &floats);
+  EXPECT_EQ(result.encoded->bytes(), encoded + 50 * 12);
+  service::DeformResult moved = result;
+  moved.positions = std::make_shared<const Positions>(2.0 * V);
+  moved.encoded = std::make_shared<service::BytesMemo>();
+  v1::DeformResult moved_response;
+  transport::result_to_proto(moved, false, v1::POSITION_ENCODING_MESHOPT, &moved_response);
+  EXPECT_EQ(unpack(moved_response.packed_positions(), v1::POSITION_ENCODING_MESHOPT, 50)[3],
+            static_cast<float>(2.0 * V(1, 0)));
 }
 
 TEST_F(DeformServiceTest, WatchSnapshotsAndDeltasInMeshopt) {
