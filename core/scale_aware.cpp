@@ -59,6 +59,51 @@ struct PcgOutcome {
   bool cancelled = false;
 };
 
+// Preconditioned conjugate gradients on a symmetric positive definite operator, the one loop of
+// step two's three forms (plain, joint, Schur complement): from the caller's iterate x and its
+// residual r = b - A x, until |r| <= threshold (converged), max_iterations steps, a breakdown
+// (p'Ap <= 0: the caller refactors and retries; neither converged nor cancelled) or a stop
+// request (cancelled). apply(p, Ap) is the operator (it may size Ap), precondition(r) returns
+// M^-1 r, and on_step(alpha) updates what the caller keeps beside x along the step's direction
+// (the Schur form's H^-1 C x).
+template <typename Apply, typename Precondition, typename OnStep>
+PcgOutcome conjugate_gradients(Eigen::VectorXd& x, Eigen::VectorXd r, double threshold,
+                               int max_iterations, const std::stop_token& stop, Apply&& apply,
+                               Precondition&& precondition, OnStep&& on_step) {
+  PcgOutcome out;
+  if (r.norm() <= threshold) {
+    out.converged = true;
+    return out;
+  }
+  Eigen::VectorXd z = precondition(r);
+  Eigen::VectorXd p = z;
+  Eigen::VectorXd Ap(x.size());
+  double rz = r.dot(z);
+  for (int it = 0; it < max_iterations; ++it) {
+    if (stop.stop_requested()) {
+      out.cancelled = true;
+      return out;
+    }
+    apply(p, Ap);
+    const double pAp = p.dot(Ap);
+    if (!(pAp > 0)) break;
+    const double alpha = rz / pAp;
+    x.noalias() += alpha * p;
+    on_step(alpha);
+    r.noalias() -= alpha * Ap;
+    ++out.iterations;
+    if (r.norm() <= threshold) {
+      out.converged = true;
+      return out;
+    }
+    z = precondition(r);
+    const double rz_next = r.dot(z);
+    p = z + (rz_next / rz) * p;
+    rz = rz_next;
+  }
+  return out;
+}
+
 }  // namespace
 
 // Auto's cold start (solve()): another start's result replaces the best so far when it has
@@ -746,10 +791,10 @@ void ScaleAwareSolver::Impl::multiply(const Eigen::VectorXd& in, Eigen::VectorXd
 PcgOutcome ScaleAwareSolver::Impl::pcg(const Eigen::VectorXd& b, Eigen::VectorXd& sol,
                                        double reduction, double tolerance, int max_iterations,
                                        const std::stop_token& stop) const {
-  PcgOutcome out;
   const double b_norm = b.norm();
   if (b_norm == 0) {
     sol.setZero();
+    PcgOutcome out;
     out.converged = true;
     return out;
   }
@@ -757,35 +802,10 @@ PcgOutcome ScaleAwareSolver::Impl::pcg(const Eigen::VectorXd& b, Eigen::VectorXd
   multiply(sol, Ap);
   Eigen::VectorXd r = b - Ap;
   const double threshold = std::max(tolerance * b_norm, reduction * r.norm());
-  if (r.norm() <= threshold) {
-    out.converged = true;
-    return out;
-  }
-  Eigen::VectorXd z = precondition(r);
-  Eigen::VectorXd p = z;
-  double rz = r.dot(z);
-  for (int it = 0; it < max_iterations; ++it) {
-    if (stop.stop_requested()) {
-      out.cancelled = true;
-      return out;
-    }
-    multiply(p, Ap);
-    const double pAp = p.dot(Ap);
-    if (!(pAp > 0)) break;  // breakdown: the caller refactors and retries
-    const double alpha = rz / pAp;
-    sol.noalias() += alpha * p;
-    r.noalias() -= alpha * Ap;
-    ++out.iterations;
-    if (r.norm() <= threshold) {
-      out.converged = true;
-      return out;
-    }
-    z = precondition(r);
-    const double rz_next = r.dot(z);
-    p = z + (rz_next / rz) * p;
-    rz = rz_next;
-  }
-  return out;
+  return conjugate_gradients(
+      sol, std::move(r), threshold, max_iterations, stop,
+      [this](const Eigen::VectorXd& p, Eigen::VectorXd& Ap) { multiply(p, Ap); },
+      [this](const Eigen::VectorXd& r) { return precondition(r); }, [](double) {});
 }
 
 // Step two with scale control solves for the vertices and the face scales together: the joint
@@ -839,41 +859,14 @@ Eigen::VectorXd ScaleAwareSolver::Impl::precondition_joint(const Eigen::VectorXd
 PcgOutcome ScaleAwareSolver::Impl::pcg_joint(const Eigen::VectorXd& b, Eigen::VectorXd& sol,
                                              double rigidity, double reduction, double tolerance,
                                              int max_iterations, const std::stop_token& stop) const {
-  PcgOutcome out;
-  const double b_norm = b.norm();
   Eigen::VectorXd Ap;
   multiply_joint(sol, Ap, rigidity);
   Eigen::VectorXd r = b - Ap;
-  const double threshold = std::max(tolerance * b_norm, reduction * r.norm());
-  if (r.norm() <= threshold) {
-    out.converged = true;
-    return out;
-  }
-  Eigen::VectorXd z = precondition_joint(r, rigidity);
-  Eigen::VectorXd p = z;
-  double rz = r.dot(z);
-  for (int it = 0; it < max_iterations; ++it) {
-    if (stop.stop_requested()) {
-      out.cancelled = true;
-      return out;
-    }
-    multiply_joint(p, Ap, rigidity);
-    const double pAp = p.dot(Ap);
-    if (!(pAp > 0)) break;
-    const double alpha = rz / pAp;
-    sol.noalias() += alpha * p;
-    r.noalias() -= alpha * Ap;
-    ++out.iterations;
-    if (r.norm() <= threshold) {
-      out.converged = true;
-      return out;
-    }
-    z = precondition_joint(r, rigidity);
-    const double rz_next = r.dot(z);
-    p = z + (rz_next / rz) * p;
-    rz = rz_next;
-  }
-  return out;
+  const double threshold = std::max(tolerance * b.norm(), reduction * r.norm());
+  return conjugate_gradients(
+      sol, std::move(r), threshold, max_iterations, stop,
+      [&](const Eigen::VectorXd& p, Eigen::VectorXd& Ap) { multiply_joint(p, Ap, rigidity); },
+      [&](const Eigen::VectorXd& r) { return precondition_joint(r, rigidity); }, [](double) {});
 }
 
 // Step two with scale control, the scales eliminated: the joint system's second row gives
@@ -892,7 +885,6 @@ PcgOutcome ScaleAwareSolver::Impl::pcg_joint(const Eigen::VectorXd& b, Eigen::Ve
 PcgOutcome ScaleAwareSolver::Impl::pcg_schur(const Eigen::VectorXd& b, Eigen::VectorXd& x,
                                              double rigidity, double reduction, double tolerance,
                                              int max_iterations, const std::stop_token& stop) {
-  PcgOutcome out;
   ScaleControl& sc = *scale_control;
   const Eigen::VectorXd scale_rhs = sc.scale_rhs();
   // H^-1 r: zero with a free reference scale (r = 0).
@@ -907,42 +899,20 @@ PcgOutcome ScaleAwareSolver::Impl::pcg_schur(const Eigen::VectorXd& b, Eigen::Ve
   multiply_free(x.data(), Ap.data(), hcx.data(), coupling.data());
   Eigen::VectorXd r = b_reduced - Ap;
   const double threshold = std::max(tolerance * b_reduced.norm(), reduction * r.norm());
-  auto finish = [&]() { sc.set_scale_unknowns(hr + hcx); };
-  if (r.norm() <= threshold) {
-    out.converged = true;
-    finish();
-    return out;
-  }
-  Eigen::VectorXd z = precondition(r);
-  Eigen::VectorXd p = z;
+  // S p = A p + rho L p - rho C^T (H^-1 C p): the face pass takes H^-1 C p as its scales.
   Eigen::VectorXd cp, hcp;
-  double rz = r.dot(z);
-  for (int it = 0; it < max_iterations; ++it) {
-    if (stop.stop_requested()) {
-      out.cancelled = true;
-      return out;
-    }
-    sc.multiply_coupling(p, cp);
-    hcp = sc.solve_scale_matrix(cp);
-    multiply_free(p.data(), Ap.data(), hcp.data(), coupling.data());
-    const double pAp = p.dot(Ap);
-    if (!(pAp > 0)) break;
-    const double alpha = rz / pAp;
-    x.noalias() += alpha * p;
-    hcx.noalias() += alpha * hcp;
-    r.noalias() -= alpha * Ap;
-    ++out.iterations;
-    if (r.norm() <= threshold) {
-      out.converged = true;
-      finish();
-      return out;
-    }
-    z = precondition(r);
-    const double rz_next = r.dot(z);
-    p = z + (rz_next / rz) * p;
-    rz = rz_next;
-  }
-  finish();
+  const PcgOutcome out = conjugate_gradients(
+      x, std::move(r), threshold, max_iterations, stop,
+      [&](const Eigen::VectorXd& p, Eigen::VectorXd& Sp) {
+        sc.multiply_coupling(p, cp);
+        hcp = sc.solve_scale_matrix(cp);
+        multiply_free(p.data(), Sp.data(), hcp.data(), coupling.data());
+      },
+      [this](const Eigen::VectorXd& r) { return precondition(r); },
+      [&](double alpha) { hcx.noalias() += alpha * hcp; });
+  // The scales that minimise the joint energy for the new x (a cancelled step two leaves them:
+  // the caller discards its iterate).
+  if (!out.cancelled) sc.set_scale_unknowns(hr + hcx);
   return out;
 }
 
