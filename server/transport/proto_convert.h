@@ -52,7 +52,10 @@ void progress_to_proto(const service::ProgressEvent& event, v1::Progress* out);
 /// @param[in] encoding        UNSPECIFIED: doubles in the repeated fields; FLOAT32 / MESHOPT:
 ///                            the same positions in the packed_* bytes (see pack_positions),
 ///                            and a delta that changed more than kDenseFraction of the
-///                            vertices dense (DeformResult.dense).
+///                            vertices dense (DeformResult.dense). Packed bytes are made once
+///                            per result and encoding, in the result's memo
+///                            (service::DeformResult::encoded), and shared with every other
+///                            response or watch update of that result.
 void result_to_proto(const service::DeformResult& result, bool full_positions,
                      v1::PositionEncoding encoding, v1::DeformResult* out);
 /// Snapshots carry all positions and no changed lists; deltas the changed lists only.
