@@ -6,6 +6,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <future>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -61,6 +62,56 @@ TEST(BytesMemo, AFailedMakeLeavesNothingBehind) {
                std::runtime_error);
   EXPECT_EQ(memo.bytes(), 0u);
   EXPECT_EQ(*memo.get(1, [] { return std::string("ok"); }), "ok");
+}
+
+TEST(BytesMemo, ClearDoesNotWaitForAMakeAndItsBytesStayOut) {
+  // A watcher encoding revision r must not hold up the commit of r + 1, which clears r's memo.
+  BytesMemo memo;
+  std::promise<void> inside, release;
+  std::shared_future<void> released = release.get_future().share();
+  auto maker = std::async(std::launch::async, [&] {
+    return memo.get(1, [&] {
+      inside.set_value();
+      released.wait();
+      return std::string("old");
+    });
+  });
+  inside.get_future().wait();
+  // Bounded: a clear (or another key) that waited for the make would still be blocked when this
+  // gives up; the make is released either way, so nothing hangs.
+  auto cleared = std::async(std::launch::async, [&] { memo.clear(); });
+  EXPECT_EQ(cleared.wait_for(std::chrono::seconds(30)), std::future_status::ready);
+  auto other = std::async(std::launch::async,
+                          [&] { return memo.get(2, [] { return std::string("other"); }); });
+  EXPECT_EQ(other.wait_for(std::chrono::seconds(30)), std::future_status::ready);
+  release.set_value();
+  EXPECT_EQ(*other.get(), "other");
+  EXPECT_EQ(*maker.get(), "old");  // its reader gets the bytes...
+  EXPECT_EQ(memo.bytes(), 5u);     // ...but only key 2's are kept: the clear came after key 1's make began
+  int made = 0;
+  EXPECT_EQ(*memo.get(1, [&] { ++made; return std::string("new"); }), "new");
+  EXPECT_EQ(made, 1);
+}
+
+TEST(BytesMemo, AReaderWaitingOnAFailedMakeMakesItItself) {
+  BytesMemo memo;
+  std::promise<void> inside, release;
+  std::shared_future<void> released = release.get_future().share();
+  auto failing = std::async(std::launch::async, [&] {
+    return memo.get(1, [&]() -> std::string {
+      inside.set_value();
+      released.wait();
+      throw std::runtime_error("encoder failed");
+    });
+  });
+  inside.get_future().wait();
+  auto waiting = std::async(std::launch::async, [&] {
+    return memo.get(1, [] { return std::string("second"); });
+  });
+  release.set_value();
+  EXPECT_THROW(failing.get(), std::runtime_error);
+  EXPECT_EQ(*waiting.get(), "second");
+  EXPECT_EQ(memo.bytes(), 6u);
 }
 
 }  // namespace
