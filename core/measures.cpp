@@ -25,11 +25,11 @@ double area_log_error2(double rest_area, double area) {
 // F(f, k), between e1 = F(f, k+1) - F(f, k) and e2 = F(f, k+2) - F(f, k)), with e1 . e2 in
 // dot[c] and |e1 x e2| in cross_norm[c], the arguments of the angle's atan2 (accurate near 0 and
 // pi, unlike acos of a normalised dot product). |e1 x e2| is twice the face's area at each of
-// its corners, so it is computed once, from n = (b - a) x (c - a); per_face(f, a, b, c, n, |n|)
-// does what else a caller needs there (areas, normals, length ratios). One pass, three position
-// reads a face: this is a server session's full-resolution metric after every move.
-template <typename Points, typename PerFace>
-void face_block(const Points& V, const Triangles& F, Eigen::Index first, Eigen::Index end,
+// its corners, so it is computed once, from n = (b - a) x (c - a); per_face(f, b - a, c - b,
+// a - c, n, |n|) does what else a caller needs there (areas, normals, length ratios). One pass a
+// face: this is a server session's full-resolution metric after every move.
+template <typename PerFace>
+void face_block(const Positions& V, const Triangles& F, Eigen::Index first, Eigen::Index end,
                 double* cross_norm, double* dot, PerFace&& per_face) {
   for (Eigen::Index f = first; f < end; ++f) {
     const Eigen::Vector3d a = V.row(F(f, 0)), b = V.row(F(f, 1)), c = V.row(F(f, 2));
@@ -42,7 +42,7 @@ void face_block(const Points& V, const Triangles& F, Eigen::Index first, Eigen::
     d[0] = ab.dot(c - a);   // at a: (b - a) . (c - a)
     d[1] = bc.dot(a - b);   // at b: (c - b) . (a - b)
     d[2] = ca.dot(b - c);   // at c: (a - c) . (b - c)
-    per_face(f, a, b, c, n, len);
+    per_face(f, ab, bc, ca, n, len);
   }
 }
 
@@ -99,10 +99,10 @@ Measures compute_measures(const Positions& V, const Triangles& F, const MeshTopo
     std::array<double, 3 * kBlock> cross_norm;
     double* theta = m.theta.data() + 3 * first;
     face_block(V, F, first, end, cross_norm.data(), theta,
-               [&m](Eigen::Index f, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
-                    const Eigen::Vector3d& c, const Eigen::Vector3d&, double len) {
+               [&m](Eigen::Index f, const Eigen::Vector3d& ab, const Eigen::Vector3d& bc,
+                    const Eigen::Vector3d& ca, const Eigen::Vector3d&, double len) {
                  // |e2| / |e1| at each corner: |ca| / |ab|, |ab| / |bc|, |bc| / |ca|.
-                 const double lab = (b - a).norm(), lbc = (c - b).norm(), lca = (a - c).norm();
+                 const double lab = ab.norm(), lbc = bc.norm(), lca = ca.norm();
                  m.ratio(3 * f) = lab > 0 ? lca / lab : 0.0;
                  m.ratio(3 * f + 1) = lbc > 0 ? lab / lbc : 0.0;
                  m.ratio(3 * f + 2) = lca > 0 ? lbc / lca : 0.0;
@@ -165,8 +165,6 @@ AngleErrors angle_errors(const Measures& rest, const Positions& V, const Triangl
   // two normals are two reads, not six strided ones.
   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> N(nf, 3);
   const bool parallel = threads > 1 && nf > 8000;
-  // Row-major positions: a vertex is one read of 24 bytes, not three strided ones.
-  const Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> P = V;
 #pragma omp parallel num_threads(threads) if (parallel)
   {
     std::array<double, 3 * kBlock> cross_norm, angle;
@@ -174,7 +172,7 @@ AngleErrors angle_errors(const Measures& rest, const Positions& V, const Triangl
     for (Eigen::Index b = 0; b < face_blocks; ++b) {
       const Eigen::Index first = b * kBlock, end = std::min(nf, first + kBlock);
       double area_log2 = 0;
-      face_block(P, F, first, end, cross_norm.data(), angle.data(),
+      face_block(V, F, first, end, cross_norm.data(), angle.data(),
                  [&](Eigen::Index f, const Eigen::Vector3d&, const Eigen::Vector3d&,
                      const Eigen::Vector3d&, const Eigen::Vector3d& n, double len) {
                    area_log2 += area_log_error2(rest.area(f), 0.5 * len);
