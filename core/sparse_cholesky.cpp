@@ -25,9 +25,7 @@ void use_single_threaded_blas() {
 class SupernodalLlt : public Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> {
  public:
   bool to_simplicial() {
-    if (m_cholmodFactor == nullptr || !m_cholmodFactor->is_super) return m_cholmodFactor != nullptr;
-    return cholmod_change_factor(CHOLMOD_REAL, /*to_ll=*/1, /*to_super=*/0, /*to_packed=*/1,
-                                 /*to_monotonic=*/1, m_cholmodFactor, &cholmod()) != 0;
+    return m_cholmodFactor != nullptr && supernodal_to_simplicial(m_cholmodFactor, &cholmod());
   }
   bool is_simplicial() const { return m_cholmodFactor != nullptr && !m_cholmodFactor->is_super; }
   // Simplicial LL' when the analysis finds fewer than `switch_flops` flops per factor entry,
@@ -50,6 +48,38 @@ class SupernodalLlt : public Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lo
 };
 
 }  // namespace
+
+bool supernodal_to_simplicial(cholmod_factor* factor, cholmod_common* common) {
+  if (!factor->is_super) return true;
+  MD_ASSERT(factor->itype == CHOLMOD_INT && factor->xtype == CHOLMOD_REAL);
+  if (cholmod_change_factor(CHOLMOD_REAL, /*to_ll=*/1, /*to_super=*/0, /*to_packed=*/1,
+                            /*to_monotonic=*/1, factor, common) == 0) {
+    return false;
+  }
+  // Packed and monotonic: column j's entries are p[j] .. p[j] + nz[j] - 1, the diagonal first,
+  // and the columns follow each other in order, so compacting front to back never overwrites an
+  // entry still to be read.
+  const auto n = static_cast<int>(factor->n);
+  auto* p = static_cast<int*>(factor->p);
+  auto* i = static_cast<int*>(factor->i);
+  auto* nz = static_cast<int*>(factor->nz);
+  auto* x = static_cast<double*>(factor->x);
+  int out = 0;
+  for (int j = 0; j < n; ++j) {
+    const int begin = p[j], end = p[j] + nz[j];
+    p[j] = out;
+    for (int k = begin; k < end; ++k) {
+      if (k == begin || x[k] != 0.0) {
+        i[out] = i[k];
+        x[out] = x[k];
+        ++out;
+      }
+    }
+    nz[j] = out - p[j];
+  }
+  p[n] = out;
+  return true;
+}
 
 struct SparseCholesky::Impl {
   SupernodalLlt llt;

@@ -11,6 +11,9 @@
 
 #include "core/status.h"
 
+struct cholmod_factor_struct;
+struct cholmod_common_struct;
+
 namespace meshdeform::core {
 
 using SparseMatrix = Eigen::SparseMatrix<double, Eigen::ColMajor, int>;
@@ -30,10 +33,14 @@ class SparseCholesky {
   /// right-hand sides (the supernodal solve spends its time in small BLAS calls). Sparse factors
   /// (fewer than kSimplicialFlopsPerEntry flops per factor entry, from the symbolic analysis) are
   /// factored simplicially directly; denser ones supernodally (BLAS-3, the fast way to factor
-  /// them) and then converted (cholmod_change_factor, one O(nnz(L)) copy). Measured on Spot's
-  /// vertex and face graphs (bench/README.md): up to ~190k vertices the direct simplicial factor
-  /// is 0.86-2.7x as fast to build as supernodal + conversion, needs 25-35% less peak memory
-  /// (no relaxed-supernode zeros, no second copy) and solves 15-40% faster. A converted factor
+  /// them) and then converted (supernodal_to_simplicial: one O(nnz(L)) copy, and the relaxed
+  /// supernodes' explicit zeros dropped, so the converted factor solves like a simplicial one).
+  /// Measured on Spot's vertex and face graphs (bench/README.md): up to ~190k vertices the
+  /// direct simplicial factor is 0.86-2.7x as fast to build as supernodal + conversion and
+  /// needs 25-35% less peak memory (no relaxed-supernode zeros, no second copy); at 47k
+  /// vertices the solver's three factors (91-161 flops per entry) still build faster
+  /// simplicially (ScaleAwareSolver create + prepare, medians of three runs: 0.51 s against
+  /// 0.66 s with every factor supernodal; the irregular cactus 31 against 49 ms). A converted factor
   /// cannot be refactored supernodally, so the next factorize() first repeats the symbolic
   /// analysis. Must be set before analyze(). Off by default.
   void set_simplicial_solves(bool on);
@@ -56,5 +63,14 @@ class SparseCholesky {
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
+
+/// Changes a supernodal LL' factor to CHOLMOD's simplicial LL' form (packed, monotonic) and
+/// removes the entries that are exactly zero below the diagonal: relaxed supernodal amalgamation
+/// stores explicit zeros (29% more entries than the simplicial factor on the prolongation's
+/// halves of Spot 187k), which a simplicial solve would otherwise read and multiply. The
+/// structure left is the simplicial factor's (its nonzeros), so solves cost what the directly
+/// simplicial factor's do. A simplicial factor is left as it is. False if CHOLMOD fails.
+[[nodiscard]] bool supernodal_to_simplicial(cholmod_factor_struct* factor,
+                                            cholmod_common_struct* common);
 
 }  // namespace meshdeform::core

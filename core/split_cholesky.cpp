@@ -76,8 +76,9 @@ struct SplitCholesky::Half {
 
   int ni() const { return static_cast<int>(interior.size()); }
 
-  /// CAMD ordering with the separator last, simplicial LL' factor, L33. False when M is not
-  /// positive definite or CHOLMOD did not keep the separator last.
+  /// CAMD ordering with the separator last, LL' factor (supernodal, then kept in simplicial form
+  /// for the solves), L33. False when M is not positive definite or CHOLMOD did not keep the
+  /// separator last.
   bool factorize() {
     const int n = ni() + m;
     cholmod_sparse view = Eigen::viewAsCholmod(std::as_const(M).selfadjointView<Eigen::Lower>());
@@ -88,13 +89,17 @@ struct SplitCholesky::Half {
     common.nmethods = 1;
     common.method[0].ordering = CHOLMOD_GIVEN;
     common.postorder = 0;  // a postorder could move trees of the interior after the separator
-    common.supernodal = CHOLMOD_SIMPLICIAL;
+    // Supernodal (BLAS-3) then simplicial without the amalgamation's zeros: on Spot 187k's
+    // prolongation halves (86k unknowns, 0.6-1.0 GFlop each) the numeric factorization took
+    // 0.18-0.30 s against 0.27-0.54 s simplicially, the conversion 0.02 s, and the solves read
+    // the same entries as the simplicial factor's.
+    common.supernodal = CHOLMOD_SUPERNODAL;
     common.final_ll = 1;
     factor = cholmod_analyze_p(&view, perm.data(), nullptr, 0, &common);
     if (factor == nullptr) return false;
     cholmod_factorize(&view, factor, &common);
     if (common.status != CHOLMOD_OK || factor->minor != static_cast<size_t>(n) ||
-        factor->is_super || !factor->is_ll) {
+        !supernodal_to_simplicial(factor, &common) || factor->is_super || !factor->is_ll) {
       return false;
     }
     const int* Perm = static_cast<const int*>(factor->Perm);

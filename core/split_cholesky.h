@@ -2,7 +2,8 @@
 /// @file split_cholesky.h
 /// Internal to core: the Cholesky factorization of a large sparse SPD system over mesh vertices,
 /// factored and solved on two threads by splitting the mesh in two (one level of nested
-/// dissection, done by hand because CHOLMOD's simplicial factorization runs on one core).
+/// dissection, done by hand because CHOLMOD runs on one core here: BLAS is single-threaded,
+/// see sparse_cholesky.cpp).
 ///
 /// The unknowns are split at the median of their positions along the bounding box's longest
 /// axis; the unknowns of the first half with a neighbour in the second (in A's graph) form the
@@ -13,7 +14,10 @@
 /// Each half's matrix M_i = [A_i B_i; B_i' D_i], with D_i diagonal (twice the separator row's
 /// absolute sum in B_i', so M_i is positive definite when A is diagonally dominant, as a
 /// Laplacian with Dirichlet rows is), is factored by CHOLMOD with the separator ordered last
-/// (CAMD), the two halves on their own threads. The trailing block L33_i of M_i's factor gives
+/// (CAMD), the two halves on their own threads; each half is factored supernodally and kept in
+/// simplicial form without the supernodes' zeros for the solves (supernodal_to_simplicial: on
+/// Spot 187k the prolongation's set-up took 0.62-0.70 s with simplicial halves and 0.42-0.63 s
+/// so, four alternated runs, its solves unchanged). The trailing block L33_i of M_i's factor gives
 /// B_i' A_i^-1 B_i = D_i - L33_i L33_i', so the Schur complement of the separator,
 /// C - sum_i B_i' A_i^-1 B_i, is a small dense matrix (a few hundred rows on a 200k-vertex
 /// mesh), factored densely. A solve is a forward substitution in each half (side by side),

@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/CholmodSupport>
 #include <Eigen/Eigenvalues>
 #include <Eigen/SparseCholesky>
 #include <random>
@@ -199,6 +200,71 @@ TEST(SparseCholesky, SimplicialSolvesFactorSparseMatricesDirectlyAndDenseOnesSup
     const Eigen::MatrixXd x = supernodal.solve(b);
     EXPECT_LT((x - ldlt_solve(c.A1, b)).norm(), 1e-9 * x.norm());
   }
+}
+
+/// The number of entries a simplicial CHOLMOD factor stores (sum of its column counts).
+long stored_entries(const cholmod_factor& L) {
+  const auto* nz = static_cast<const int*>(L.nz);
+  long total = 0;
+  for (size_t j = 0; j < L.n; ++j) total += nz[j];
+  return total;
+}
+
+TEST(SparseCholesky, SupernodalToSimplicialKeepsOnlyTheSimplicialFactorsEntries) {
+  // A factor with relaxed supernodes (CHOLMOD's defaults) stores explicit zeros; converted, it
+  // must hold the directly simplicial factor's entries and solve like it.
+  const SparseMatrix A = grid_laplacian(60, 0.1);
+  const Eigen::MatrixXd b = random_rhs(static_cast<int>(A.rows()), 3, 45);
+  cholmod_common common;
+  cholmod_start(&common);
+  common.print = 0;
+  cholmod_sparse view = Eigen::viewAsCholmod(std::as_const(A).selfadjointView<Eigen::Lower>());
+  std::vector<int> perm;  // the supernodal factor's ordering, given to the simplicial one
+  long entries[2] = {0, 0};
+  Eigen::MatrixXd solutions[2];
+  for (int simplicial = 0; simplicial < 2; ++simplicial) {
+    SCOPED_TRACE(simplicial);
+    common.supernodal = simplicial ? CHOLMOD_SIMPLICIAL : CHOLMOD_SUPERNODAL;
+    common.final_ll = 1;
+    if (simplicial) {
+      common.nmethods = 1;
+      common.method[0].ordering = CHOLMOD_GIVEN;
+    }
+    cholmod_factor* L =
+        cholmod_analyze_p(&view, simplicial ? perm.data() : nullptr, nullptr, 0, &common);
+    ASSERT_NE(L, nullptr);
+    ASSERT_TRUE(cholmod_factorize(&view, L, &common));
+    ASSERT_EQ(L->minor, L->n);
+    if (!simplicial) {
+      ASSERT_TRUE(L->is_super);
+      perm.assign(static_cast<const int*>(L->Perm), static_cast<const int*>(L->Perm) + L->n);
+      // Without the zeros' removal the conversion alone keeps every supernodal entry.
+      ASSERT_TRUE(supernodal_to_simplicial(L, &common));
+      EXPECT_FALSE(L->is_super);
+      EXPECT_TRUE(L->is_ll);
+      const auto* p = static_cast<const int*>(L->p);
+      const auto* nz = static_cast<const int*>(L->nz);
+      const auto* x = static_cast<const double*>(L->x);
+      for (size_t j = 0; j < L->n; ++j) {
+        for (int k = p[j] + 1; k < p[j] + nz[j]; ++k) ASSERT_NE(x[k], 0.0) << "column " << j;
+      }
+    } else {
+      EXPECT_TRUE(supernodal_to_simplicial(L, &common));  // a simplicial factor: unchanged
+    }
+    entries[simplicial] = stored_entries(*L);
+    Eigen::MatrixXd bc = b;
+    cholmod_dense rhs = Eigen::viewAsCholmod(bc);
+    cholmod_dense* x = cholmod_solve(CHOLMOD_A, L, &rhs, &common);
+    ASSERT_NE(x, nullptr);
+    solutions[simplicial] =
+        Eigen::Map<const Eigen::MatrixXd>(static_cast<const double*>(x->x), A.rows(), 3);
+    cholmod_free_dense(&x, &common);
+    cholmod_free_factor(&L, &common);
+  }
+  cholmod_finish(&common);
+  EXPECT_EQ(entries[0], entries[1]);
+  EXPECT_LT(relative_residual(A, solutions[0], b), 1e-12);
+  EXPECT_LT((solutions[0] - solutions[1]).norm(), 1e-12 * solutions[1].norm());
 }
 
 TEST(SparseCholesky, IndefiniteOrSingularMatrixIsANumericalFailure) {
