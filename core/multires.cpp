@@ -271,10 +271,13 @@ class MultipleChoiceDecimaterT : public OpenMesh::Decimater::BaseDecimaterT<Mesh
   }
 
   /// Up to `collapses` collapses; fewer when no legal collapse turns up in many draws in a row.
-  /// `cost` prices a candidate cheaply (the quadric): candidates are tried cheapest first and the
-  /// full check (topology, then every module) runs until one passes, usually on the first.
-  template <class Cost>
-  size_t decimate(size_t collapses, Cost&& cost) {
+  /// `cost` prices a candidate cheaply (the quadric): candidates are tried cheapest first until
+  /// one passes `rules` (the binary modules) and then the topology checks (OpenMesh's link
+  /// condition and boundary cases). The rules go first: at Spot 187k they refuse about 45% of
+  /// the cheapest candidates, the topology 3%, and the link condition costs more than the
+  /// one-ring pass of the rules. Both must pass, so the order changes no choice.
+  template <class Cost, class Rules>
+  size_t decimate(size_t collapses, Cost&& cost, Rules&& rules) {
     if (!this->is_initialized()) return 0;
     size_t done = 0;
     int fruitless = 0;
@@ -300,7 +303,7 @@ class MultipleChoiceDecimaterT : public OpenMesh::Decimater::BaseDecimaterT<Mesh
       typename MeshT::HalfedgeHandle best;
       for (const auto& [priority, index] : drawn) {
         CollapseInfo ci(mesh_, typename MeshT::HalfedgeHandle(index));
-        if (this->is_collapse_legal(ci) && this->collapse_priority(ci) >= 0) {
+        if (rules(ci) && this->is_collapse_legal(ci)) {
           best = typename MeshT::HalfedgeHandle(index);
           break;
         }
@@ -352,9 +355,13 @@ class ConfiguredDecimater {
   /// Up to `collapses` collapses (fewer when nothing legal is left or on a stop request).
   size_t decimate(size_t collapses, StopObserver& observer) {
     ModBoundaryQuadricT<OmMesh>& quadric_module = quadrics();
+    ModOneRingT<OmMesh>& one_ring_module = decimater_.module(one_ring_);
     decimater_.set_observer(&observer);
+    // The quadric is the priority module (never negative, so never illegal); the one-ring
+    // module is the only binary one.
     const size_t done = decimater_.decimate(
-        collapses, [&](const auto& ci) { return quadric_module.collapse_priority(ci); });
+        collapses, [&](const auto& ci) { return quadric_module.collapse_priority(ci); },
+        [&](const auto& ci) { return one_ring_module.collapse_priority(ci) >= 0; });
     decimater_.set_observer(nullptr);
     observer.finish(done);
     return done;
