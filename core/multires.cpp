@@ -608,7 +608,7 @@ Result<MeshHierarchy> MeshHierarchy::build_checked(const Positions& V, const Tri
       hierarchy.levels_.push_back(std::move(fine));
     }
 
-    MD_ASSIGN_OR_RETURN(OmMesh om, detail::to_openmesh(MeshData{V, F}));
+    OmMesh om = detail::to_openmesh(V, F, topology);
     int locked = 0;
     for (int v = 0; v < n; ++v) {
       if (constrained_row[static_cast<size_t>(v)] < 0) continue;
