@@ -24,8 +24,11 @@ void use_single_threaded_blas() {
 // Eigen keeps the CHOLMOD factor protected; the conversion needs it.
 class SupernodalLlt : public Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> {
  public:
-  bool to_simplicial() {
-    return m_cholmodFactor != nullptr && supernodal_to_simplicial(m_cholmodFactor, &cholmod());
+  /// A: the matrix just factored.
+  bool to_simplicial(const SparseMatrix& A) {
+    if (m_cholmodFactor == nullptr) return false;
+    cholmod_sparse view = Eigen::viewAsCholmod(A.selfadjointView<Eigen::Lower>());
+    return supernodal_to_simplicial(m_cholmodFactor, &view, &cholmod());
   }
   bool is_simplicial() const { return m_cholmodFactor != nullptr && !m_cholmodFactor->is_super; }
   // Simplicial LL' when the analysis finds fewer than `switch_flops` flops per factor entry,
@@ -49,36 +52,24 @@ class SupernodalLlt : public Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lo
 
 }  // namespace
 
-bool supernodal_to_simplicial(cholmod_factor* factor, cholmod_common* common) {
+bool supernodal_to_simplicial(cholmod_factor* factor, cholmod_sparse* A, cholmod_common* common) {
   if (!factor->is_super) return true;
   MD_ASSERT(factor->itype == CHOLMOD_INT && factor->xtype == CHOLMOD_REAL);
   if (cholmod_change_factor(CHOLMOD_REAL, /*to_ll=*/1, /*to_super=*/0, /*to_packed=*/1,
                             /*to_monotonic=*/1, factor, common) == 0) {
     return false;
   }
-  // Packed and monotonic: column j's entries are p[j] .. p[j] + nz[j] - 1, the diagonal first,
-  // and the columns follow each other in order, so compacting front to back never overwrites an
-  // entry still to be read.
-  const auto n = static_cast<int>(factor->n);
-  auto* p = static_cast<int*>(factor->p);
-  auto* i = static_cast<int*>(factor->i);
-  auto* nz = static_cast<int*>(factor->nz);
-  auto* x = static_cast<double*>(factor->x);
-  int out = 0;
-  for (int j = 0; j < n; ++j) {
-    const int begin = p[j], end = p[j] + nz[j];
-    p[j] = out;
-    for (int k = begin; k < end; ++k) {
-      if (k == begin || x[k] != 0.0) {
-        i[out] = i[k];
-        x[out] = x[k];
-        ++out;
-      }
-    }
-    nz[j] = out - p[j];
-  }
-  p[n] = out;
-  return true;
+  // The symbolic pattern of A's factor again (what cholmod_factorize's final_resymbol does):
+  // the relaxed supernodes' zeros go, entries that are zero by exact cancellation stay. The
+  // simplicial solves rely on the pattern (they treat two adjacent columns with nested patterns
+  // as one block), so dropping entries by value would give wrong solutions.
+  if (cholmod_resymbol(A, nullptr, 0, /*pack=*/1, factor, common) == 0) return false;
+  // Give back the dropped entries' share of the arrays (the conversion wrote them, so they are
+  // resident).
+  const auto* nz = static_cast<const int*>(factor->nz);
+  size_t entries = 0;
+  for (size_t j = 0; j < factor->n; ++j) entries += static_cast<size_t>(nz[j]);
+  return cholmod_reallocate_factor(entries, factor, common) != 0;
 }
 
 struct SparseCholesky::Impl {
@@ -127,7 +118,7 @@ Status SparseCholesky::factorize(const SparseMatrix& A) {
                      std::to_string(A.cols()) + " system failed (matrix not positive definite)");
   }
   if (impl_->simplicial_solves && !impl_->llt.is_simplicial()) {
-    if (!impl_->llt.to_simplicial()) {
+    if (!impl_->llt.to_simplicial(A)) {
       impl_->factorized = false;
       return Error(ErrorCode::Internal, "converting the Cholesky factor of a " +
                                             std::to_string(A.rows()) + " x " +

@@ -12,6 +12,7 @@
 #include "core/status.h"
 
 struct cholmod_factor_struct;
+struct cholmod_sparse_struct;
 struct cholmod_common_struct;
 
 namespace meshdeform::core {
@@ -64,13 +65,15 @@ class SparseCholesky {
   std::unique_ptr<Impl> impl_;
 };
 
-/// Changes a supernodal LL' factor to CHOLMOD's simplicial LL' form (packed, monotonic) and
-/// removes the entries that are exactly zero below the diagonal: relaxed supernodal amalgamation
-/// stores explicit zeros (29% more entries than the simplicial factor on the prolongation's
-/// halves of Spot 187k), which a simplicial solve would otherwise read and multiply. The
-/// structure left is the simplicial factor's (its nonzeros), so solves cost what the directly
-/// simplicial factor's do. A simplicial factor is left as it is. False if CHOLMOD fails.
+/// Changes a supernodal LL' factor of A to CHOLMOD's simplicial LL' form (packed, monotonic)
+/// with the pattern of A's simplicial factor: the explicit zeros that relaxed supernodal
+/// amalgamation stores (29% more entries than the simplicial factor on the prolongation's halves
+/// of Spot 187k) are dropped (cholmod_resymbol), which a simplicial solve would otherwise read and
+/// multiply, and the arrays shrink to what is left. Solves then cost what the directly simplicial
+/// factor's do. A simplicial factor is left as it is. False if CHOLMOD fails.
+/// @param[in] A  the matrix factored (as given to cholmod_factorize: same values and stype).
 [[nodiscard]] bool supernodal_to_simplicial(cholmod_factor_struct* factor,
+                                            cholmod_sparse_struct* A,
                                             cholmod_common_struct* common);
 
 }  // namespace meshdeform::core

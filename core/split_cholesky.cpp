@@ -99,7 +99,8 @@ struct SplitCholesky::Half {
     if (factor == nullptr) return false;
     cholmod_factorize(&view, factor, &common);
     if (common.status != CHOLMOD_OK || factor->minor != static_cast<size_t>(n) ||
-        !supernodal_to_simplicial(factor, &common) || factor->is_super || !factor->is_ll) {
+        !supernodal_to_simplicial(factor, &view, &common) || factor->is_super ||
+        !factor->is_ll) {
       return false;
     }
     const int* Perm = static_cast<const int*>(factor->Perm);

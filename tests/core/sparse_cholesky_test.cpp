@@ -9,6 +9,7 @@
 #include <Eigen/CholmodSupport>
 #include <Eigen/Eigenvalues>
 #include <Eigen/SparseCholesky>
+#include <algorithm>
 #include <random>
 #include <string>
 #include <utility>
@@ -202,69 +203,107 @@ TEST(SparseCholesky, SimplicialSolvesFactorSparseMatricesDirectlyAndDenseOnesSup
   }
 }
 
-/// The number of entries a simplicial CHOLMOD factor stores (sum of its column counts).
-long stored_entries(const cholmod_factor& L) {
+/// The pattern of a simplicial CHOLMOD factor, column by column.
+std::vector<std::vector<int>> factor_pattern(const cholmod_factor& L) {
+  const auto* p = static_cast<const int*>(L.p);
+  const auto* i = static_cast<const int*>(L.i);
   const auto* nz = static_cast<const int*>(L.nz);
-  long total = 0;
-  for (size_t j = 0; j < L.n; ++j) total += nz[j];
-  return total;
+  std::vector<std::vector<int>> columns(L.n);
+  for (size_t j = 0; j < L.n; ++j) columns[j].assign(i + p[j], i + p[j] + nz[j]);
+  return columns;
 }
 
-TEST(SparseCholesky, SupernodalToSimplicialKeepsOnlyTheSimplicialFactorsEntries) {
-  // A factor with relaxed supernodes (CHOLMOD's defaults) stores explicit zeros; converted, it
-  // must hold the directly simplicial factor's entries and solve like it.
-  const SparseMatrix A = grid_laplacian(60, 0.1);
-  const Eigen::MatrixXd b = random_rhs(static_cast<int>(A.rows()), 3, 45);
-  cholmod_common common;
-  cholmod_start(&common);
-  common.print = 0;
-  cholmod_sparse view = Eigen::viewAsCholmod(std::as_const(A).selfadjointView<Eigen::Lower>());
-  std::vector<int> perm;  // the supernodal factor's ordering, given to the simplicial one
-  long entries[2] = {0, 0};
-  Eigen::MatrixXd solutions[2];
-  for (int simplicial = 0; simplicial < 2; ++simplicial) {
-    SCOPED_TRACE(simplicial);
-    common.supernodal = simplicial ? CHOLMOD_SIMPLICIAL : CHOLMOD_SUPERNODAL;
-    common.final_ll = 1;
-    if (simplicial) {
-      common.nmethods = 1;
-      common.method[0].ordering = CHOLMOD_GIVEN;
+/// Blocks [4 2 2; 2 5 1; 2 1 6] along the diagonal, each coupled to a last, heavier unknown:
+/// the factor's (3, 2) entry of every block is exactly 0 (1 - 1 * 1, over 2) though it is in the
+/// symbolic pattern, since A's is not.
+SparseMatrix blocks_with_cancellation(int blocks) {
+  const int n = 3 * blocks + 1;
+  std::vector<Eigen::Triplet<double>> entries;
+  const double block[3][3] = {{4, 2, 2}, {2, 5, 1}, {2, 1, 6}};
+  for (int b = 0; b < blocks; ++b) {
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) entries.emplace_back(3 * b + r, 3 * b + c, block[r][c]);
+      entries.emplace_back(n - 1, 3 * b + r, 0.25);
+      entries.emplace_back(3 * b + r, n - 1, 0.25);
     }
-    cholmod_factor* L =
-        cholmod_analyze_p(&view, simplicial ? perm.data() : nullptr, nullptr, 0, &common);
-    ASSERT_NE(L, nullptr);
-    ASSERT_TRUE(cholmod_factorize(&view, L, &common));
-    ASSERT_EQ(L->minor, L->n);
-    if (!simplicial) {
-      ASSERT_TRUE(L->is_super);
-      perm.assign(static_cast<const int*>(L->Perm), static_cast<const int*>(L->Perm) + L->n);
-      // Without the zeros' removal the conversion alone keeps every supernodal entry.
-      ASSERT_TRUE(supernodal_to_simplicial(L, &common));
-      EXPECT_FALSE(L->is_super);
-      EXPECT_TRUE(L->is_ll);
-      const auto* p = static_cast<const int*>(L->p);
-      const auto* nz = static_cast<const int*>(L->nz);
-      const auto* x = static_cast<const double*>(L->x);
-      for (size_t j = 0; j < L->n; ++j) {
-        for (int k = p[j] + 1; k < p[j] + nz[j]; ++k) ASSERT_NE(x[k], 0.0) << "column " << j;
-      }
-    } else {
-      EXPECT_TRUE(supernodal_to_simplicial(L, &common));  // a simplicial factor: unchanged
-    }
-    entries[simplicial] = stored_entries(*L);
-    Eigen::MatrixXd bc = b;
-    cholmod_dense rhs = Eigen::viewAsCholmod(bc);
-    cholmod_dense* x = cholmod_solve(CHOLMOD_A, L, &rhs, &common);
-    ASSERT_NE(x, nullptr);
-    solutions[simplicial] =
-        Eigen::Map<const Eigen::MatrixXd>(static_cast<const double*>(x->x), A.rows(), 3);
-    cholmod_free_dense(&x, &common);
-    cholmod_free_factor(&L, &common);
   }
-  cholmod_finish(&common);
-  EXPECT_EQ(entries[0], entries[1]);
-  EXPECT_LT(relative_residual(A, solutions[0], b), 1e-12);
-  EXPECT_LT((solutions[0] - solutions[1]).norm(), 1e-12 * solutions[1].norm());
+  entries.emplace_back(n - 1, n - 1, 4.0 * n);
+  SparseMatrix A(n, n);
+  A.setFromTriplets(entries.begin(), entries.end());
+  A.makeCompressed();
+  return A;
+}
+
+TEST(SparseCholesky, SupernodalToSimplicialGivesTheSimplicialFactorsPatternAndSolutions) {
+  // A supernodal factor with relaxed supernodes (CHOLMOD's defaults) stores explicit zeros;
+  // converted, it must have the pattern of the directly simplicial factor (same ordering),
+  // including entries that are zero by exact cancellation, and solve like it.
+  struct Case {
+    const char* name;
+    SparseMatrix A;
+    bool has_cancellations;
+  };
+  const std::vector<Case> cases = {{"grid", grid_laplacian(60, 0.1), false},
+                                   {"cancellation", blocks_with_cancellation(400), true}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const SparseMatrix& A = c.A;
+    const Eigen::MatrixXd b = random_rhs(static_cast<int>(A.rows()), 3, 45);
+    cholmod_common common;
+    cholmod_start(&common);
+    common.print = 0;
+    cholmod_sparse view = Eigen::viewAsCholmod(std::as_const(A).selfadjointView<Eigen::Lower>());
+    std::vector<int> perm;  // the supernodal factor's ordering, given to the simplicial one
+    std::vector<std::vector<int>> patterns[2];
+    Eigen::MatrixXd solutions[2];
+    bool zero_in_pattern = false;
+    for (int simplicial = 0; simplicial < 2; ++simplicial) {
+      SCOPED_TRACE(simplicial);
+      common.supernodal = simplicial ? CHOLMOD_SIMPLICIAL : CHOLMOD_SUPERNODAL;
+      common.final_ll = 1;
+      if (simplicial) {
+        common.nmethods = 1;
+        common.method[0].ordering = CHOLMOD_GIVEN;
+        common.postorder = 0;
+      }
+      cholmod_factor* L =
+          cholmod_analyze_p(&view, simplicial ? perm.data() : nullptr, nullptr, 0, &common);
+      ASSERT_NE(L, nullptr);
+      ASSERT_TRUE(cholmod_factorize(&view, L, &common));
+      ASSERT_EQ(L->minor, L->n);
+      if (!simplicial) {
+        ASSERT_TRUE(L->is_super);
+        perm.assign(static_cast<const int*>(L->Perm), static_cast<const int*>(L->Perm) + L->n);
+        ASSERT_TRUE(supernodal_to_simplicial(L, &view, &common));
+        EXPECT_FALSE(L->is_super);
+        EXPECT_TRUE(L->is_ll);
+        const auto columns = factor_pattern(*L);
+        size_t entries = 0;
+        for (const auto& column : columns) entries += column.size();
+        EXPECT_EQ(L->nzmax, entries);  // the arrays shrank to the pattern
+        const auto* x = static_cast<const double*>(L->x);
+        for (size_t k = 0; k < entries; ++k) zero_in_pattern |= x[k] == 0.0;
+      } else {
+        ASSERT_FALSE(L->is_super);
+        ASSERT_TRUE(std::equal(perm.begin(), perm.end(), static_cast<const int*>(L->Perm)));
+        EXPECT_TRUE(supernodal_to_simplicial(L, &view, &common));  // simplicial: unchanged
+      }
+      patterns[simplicial] = factor_pattern(*L);
+      Eigen::MatrixXd bc = b;
+      cholmod_dense rhs = Eigen::viewAsCholmod(bc);
+      cholmod_dense* x = cholmod_solve(CHOLMOD_A, L, &rhs, &common);
+      ASSERT_NE(x, nullptr);
+      solutions[simplicial] =
+          Eigen::Map<const Eigen::MatrixXd>(static_cast<const double*>(x->x), A.rows(), 3);
+      cholmod_free_dense(&x, &common);
+      cholmod_free_factor(&L, &common);
+    }
+    cholmod_finish(&common);
+    EXPECT_EQ(zero_in_pattern, c.has_cancellations);
+    EXPECT_TRUE(patterns[0] == patterns[1]);
+    EXPECT_LT(relative_residual(A, solutions[0], b), 1e-12);
+    EXPECT_LT((solutions[0] - solutions[1]).norm(), 1e-12 * solutions[1].norm());
+  }
 }
 
 TEST(SparseCholesky, IndefiniteOrSingularMatrixIsANumericalFailure) {
