@@ -4,7 +4,9 @@
 #include <cmath>
 #include <vector>
 
+#if defined(__SSE2__)
 #include <emmintrin.h>
+#endif
 
 #include <Eigen/SVD>
 
@@ -43,6 +45,7 @@ struct RotationBatch {
   double r[9][kLanes];  // result R(i, j) at r[3 i + j]
 };
 
+#if defined(__SSE2__)
 // Two lanes per SSE2 register (x86-64's baseline, so no dispatch): every operation is the scalar
 // one in the same order (the baseline has no FMA to contract into), so each lane's result is the
 // scalar loop's bit for bit, at half the instructions for the divisions and square roots that
@@ -134,6 +137,72 @@ void refine_rotations(RotationBatch& batch, int max_iterations) {
   }
   batch_matrices(batch.q, batch.r);
 }
+
+#else  // no SSE2 (not x86-64): the same lanes one by one, the same results
+
+inline void batch_matrices(const double (&q)[4][kLanes], double (&r)[9][kLanes]) {
+  for (int l = 0; l < kLanes; ++l) {
+    // Eigen's Quaternion::toRotationMatrix, term for term.
+    const double w = q[0][l], x = q[1][l], y = q[2][l], z = q[3][l];
+    const double tx = 2 * x, ty = 2 * y, tz = 2 * z;
+    const double twx = tx * w, twy = ty * w, twz = tz * w;
+    const double txx = tx * x, txy = ty * x, txz = tz * x;
+    const double tyy = ty * y, tyz = tz * y, tzz = tz * z;
+    r[0][l] = 1 - (tyy + tzz);
+    r[1][l] = txy - twz;
+    r[2][l] = txz + twy;
+    r[3][l] = txy + twz;
+    r[4][l] = 1 - (txx + tzz);
+    r[5][l] = tyz - twx;
+    r[6][l] = txz - twy;
+    r[7][l] = tyz + twx;
+    r[8][l] = 1 - (txx + tyy);
+  }
+}
+
+void refine_rotations(RotationBatch& batch, int max_iterations) {
+  bool done[kLanes] = {};
+  for (int it = 0; it < max_iterations; ++it) {
+    double r[9][kLanes];
+    batch_matrices(batch.q, r);
+    int active = 0;
+    for (int l = 0; l < kLanes; ++l) {
+      // omega = sum_c R.col(c) x B.col(c), denom = |sum_c R.col(c) . B.col(c)| + 1e-9.
+      double ox = 0, oy = 0, oz = 0, dot = 0;
+      for (int c = 0; c < 3; ++c) {
+        const double rx = r[c][l], ry = r[3 + c][l], rz = r[6 + c][l];
+        const double bx = batch.b[c][l], by = batch.b[3 + c][l], bz = batch.b[6 + c][l];
+        ox += ry * bz - rz * by;
+        oy += rz * bx - rx * bz;
+        oz += rx * by - ry * bx;
+        dot += rx * bx + ry * by + rz * bz;
+      }
+      const double denom = std::abs(dot) + 1e-9;
+      ox /= denom;
+      oy /= denom;
+      oz /= denom;
+      const bool converged = done[l] || ox * ox + oy * oy + oz * oz < 1e-26;
+      done[l] = converged;
+      active += converged ? 0 : 1;
+      // q <- normalise((1, omega / 2) q) where not converged.
+      const double hx = 0.5 * ox, hy = 0.5 * oy, hz = 0.5 * oz;
+      const double w = batch.q[0][l], x = batch.q[1][l], y = batch.q[2][l], z = batch.q[3][l];
+      const double nw = w - (hx * x + hy * y + hz * z);
+      const double nx = x + w * hx + (hy * z - hz * y);
+      const double ny = y + w * hy + (hz * x - hx * z);
+      const double nz = z + w * hz + (hx * y - hy * x);
+      const double inv = 1.0 / std::sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
+      batch.q[0][l] = converged ? w : nw * inv;
+      batch.q[1][l] = converged ? x : nx * inv;
+      batch.q[2][l] = converged ? y : ny * inv;
+      batch.q[3][l] = converged ? z : nz * inv;
+    }
+    if (active == 0) break;
+  }
+  batch_matrices(batch.q, batch.r);
+}
+
+#endif  // __SSE2__
 
 }  // namespace
 
