@@ -6,7 +6,8 @@
 //    --move-iterations coarse outer iterations plus the prolongation (the interactive answer);
 //    the coarse level converged at the final targets and prolonged; then the full-resolution
 //    solver built and run from the prolonged positions to convergence (background refinement);
-//  - single: ScaleAwareSolver at full resolution from the Laplacian guess to convergence.
+//  - single: ScaleAwareSolver at full resolution to convergence from the Laplacian guess, or
+//    with --single-start auto from the solver's default start.
 // Writes a Markdown report (stdout and <out-dir>/<stem>.md) and <out-dir>/<stem>.json.
 
 #include <algorithm>
@@ -30,6 +31,7 @@
 #include "bench/bench_process.h"
 #include "bench/machine_info.h"
 #include "core/deform_types.h"
+#include "core/deformer.h"
 #include "core/measures.h"
 #include "core/multires.h"
 #include "core/procedural.h"
@@ -61,6 +63,7 @@ struct Options {
   int threads = 1;
   int split_above = core::MultiresSettings{}.split_above_vertices;
   bool single = true;
+  core::StartFrom single_start = core::StartFrom::Laplacian;
   bool refine = true;
   std::string out_dir = MESHDEFORM_BENCH_RESULTS_DIR;
   std::string stem = "multires";
@@ -82,6 +85,9 @@ void print_usage(std::ostream& out) {
          "  --split-above N         decimate meshes above N vertices in two halves (50000;\n"
          "                          0 never)\n"
          "  --no-single             skip the single-level reference\n"
+         "  --single-start NAME     start of the single-level reference: laplacian (the\n"
+         "                          Laplacian guess) or auto (the solver's default: converged\n"
+         "                          ARAP at rigidity > 0) (laplacian)\n"
          "  --no-refine             skip the coarse convergence and the full-resolution\n"
          "                          refinement (interactive part only)\n"
          "  --out-dir DIR           (default "
@@ -128,6 +134,13 @@ Result<Options> parse_options(int argc, char** argv) {
   flags.integer("--threads", o.threads, 0);
   flags.integer("--split-above", o.split_above, 0);
   flags.flag("--no-single", [&] { o.single = false; });
+  flags.value("--single-start", [&](const std::string& value) -> Status {
+    if (value != "laplacian" && value != "auto") {
+      return Error(ErrorCode::InvalidArgument, "--single-start wants laplacian or auto");
+    }
+    MD_ASSIGN_OR_RETURN(o.single_start, core::parse_start(value));
+    return Status::success();
+  });
   flags.flag("--no-refine", [&] { o.refine = false; });
   flags.text("--out-dir", o.out_dir);
   flags.text("--stem", o.stem);
@@ -262,11 +275,12 @@ json run_single(const Model& model, const Options& options) {
       core::ScaleAwareSolver::create(V0, F, model.setup.constrained, settings));
   out["precompute_s"] = seconds_since(start);
   core::SolveOptions converge = converge_options(options);
-  converge.start = core::StartFrom::Laplacian;
+  converge.start = options.single_start;
   const core::SolveReport report = value_or_throw(solver.solve(model.setup.targets, converge));
   out["peak_rss_kib"] = peak_rss_kib();
   out["solve_s"] = report.seconds;
   out["init_s"] = report.history.empty() ? 0.0 : report.history.front().elapsed_seconds;
+  out["start_used"] = core::start_name(report.start);
   out["iterations"] = report.iterations;
   out["converged"] = report.converged;
   out["errors"] = Metrics(V0, F).of(report.V, F);
@@ -351,6 +365,16 @@ std::string energy_row(const std::string& name, const json& multires, const json
          fmt("%.1f", alone.back()["elapsed"].get<double>()) + " s |\n";
 }
 
+/// How the report names the single-level reference's start.
+std::string start_phrase(core::StartFrom start) {
+  return start == core::StartFrom::Laplacian
+             ? "the Laplacian guess"
+             : "the solver's default start (auto: converged ARAP at rigidity > 0)";
+}
+std::string start_label(core::StartFrom start) {
+  return start == core::StartFrom::Laplacian ? "Laplacian" : "auto start";
+}
+
 std::string markdown(const MachineInfo& machine, const std::string& load_end,
                      const Options& options, const std::vector<Row>& rows) {
   std::ostringstream out;
@@ -376,7 +400,8 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
          "move 1 is cold (coarse Laplacian guess) and left out of the percentiles\n";
   out << "- converged: relative energy change < " << fmt("%.0e", options.tolerance) << " or "
       << options.max_iterations
-      << " outer iterations; single level from the Laplacian guess, multires refinement from the "
+      << " outer iterations; single level from " << start_phrase(options.single_start)
+      << ", multires refinement from the "
          "prolonged converged coarse solution (same full-resolution solver, ScaleAwareSolver::"
          "set_positions)\n";
   out << "- each of multires / single in its own forked process; peak RSS is VmHWM of that process "
@@ -409,7 +434,8 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
          "core::angle_errors).\n\n";
   out << "| model | drag end (prolonged, 1 it/move) | coarse converged, prolonged | coarse "
          "converge s (its) | fine precompute s | refine from prolonged s (its) | single: "
-         "precompute s | single: solve from Laplacian s (its) | multires converged | single "
+         "precompute s | single: solve from " << start_label(options.single_start)
+      << " s (its) | multires converged | single "
          "converged | max rel. difference | multires peak MiB | single peak MiB |\n";
   out << "|---|---|---|---|---:|---|---:|---|---|---|---:|---:|---:|\n";
   std::vector<std::string> energy_rows;
@@ -449,10 +475,13 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
   if (!energy_rows.empty()) {
     out << "\n## Energy (Eq. 12 + rigidity x scale term) of the full-resolution solves\n\n";
     out << "Both solves stop on a relative energy change; the refinement from the prolonged start "
-           "and the single-level solve from the Laplacian guess need not stop at the same energy. "
+           "and the single-level solve from "
+        << start_phrase(options.single_start)
+        << " need not stop at the same energy. "
            "*reaches single's final energy*: the first refinement iteration at or below the energy "
            "the single-level solve ended with, and its time.\n\n";
-    out << "| model | start energy: prolonged / Laplacian | final energy: multires / single | "
+    out << "| model | start energy: prolonged / " << start_label(options.single_start)
+        << " | final energy: multires / single | "
            "refinement reaches single's final energy | single-level solve |\n";
     out << "|---|---|---|---|---|\n";
     for (const std::string& line : energy_rows) out << line;
@@ -507,7 +536,8 @@ json to_json(const MachineInfo& machine, const std::string& load_end, const Opti
                     {"max_iterations", options.max_iterations},
                     {"tolerance", options.tolerance},
                     {"threads", options.threads},
-                    {"split_above", options.split_above}};
+                    {"split_above", options.split_above},
+                    {"single_start", core::start_name(options.single_start)}};
   out["targets"] = {{"warm_move_p50_ms_187k", kMoveP50TargetMs},
                     {"setup_s_187k", kSetupTargetSeconds},
                     {"peak_mib_187k", kMemory187kTargetMiB},
