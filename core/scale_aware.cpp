@@ -164,11 +164,32 @@ struct ScaleAwareSolver::Impl {
   static constexpr int kEdgeForm = 7;
   std::vector<double> edge_form;
   SparseCholesky cholesky;
-  SparseCholesky trace_cholesky;  // BlockTrace preconditioner: n x n, constant
+  // The block-trace preconditioner T (x) I3, factored. Where at least
+  // settings.split_constrained_fraction of the vertices are constrained (on a mesh of at least
+  // kSplitMinVertices), the constrained vertices are decoupled instead, [T_UU 0; 0 diag(T_CC)]:
+  // T_UU over the free vertices factored, the constrained rows by their diagonal (which carries
+  // the handle weight lambda (1 + rho)). The split leaves the coupling T_UC out of the
+  // preconditioner: measured, 20-30% more PCG steps for the same iterates (energies equal to
+  // 1e-4 relative at 15 iterations), against a factor of the free vertices alone. Where many
+  // vertices are constrained that pays: Spot 47k with 43% constrained, create + prepare 25-50%
+  // faster, 15 MiB less memory, the same or less time per iteration; where few are (the
+  // irregular cylinder, bar and cactus, 14-23%), the smaller factor does not make up for the
+  // extra steps (5-10% slower per iteration), so T stays whole there.
+  struct TraceBlocks {
+    SparseCholesky factor;                // T, or T_UU when split
+    bool split = false;
+    Eigen::VectorXd constrained_inverse;  // #C: 1 / T(c, c), when split
+    bool ready = false;
+  };
+  std::vector<int> free_vertices;  // ascending
+  std::vector<int> free_index;     // #V: row in T_UU, or -1
+  Status factor_trace_blocks(const SparseMatrix& T, TraceBlocks& blocks) const;
+  Eigen::VectorXd solve_trace_blocks(const TraceBlocks& blocks, const Eigen::VectorXd& r) const;
+  TraceBlocks trace_blocks;  // BlockTrace preconditioner at rho = 0, constant
   // Scale control (issue 12), built on the first solve with rigidity > 0. The block-trace
   // preconditioner then factors T + rho L_cot (still constant per rho): cached for one rho.
   std::optional<ScaleControl> scale_control;
-  SparseCholesky trace_rigid_cholesky;
+  TraceBlocks trace_rigid_blocks;
   double trace_rigid_rho = -1;
   double preconditioner_rho = 0;  // which factor precondition() uses
   // The handle weight of step two: lambda, times (1 + rigidity) with scale control, since the
@@ -305,6 +326,10 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   if (!(settings_in.refactor_cost_ratio > 0)) {
     return Error(ErrorCode::InvalidArgument, "refactor_cost_ratio must be positive");
   }
+  if (!(settings_in.split_constrained_fraction >= 0)) {
+    return Error(ErrorCode::InvalidArgument,
+                 "split_constrained_fraction must be >= 0 (above 1: never split)");
+  }
   if (!(settings_in.scale_pull >= 0) || !std::isfinite(settings_in.scale_pull) ||
       !(settings_in.scale_smooth_length >= 0) || !std::isfinite(settings_in.scale_smooth_length) ||
       !(settings_in.scale_normal_tie >= 0)) {
@@ -327,6 +352,13 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   constrained = constrained_in;
   slot.assign(nv, -1);
   for (Eigen::Index j = 0; j < constrained.size(); ++j) slot[constrained(j)] = static_cast<int>(j);
+  free_vertices.clear();
+  free_index.assign(nv, -1);
+  for (int v = 0; v < nv; ++v) {
+    if (slot[v] >= 0) continue;
+    free_index[v] = static_cast<int>(free_vertices.size());
+    free_vertices.push_back(v);
+  }
   bbox_diagonal = (V0.colwise().maxCoeff() - V0.colwise().minCoeff()).norm();
 
   const Measures rest = compute_measures(V0_in, F_in, topology);
@@ -625,14 +657,8 @@ Status ScaleAwareSolver::Impl::prepare_rigidity(double rigidity) {
   preconditioner_rho = rigidity;
   handle_weight = rigidity == 0 ? settings.lambda : settings.lambda * (1.0 + rigidity);
   if (rigidity == 0) {
-    if (settings.preconditioner == StepTwoPreconditioner::BlockTrace &&
-        !trace_cholesky.is_factorized()) {
-      const SparseMatrix T = block_trace_matrix(0.0);
-      // Constant for the solver's life and solved once per PCG step: the simplicial form solves
-      // faster than the supernodal one (sparse_cholesky.h).
-      trace_cholesky.set_simplicial_solves(true);
-      MD_RETURN_IF_ERROR(trace_cholesky.analyze(T));
-      MD_RETURN_IF_ERROR(trace_cholesky.factorize(T));
+    if (settings.preconditioner == StepTwoPreconditioner::BlockTrace && !trace_blocks.ready) {
+      MD_RETURN_IF_ERROR(factor_trace_blocks(block_trace_matrix(0.0), trace_blocks));
     }
     return Status::success();
   }
@@ -641,10 +667,8 @@ Status ScaleAwareSolver::Impl::prepare_rigidity(double rigidity) {
   if (settings.preconditioner == StepTwoPreconditioner::BlockTrace && trace_rigid_rho != rigidity) {
     // The preconditioner stays constant for a given rho, so only a change of rho (a slider
     // move) refactors this n x n matrix.
-    const SparseMatrix T = block_trace_matrix(rigidity);
-    trace_rigid_cholesky.set_simplicial_solves(true);  // analysed anew per rigidity anyway
-    MD_RETURN_IF_ERROR(trace_rigid_cholesky.analyze(T));
-    MD_RETURN_IF_ERROR(trace_rigid_cholesky.factorize(T));
+    trace_rigid_rho = -1;
+    MD_RETURN_IF_ERROR(factor_trace_blocks(block_trace_matrix(rigidity), trace_rigid_blocks));
     trace_rigid_rho = rigidity;
   }
   return Status::success();
@@ -657,13 +681,86 @@ double ScaleAwareSolver::Impl::joint_energy(const Eigen::VectorXd& pos,
   return rigidity > 0 ? e + rigidity * scale_control->energy(pos) : e;
 }
 
+Status ScaleAwareSolver::Impl::factor_trace_blocks(const SparseMatrix& T,
+                                                  TraceBlocks& blocks) const {
+  blocks.ready = false;
+  blocks.split = nv >= ScaleAwareSettings::kSplitMinVertices &&
+                 static_cast<double>(constrained.size()) >=
+                     settings.split_constrained_fraction * static_cast<double>(nv);
+  // Constant for the solver's life (per rho) and solved once per PCG step: the simplicial form
+  // solves faster than the supernodal one (sparse_cholesky.h).
+  blocks.factor.set_simplicial_solves(true);
+  if (!blocks.split) {
+    MD_RETURN_IF_ERROR(blocks.factor.analyze(T));
+    MD_RETURN_IF_ERROR(blocks.factor.factorize(T));
+    blocks.ready = true;
+    return Status::success();
+  }
+  blocks.constrained_inverse.resize(constrained.size());
+  for (Eigen::Index j = 0; j < constrained.size(); ++j) {
+    const double diagonal = T.coeff(constrained(j), constrained(j));
+    if (!(diagonal > 0)) {
+      return Error(ErrorCode::NumericalFailure,
+                   "block-trace preconditioner: non-positive diagonal at constrained vertex " +
+                       std::to_string(constrained(j)));
+    }
+    blocks.constrained_inverse(j) = 1.0 / diagonal;
+  }
+  const int nu = static_cast<int>(free_vertices.size());
+  if (nu > 0) {
+    // T_UU in T's full symmetric storage: the free columns and their free rows (still sorted:
+    // free_index increases with the vertex index).
+    SparseMatrix TUU(nu, nu);
+    TUU.resizeNonZeros(T.nonZeros());
+    int* outer = TUU.outerIndexPtr();
+    int* inner = TUU.innerIndexPtr();
+    double* values = TUU.valuePtr();
+    int k = 0;
+    for (int c = 0; c < nu; ++c) {
+      outer[c] = k;
+      const int b = free_vertices[c];
+      for (Eigen::Index t = T.outerIndexPtr()[b]; t < T.outerIndexPtr()[b + 1]; ++t) {
+        const int row = free_index[T.innerIndexPtr()[t]];
+        if (row < 0) continue;
+        inner[k] = row;
+        values[k++] = T.valuePtr()[t];
+      }
+    }
+    outer[nu] = k;
+    TUU.resizeNonZeros(k);
+    MD_RETURN_IF_ERROR(blocks.factor.analyze(TUU));
+    MD_RETURN_IF_ERROR(blocks.factor.factorize(TUU));
+  }
+  blocks.ready = true;
+  return Status::success();
+}
+
+Eigen::VectorXd ScaleAwareSolver::Impl::solve_trace_blocks(const TraceBlocks& blocks,
+                                                           const Eigen::VectorXd& r) const {
+  // The interleaved xyz vector is an #V x 3 row-major matrix: (T (x) I3)^-1 solves its columns.
+  if (!blocks.split) {
+    const Eigen::MatrixXd R = Eigen::Map<const RowPositions>(r.data(), nv, 3);
+    const RowPositions Z = blocks.factor.solve(R);
+    return Eigen::Map<const Eigen::VectorXd>(Z.data(), 3 * static_cast<Eigen::Index>(nv));
+  }
+  Eigen::VectorXd out(r.size());
+  const int nu = static_cast<int>(free_vertices.size());
+  if (nu > 0) {
+    Eigen::MatrixXd R(nu, 3);
+    for (int k = 0; k < nu; ++k) R.row(k) = r.segment<3>(3 * free_vertices[k]).transpose();
+    const Eigen::MatrixXd Z = blocks.factor.solve(R);
+    for (int k = 0; k < nu; ++k) out.segment<3>(3 * free_vertices[k]) = Z.row(k).transpose();
+  }
+  for (Eigen::Index j = 0; j < constrained.size(); ++j) {
+    out.segment<3>(3 * constrained(j)) =
+        blocks.constrained_inverse(j) * r.segment<3>(3 * constrained(j));
+  }
+  return out;
+}
+
 Eigen::VectorXd ScaleAwareSolver::Impl::precondition(const Eigen::VectorXd& r) const {
   if (settings.preconditioner == StepTwoPreconditioner::LaggedCholesky) return cholesky.solve(r);
-  // (T (x) I3)^-1 r: the interleaved xyz vector is an #V x 3 row-major matrix.
-  const Eigen::MatrixXd R = Eigen::Map<const RowPositions>(r.data(), nv, 3);
-  const RowPositions Z =
-      preconditioner_rho > 0 ? trace_rigid_cholesky.solve(R) : trace_cholesky.solve(R);
-  return Eigen::Map<const Eigen::VectorXd>(Z.data(), 3 * static_cast<Eigen::Index>(nv));
+  return solve_trace_blocks(preconditioner_rho > 0 ? trace_rigid_blocks : trace_blocks, r);
 }
 
 Eigen::VectorXd ScaleAwareSolver::Impl::rhs(const Positions& targets) const {
