@@ -164,25 +164,25 @@ struct ScaleAwareSolver::Impl {
   static constexpr int kEdgeForm = 7;
   std::vector<double> edge_form;
   SparseCholesky cholesky;
-  // The block-trace preconditioner T (x) I3, factored. Where at least
-  // settings.split_constrained_fraction of the vertices are constrained (on a mesh of at least
-  // kSplitMinVertices), the constrained vertices are decoupled instead, [T_UU 0; 0 diag(T_CC)]:
-  // T_UU over the free vertices factored, the constrained rows by their diagonal (which carries
-  // the handle weight lambda (1 + rho)). The split leaves the coupling T_UC out of the
-  // preconditioner: measured, 20-30% more PCG steps for the same iterates (energies equal to
-  // 1e-4 relative at 15 iterations), against a factor of the free vertices alone. Where many
-  // vertices are constrained that pays: Spot 47k with 43% constrained, create + prepare 25-50%
-  // faster, 15 MiB less memory, the same or less time per iteration; where few are (the
-  // irregular cylinder, bar and cactus, 14-23%), the smaller factor does not make up for the
-  // extra steps (5-10% slower per iteration), so T stays whole there.
+  // The block-trace preconditioner T (x) I3, factored: with settings.split_preconditioner (the
+  // default) over the factored vertices K only (the free ones and the constrained ones with a
+  // free neighbour), the decoupled ones D (constrained, every neighbour constrained: the inside
+  // of handle and fixed regions) by their diagonal: [T_KK 0; 0 diag(T_DD)]. Every row of D
+  // carries the handle weight lambda (1 + rho), which dominates it, and the coupling the split
+  // drops, T_KD, joins two such rows: the free vertices keep all their coupling. Measured
+  // (README, issue 13): the same PCG steps and energies as the whole factor on the Spot edits
+  // and the irregular Table 1 models, a factor of 57% of the vertices on Spot 47k's edits (43%
+  // constrained): create + prepare 25-33% shorter, 15 MiB less peak. (Dropping every
+  // constrained vertex instead, coupling to free vertices included, cost 30-50% more PCG steps.)
   struct TraceBlocks {
-    SparseCholesky factor;                // T, or T_UU when split
+    SparseCholesky factor;              // T, or T_KK when split
     bool split = false;
-    Eigen::VectorXd constrained_inverse;  // #C: 1 / T(c, c), when split
+    Eigen::VectorXd decoupled_inverse;  // 1 / T(v, v) per decoupled vertex, when split
     bool ready = false;
   };
-  std::vector<int> free_vertices;  // ascending
-  std::vector<int> free_index;     // #V: row in T_UU, or -1
+  std::vector<int> factored_vertices;  // ascending: free, or constrained with a free neighbour
+  std::vector<int> factored_index;     // #V: row in T_KK, or -1
+  std::vector<int> decoupled_vertices;  // ascending: constrained, every neighbour constrained
   Status factor_trace_blocks(const SparseMatrix& T, TraceBlocks& blocks) const;
   Eigen::VectorXd solve_trace_blocks(const TraceBlocks& blocks, const Eigen::VectorXd& r) const;
   TraceBlocks trace_blocks;  // BlockTrace preconditioner at rho = 0, constant
@@ -326,10 +326,6 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   if (!(settings_in.refactor_cost_ratio > 0)) {
     return Error(ErrorCode::InvalidArgument, "refactor_cost_ratio must be positive");
   }
-  if (!(settings_in.split_constrained_fraction >= 0)) {
-    return Error(ErrorCode::InvalidArgument,
-                 "split_constrained_fraction must be >= 0 (above 1: never split)");
-  }
   if (!(settings_in.scale_pull >= 0) || !std::isfinite(settings_in.scale_pull) ||
       !(settings_in.scale_smooth_length >= 0) || !std::isfinite(settings_in.scale_smooth_length) ||
       !(settings_in.scale_normal_tie >= 0)) {
@@ -352,12 +348,20 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
   constrained = constrained_in;
   slot.assign(nv, -1);
   for (Eigen::Index j = 0; j < constrained.size(); ++j) slot[constrained(j)] = static_cast<int>(j);
-  free_vertices.clear();
-  free_index.assign(nv, -1);
+  factored_vertices.clear();
+  decoupled_vertices.clear();
+  factored_index.assign(nv, -1);
   for (int v = 0; v < nv; ++v) {
-    if (slot[v] >= 0) continue;
-    free_index[v] = static_cast<int>(free_vertices.size());
-    free_vertices.push_back(v);
+    bool factored = slot[v] < 0;
+    for (int t = topology.vv_offsets[v]; !factored && t < topology.vv_offsets[v + 1]; ++t) {
+      factored = slot[topology.vv_neighbors[t]] < 0;
+    }
+    if (!factored) {
+      decoupled_vertices.push_back(v);
+      continue;
+    }
+    factored_index[v] = static_cast<int>(factored_vertices.size());
+    factored_vertices.push_back(v);
   }
   bbox_diagonal = (V0.colwise().maxCoeff() - V0.colwise().minCoeff()).norm();
 
@@ -684,9 +688,7 @@ double ScaleAwareSolver::Impl::joint_energy(const Eigen::VectorXd& pos,
 Status ScaleAwareSolver::Impl::factor_trace_blocks(const SparseMatrix& T,
                                                   TraceBlocks& blocks) const {
   blocks.ready = false;
-  blocks.split = nv >= ScaleAwareSettings::kSplitMinVertices &&
-                 static_cast<double>(constrained.size()) >=
-                     settings.split_constrained_fraction * static_cast<double>(nv);
+  blocks.split = settings.split_preconditioner && !decoupled_vertices.empty();
   // Constant for the solver's life (per rho) and solved once per PCG step: the simplicial form
   // solves faster than the supernodal one (sparse_cholesky.h).
   blocks.factor.set_simplicial_solves(true);
@@ -696,41 +698,45 @@ Status ScaleAwareSolver::Impl::factor_trace_blocks(const SparseMatrix& T,
     blocks.ready = true;
     return Status::success();
   }
-  blocks.constrained_inverse.resize(constrained.size());
-  for (Eigen::Index j = 0; j < constrained.size(); ++j) {
-    const double diagonal = T.coeff(constrained(j), constrained(j));
+  blocks.decoupled_inverse.resize(static_cast<Eigen::Index>(decoupled_vertices.size()));
+  for (size_t j = 0; j < decoupled_vertices.size(); ++j) {
+    const int v = decoupled_vertices[j];
+    const double diagonal = T.coeff(v, v);
     if (!(diagonal > 0)) {
       return Error(ErrorCode::NumericalFailure,
                    "block-trace preconditioner: non-positive diagonal at constrained vertex " +
-                       std::to_string(constrained(j)));
+                       std::to_string(v));
     }
-    blocks.constrained_inverse(j) = 1.0 / diagonal;
+    blocks.decoupled_inverse(static_cast<Eigen::Index>(j)) = 1.0 / diagonal;
   }
-  const int nu = static_cast<int>(free_vertices.size());
-  if (nu > 0) {
-    // T_UU in T's full symmetric storage: the free columns and their free rows (still sorted:
-    // free_index increases with the vertex index).
-    SparseMatrix TUU(nu, nu);
-    TUU.resizeNonZeros(T.nonZeros());
-    int* outer = TUU.outerIndexPtr();
-    int* inner = TUU.innerIndexPtr();
-    double* values = TUU.valuePtr();
-    int k = 0;
-    for (int c = 0; c < nu; ++c) {
-      outer[c] = k;
-      const int b = free_vertices[c];
-      for (Eigen::Index t = T.outerIndexPtr()[b]; t < T.outerIndexPtr()[b + 1]; ++t) {
-        const int row = free_index[T.innerIndexPtr()[t]];
-        if (row < 0) continue;
-        inner[k] = row;
-        values[k++] = T.valuePtr()[t];
-      }
+  // T_KK in T's full symmetric storage: the factored columns and their factored rows (still
+  // sorted: factored_index increases with the vertex index). Empty when every vertex is
+  // constrained.
+  const int nk = static_cast<int>(factored_vertices.size());
+  if (nk == 0) {
+    blocks.ready = true;
+    return Status::success();
+  }
+  SparseMatrix TKK(nk, nk);
+  TKK.resizeNonZeros(T.nonZeros());
+  int* outer = TKK.outerIndexPtr();
+  int* inner = TKK.innerIndexPtr();
+  double* values = TKK.valuePtr();
+  int k = 0;
+  for (int c = 0; c < nk; ++c) {
+    outer[c] = k;
+    const int b = factored_vertices[c];
+    for (Eigen::Index t = T.outerIndexPtr()[b]; t < T.outerIndexPtr()[b + 1]; ++t) {
+      const int row = factored_index[T.innerIndexPtr()[t]];
+      if (row < 0) continue;
+      inner[k] = row;
+      values[k++] = T.valuePtr()[t];
     }
-    outer[nu] = k;
-    TUU.resizeNonZeros(k);
-    MD_RETURN_IF_ERROR(blocks.factor.analyze(TUU));
-    MD_RETURN_IF_ERROR(blocks.factor.factorize(TUU));
   }
+  outer[nk] = k;
+  TKK.resizeNonZeros(k);
+  MD_RETURN_IF_ERROR(blocks.factor.analyze(TKK));
+  MD_RETURN_IF_ERROR(blocks.factor.factorize(TKK));
   blocks.ready = true;
   return Status::success();
 }
@@ -744,16 +750,16 @@ Eigen::VectorXd ScaleAwareSolver::Impl::solve_trace_blocks(const TraceBlocks& bl
     return Eigen::Map<const Eigen::VectorXd>(Z.data(), 3 * static_cast<Eigen::Index>(nv));
   }
   Eigen::VectorXd out(r.size());
-  const int nu = static_cast<int>(free_vertices.size());
-  if (nu > 0) {
-    Eigen::MatrixXd R(nu, 3);
-    for (int k = 0; k < nu; ++k) R.row(k) = r.segment<3>(3 * free_vertices[k]).transpose();
+  const int nk = static_cast<int>(factored_vertices.size());
+  if (nk > 0) {
+    Eigen::MatrixXd R(nk, 3);
+    for (int k = 0; k < nk; ++k) R.row(k) = r.segment<3>(3 * factored_vertices[k]).transpose();
     const Eigen::MatrixXd Z = blocks.factor.solve(R);
-    for (int k = 0; k < nu; ++k) out.segment<3>(3 * free_vertices[k]) = Z.row(k).transpose();
+    for (int k = 0; k < nk; ++k) out.segment<3>(3 * factored_vertices[k]) = Z.row(k).transpose();
   }
-  for (Eigen::Index j = 0; j < constrained.size(); ++j) {
-    out.segment<3>(3 * constrained(j)) =
-        blocks.constrained_inverse(j) * r.segment<3>(3 * constrained(j));
+  for (size_t j = 0; j < decoupled_vertices.size(); ++j) {
+    const int v = decoupled_vertices[j];
+    out.segment<3>(3 * v) = blocks.decoupled_inverse(static_cast<Eigen::Index>(j)) * r.segment<3>(3 * v);
   }
   return out;
 }

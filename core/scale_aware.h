@@ -40,16 +40,12 @@ struct ScaleAwareSettings {
   /// numeric factorization. Deterministic: counted in flops, not measured in seconds.
   double refactor_cost_ratio = 0.5;
   StepTwoPreconditioner preconditioner = StepTwoPreconditioner::BlockTrace;
-  /// BlockTrace only: when at least this fraction of the vertices is constrained, the
-  /// preconditioner decouples the constrained vertices ([T_UU 0; 0 diag(T_CC)], each constrained
-  /// row carrying the handle weight) and factors the free vertices' block alone: a smaller,
-  /// faster factor for about 30% more PCG steps, the same solution to the PCG tolerance. Measured
-  /// (README, issue 13): pays on Spot 47k with 43% constrained (create + prepare 25-50% faster,
-  /// 15 MiB less, time per iteration the same or lower), not on the irregular Table 1 models
-  /// with 9-23% constrained (5-10% slower per iteration). Meshes below kSplitMinVertices never
-  /// split (their factor costs little either way). >= 0; above 1 never splits.
-  double split_constrained_fraction = 0.4;
-  static constexpr int kSplitMinVertices = 2000;
+  /// BlockTrace only: factor the block-trace matrix over the free vertices and the constrained
+  /// vertices next to a free one, and take the other constrained vertices (the inside of handle
+  /// and fixed regions, each row dominated by the handle weight) by their diagonal. The same
+  /// PCG steps to the digit on every bench model, a smaller factor where handle regions are
+  /// large (Spot 47k: create + prepare 25-33% shorter, 15 MiB less). Off: T whole, as before.
+  bool split_preconditioner = true;
   /// OpenMP threads for the per-vertex and per-face loops; 0 means all hardware threads.
   /// Default 1: a service solves many sessions side by side, and on a loaded 2-core machine
   /// extra threads per solve only contend (measured 4x slower). Results do not depend on it,

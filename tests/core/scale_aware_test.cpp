@@ -5,7 +5,6 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <limits>
 #include <stop_token>
 #include <vector>
 
@@ -399,24 +398,23 @@ TEST_P(BothPreconditioners, ReproduceZerosAndAgree) {
 INSTANTIATE_TEST_SUITE_P(ScaleAwareSolver, BothPreconditioners,
                          ::testing::Values(0.0, 1.0, kDefaultRigidity));
 
-// With at least split_constrained_fraction of the vertices constrained the block-trace
-// preconditioner factors the free vertices' block alone and takes the constrained rows by their
-// diagonal (on meshes of at least kSplitMinVertices). It preconditions the same system, so with every step two solved to the PCG
-// tolerance the iterates are the whole-T preconditioner's, and it stays a good preconditioner:
-// at most twice the PCG steps (measured: 1.2-1.3x on the Spot edits).
+// split_preconditioner (the default) factors the block-trace matrix over the free vertices and
+// the constrained ones next to them, and takes the inside of the constrained region by its
+// diagonal. It preconditions the same system, so with every step two solved to the PCG
+// tolerance the iterates are the whole factor's; and since it keeps every coupling of the free
+// vertices it stays as good a preconditioner (measured: the same PCG steps on the bench models;
+// here at most a quarter more).
 class SplitPreconditioner : public ::testing::TestWithParam<double> {};
 
-TEST_P(SplitPreconditioner, IteratesEqualTheWholeFactorsWithFewExtraSteps) {
+TEST_P(SplitPreconditioner, IteratesEqualTheWholeFactorsInAsManySteps) {
   const double rigidity = GetParam();
-  const MeshData m = test::make_icosphere(4);  // 2,562 vertices: above kSplitMinVertices
-  ASSERT_GE(m.V.rows(), ScaleAwareSettings::kSplitMinVertices);
-  std::vector<int> lower;  // the lower half: about 45% of the vertices
+  const MeshData m = test::make_icosphere(3);
+  std::vector<int> lower;  // the lower half: about 45% of the vertices, most inside the region
   for (Eigen::Index v = 0; v < m.V.rows(); ++v) {
     if (m.V(v, 2) < -0.05) lower.push_back(static_cast<int>(v));
   }
   const Eigen::VectorXi constrained = Eigen::Map<const Eigen::VectorXi>(
       lower.data(), static_cast<Eigen::Index>(lower.size()));
-  ASSERT_GE(static_cast<double>(constrained.size()), 0.4 * static_cast<double>(m.V.rows()));
   Positions targets(constrained.size(), 3);
   for (Eigen::Index j = 0; j < constrained.size(); ++j) {
     targets.row(j) = m.V.row(constrained(j));
@@ -430,10 +428,10 @@ TEST_P(SplitPreconditioner, IteratesEqualTheWholeFactorsWithFewExtraSteps) {
   tight.adaptive_pcg = false;
   tight.anderson_window = 0;
   std::vector<SolveReport> reports;
-  for (const double fraction : {0.4, 2.0}) {  // split (the default), never split
-    SCOPED_TRACE(fraction);
+  for (const bool split : {true, false}) {
+    SCOPED_TRACE(split);
     ScaleAwareSettings settings;
-    settings.split_constrained_fraction = fraction;
+    settings.split_preconditioner = split;
     auto solver = ScaleAwareSolver::create(m.V, m.F, constrained, settings);
     ASSERT_TRUE(solver.ok()) << solver.status().to_string();
     auto report = solver->solve(targets, tight);
@@ -443,25 +441,11 @@ TEST_P(SplitPreconditioner, IteratesEqualTheWholeFactorsWithFewExtraSteps) {
   }
   EXPECT_LT((reports[0].V - reports[1].V).cwiseAbs().maxCoeff(), 1e-7 * test::bbox_diagonal(m));
   EXPECT_GT(reports[0].pcg_iterations, 0);
-  EXPECT_LE(reports[0].pcg_iterations, 2 * reports[1].pcg_iterations);
+  EXPECT_LE(4 * reports[0].pcg_iterations, 5 * reports[1].pcg_iterations);
 }
 
 INSTANTIATE_TEST_SUITE_P(ScaleAwareSolver, SplitPreconditioner,
                          ::testing::Values(0.0, kDefaultRigidity));
-
-TEST(ScaleAwareSolver, RejectsANegativeSplitFraction) {
-  const MeshData m = test::make_icosphere(1);
-  Eigen::VectorXi constrained(2);
-  constrained << 0, 1;
-  for (const double fraction : {-0.1, std::numeric_limits<double>::quiet_NaN()}) {
-    ScaleAwareSettings settings;
-    settings.split_constrained_fraction = fraction;
-    auto solver = ScaleAwareSolver::create(m.V, m.F, constrained, settings);
-    ASSERT_FALSE(solver.ok());
-    EXPECT_EQ(solver.status().code(), ErrorCode::InvalidArgument);
-    EXPECT_NE(solver.status().message().find("split_constrained_fraction"), std::string::npos);
-  }
-}
 
 TEST(ScaleAwareSolver, SetPositionsIsWhereTheNextWarmSolveStarts) {
   const test::BendEdit bend = test::make_bend(12);
