@@ -170,10 +170,11 @@ struct ScaleAwareSolver::Impl {
   // of handle and fixed regions) by their diagonal: [T_KK 0; 0 diag(T_DD)]. Every row of D
   // carries the handle weight lambda (1 + rho), which dominates it, and the coupling the split
   // drops, T_KD, joins two such rows: the free vertices keep all their coupling. Measured
-  // (README, issue 13): the same PCG steps and energies as the whole factor on the Spot edits
-  // and the irregular Table 1 models, a factor of 57% of the vertices on Spot 47k's edits (43%
-  // constrained): create + prepare 25-33% shorter, 15 MiB less peak. (Dropping every
-  // constrained vertex instead, coupling to free vertices included, cost 30-50% more PCG steps.)
+  // (README, issue 13): the PCG steps (within one in 15 iterations) and energies of the whole
+  // factor on the Spot edits and the irregular Table 1 models, a factor over 57% of the
+  // vertices on Spot 47k's edits (43% constrained): create + prepare about 18% shorter, 14 MiB
+  // less peak. (Dropping every constrained vertex instead, coupling to free vertices included,
+  // cost 30-50% more PCG steps.)
   struct TraceBlocks {
     SparseCholesky factor;              // T, or T_KK when split
     bool split = false;
@@ -759,7 +760,8 @@ Eigen::VectorXd ScaleAwareSolver::Impl::solve_trace_blocks(const TraceBlocks& bl
   }
   for (size_t j = 0; j < decoupled_vertices.size(); ++j) {
     const int v = decoupled_vertices[j];
-    out.segment<3>(3 * v) = blocks.decoupled_inverse(static_cast<Eigen::Index>(j)) * r.segment<3>(3 * v);
+    out.segment<3>(3 * v) =
+        blocks.decoupled_inverse(static_cast<Eigen::Index>(j)) * r.segment<3>(3 * v);
   }
   return out;
 }

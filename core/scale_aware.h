@@ -43,8 +43,9 @@ struct ScaleAwareSettings {
   /// BlockTrace only: factor the block-trace matrix over the free vertices and the constrained
   /// vertices next to a free one, and take the other constrained vertices (the inside of handle
   /// and fixed regions, each row dominated by the handle weight) by their diagonal. The same
-  /// PCG steps to the digit on every bench model, a smaller factor where handle regions are
-  /// large (Spot 47k: create + prepare 25-33% shorter, 15 MiB less). Off: T whole, as before.
+  /// PCG steps (within one in 15 iterations) on every bench model, a smaller factor where
+  /// handle regions are large (Spot 47k: create + prepare about 18% shorter, 14 MiB less).
+  /// Off: T whole, as before.
   bool split_preconditioner = true;
   /// OpenMP threads for the per-vertex and per-face loops; 0 means all hardware threads.
   /// Default 1: a service solves many sessions side by side, and on a loaded 2-core machine
