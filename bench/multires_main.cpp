@@ -135,10 +135,10 @@ Result<Options> parse_options(int argc, char** argv) {
   flags.integer("--split-above", o.split_above, 0);
   flags.flag("--no-single", [&] { o.single = false; });
   flags.value("--single-start", [&](const std::string& value) -> Status {
-    if (value != "laplacian" && value != "auto") {
+    MD_ASSIGN_OR_RETURN(o.single_start, core::parse_start(value));
+    if (o.single_start != core::StartFrom::Laplacian && o.single_start != core::StartFrom::Auto) {
       return Error(ErrorCode::InvalidArgument, "--single-start wants laplacian or auto");
     }
-    MD_ASSIGN_OR_RETURN(o.single_start, core::parse_start(value));
     return Status::success();
   });
   flags.flag("--no-refine", [&] { o.refine = false; });
