@@ -297,6 +297,23 @@ TEST(ScaleControl, AutoColdStartReturnsTheStartWithFewerFolds) {
   EXPECT_EQ(next->start, StartFrom::Previous);
   EXPECT_EQ(next->start_candidates, 1);
   EXPECT_LE((next->V - chosen->V).cwiseAbs().maxCoeff(), 1e-12 * bbox_diagonal(cylinder.mesh));
+  // The cold solve released its start solvers (ARAP's, and the Laplacian guess's editor, freed
+  // before and after the second candidate): after reset() the next Auto solve builds them again
+  // and repeats the cold solve exactly.
+  solver->reset();
+  options.max_iterations = SolveOptions{}.max_iterations;
+  auto again = solver->solve(setup->targets, options);
+  ASSERT_TRUE(again.ok()) << again.status().to_string();
+  EXPECT_EQ(again->start, StartFrom::Laplacian);
+  EXPECT_EQ(again->start_candidates, 2);
+  EXPECT_EQ(again->iterations, chosen->iterations);
+  EXPECT_EQ(again->V, chosen->V);
+  // An explicit rigid start after that builds ARAP's solver on demand too.
+  solver->reset();
+  options.start = StartFrom::Rigid;
+  auto rigid = solver->solve(setup->targets, options);
+  ASSERT_TRUE(rigid.ok()) << rigid.status().to_string();
+  EXPECT_EQ(rigid->V, from[0].V);
 }
 
 // Where the Laplacian guess's result folds too: the irregular bent cylinder. The guess has dozens
