@@ -437,7 +437,10 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
 void ScaleAwareSolver::Impl::build_pattern() {
   assembled = settings.preconditioner == StepTwoPreconditioner::LaggedCholesky;
   if (!assembled) {
-    face_products.resize(9 * static_cast<size_t>(nf));
+    // face_products is allocated by the first multiply: a solver's first, cold solve runs its
+    // start (converged ARAP and its Anderson history at the default) before any product, so
+    // the 72 B per face are not held beside the start's arrays at the solve's peak.
+    face_products.clear();
     return;
   }
   corner_map.resize(3 * static_cast<size_t>(nf));
@@ -818,6 +821,7 @@ void ScaleAwareSolver::Impl::multiply_free(const double* in, double* out, const 
   const double rho = step_two_rho;
   const std::vector<double>* face_laplacian =
       rho > 0 ? &scale_control->face_laplacian() : nullptr;
+  if (face_products.empty()) face_products.resize(9 * static_cast<size_t>(nf));
   double* products = face_products.data();
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
   for (int f = 0; f < nf; ++f) {
