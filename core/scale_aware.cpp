@@ -571,10 +571,11 @@ void ScaleAwareSolver::Impl::assemble(const RowPositions& normals, double rigidi
       }
       if (rigidity > 0) {
         // The scale term's fit adds rho (L_cot (x) I3): the same vertex-adjacency pattern.
-        const std::vector<double>& fl = scale_control->face_laplacian();
+        double cot[9];
+        scale_control->face_laplacian_block(f, cot);
         for (int p = 0; p < 3; ++p) {
           const int rank = face_rank[f][3 * p + q];
-          const double value = rigidity * fl[9 * static_cast<size_t>(f) + 3 * p + q];
+          const double value = rigidity * cot[3 * p + q];
           for (int d = 0; d < 3; ++d) column[d * stride + 3 * rank + d] += value;
         }
       }
@@ -617,8 +618,6 @@ SparseMatrix ScaleAwareSolver::Impl::block_trace_matrix(double rigidity) const {
   const auto entry = [&](int row, int col) -> double& {
     return values[std::lower_bound(inner + outer[col], inner + outer[col + 1], row) - inner];
   };
-  const std::vector<double>* face_laplacian =
-      rigidity > 0 ? &scale_control->face_laplacian() : nullptr;
   for (int f = 0; f < nf; ++f) {
     double block[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
     for (int c = 0; c < 3; ++c) {
@@ -641,12 +640,12 @@ SparseMatrix ScaleAwareSolver::Impl::block_trace_matrix(double rigidity) const {
         }
       }
     }
+    double cot[9];
+    if (rigidity > 0) scale_control->face_laplacian_block(f, cot);
     for (int p = 0; p < 3; ++p) {
       for (int q = 0; q < 3; ++q) {
         double value = block[3 * p + q];
-        if (face_laplacian != nullptr) {
-          value += rigidity * (*face_laplacian)[9 * static_cast<size_t>(f) + 3 * p + q];
-        }
+        if (rigidity > 0) value += rigidity * cot[3 * p + q];
         entry(F(f, p), F(f, q)) += value;
       }
     }
@@ -819,8 +818,7 @@ void ScaleAwareSolver::Impl::multiply_free(const double* in, double* out, const 
   // in a fixed order: no races, and the same sums at any thread count.
   const bool parallel = nv > 2000 && threads > 1;
   const double rho = step_two_rho;
-  const std::vector<double>* face_laplacian =
-      rho > 0 ? &scale_control->face_laplacian() : nullptr;
+  const ScaleControl* cotangent = rho > 0 ? &*scale_control : nullptr;
   if (face_products.empty()) face_products.resize(9 * static_cast<size_t>(nf));
   double* products = face_products.data();
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
@@ -843,8 +841,9 @@ void ScaleAwareSolver::Impl::multiply_free(const double* in, double* out, const 
     sum[0] -= y1 + y2;
     sum[1] += y1;
     sum[2] += y2;
-    if (face_laplacian != nullptr) {
-      const double* block = face_laplacian->data() + 9 * static_cast<size_t>(f);
+    if (cotangent != nullptr) {
+      double block[9];
+      cotangent->face_laplacian_block(f, block);
       for (int p = 0; p < 3; ++p) {
         sum[p] += rho * (block[3 * p] * v[0] + block[3 * p + 1] * v[1] + block[3 * p + 2] * v[2]);
       }

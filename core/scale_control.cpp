@@ -41,7 +41,6 @@ Status ScaleControl::build(const RowPositions& V0, const Triangles& F, const Mes
   weight_.assign(3 * static_cast<size_t>(nf_), 0.0);
   rest_edge_.assign(3 * static_cast<size_t>(nf_), Eigen::Vector3d::Zero());
   rest_frame_.resize(nf_);
-  face_laplacian_.assign(9 * static_cast<size_t>(nf_), 0.0);
   fit_a_.resize(nf_);
   area_.resize(nf_);
   double total_area = 0;
@@ -61,11 +60,6 @@ Status ScaleControl::build(const RowPositions& V0, const Triangles& F, const Mes
       weight_[c] = w;
       rest_edge_[c] = p[(k + 2) % 3] - p[(k + 1) % 3];
       a += w * rest_edge_[c].squaredNorm();
-      const int i = (k + 1) % 3, j = (k + 2) % 3;
-      face_laplacian_[9 * f + 3 * i + i] += w;
-      face_laplacian_[9 * f + 3 * j + j] += w;
-      face_laplacian_[9 * f + 3 * i + j] -= w;
-      face_laplacian_[9 * f + 3 * j + i] -= w;
     }
     fit_a_(f) = a;
     rest_frame_[f] = plane_frame(N0.row(f).transpose(), p[1] - p[0]);

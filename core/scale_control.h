@@ -55,11 +55,19 @@ class ScaleControl {
   /// scale the handles themselves imply. Without such edges s_bar is a free variable instead.
   void set_reference(const Positions& targets);
 
-  /// Cotangent Laplacian entry L(i, j) of the fit term (w summed over the faces of edge ij;
-  /// L(i, i) = -sum_j L(i, j)), for the vertices i, j of a face or i == j.
-  /// Stored per face corner pair: face_laplacian()[9 f + 3 p + q] is the contribution of face f
-  /// to L(F(f,p), F(f,q)).
-  const std::vector<double>& face_laplacian() const { return face_laplacian_; }
+  /// Cotangent Laplacian of the fit term (w summed over the faces of edge ij; L(i, i) =
+  /// -sum_j L(i, j)), face by face: block[3 p + q] is the contribution of face f to
+  /// L(F(f,p), F(f,q)). Formed from the face's three corner weights when asked (the weight of
+  /// corner k sits on the edge opposite it), not stored: 9 doubles per face less.
+  void face_laplacian_block(int f, double (&block)[9]) const {
+    const double* w = weight_.data() + 3 * static_cast<size_t>(f);
+    block[0] = w[1] + w[2];
+    block[4] = w[0] + w[2];
+    block[8] = w[0] + w[1];
+    block[5] = block[7] = -w[0];
+    block[2] = block[6] = -w[1];
+    block[1] = block[3] = -w[2];
+  }
 
   /// Rotation step: for every face, the exact minimiser of the fit over the rotations R_f with
   /// R_f N0_f = N_f, given x and s.
@@ -144,7 +152,6 @@ class ScaleControl {
   bool free_reference_ = true;
   std::vector<double> edge_weight_;  // mu w_fg per interior edge
   double pull_ = 0;
-  std::vector<double> face_laplacian_;
   SparseCholesky scale_system_;  // H, #S x #S
   SparseMatrix scale_matrix_;    // H
   // State.
