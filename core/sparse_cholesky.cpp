@@ -126,6 +126,10 @@ Status SparseCholesky::factorize(const SparseMatrix& A) {
     }
     impl_->converted = true;
   }
+  // CHOLMOD keeps the factorization's workspace (Flag, Head, Iwork, Xwork: about 40 B per row)
+  // in the Common for the next call; the solves need none of it, and a later analysis or
+  // factorization allocates it again. Spot 47k: 4.7 MB over the three factors of a solver.
+  cholmod_free_work(&impl_->llt.cholmod());
   return Status::success();
 }
 
