@@ -117,7 +117,14 @@ Status ScaleControl::build(const RowPositions& V0, const Triangles& F, const Mes
   scale_system_.set_simplicial_solves(true);
   MD_RETURN_IF_ERROR(scale_system_.analyze(H));
   MD_RETURN_IF_ERROR(scale_system_.factorize(H));
-  reset();
+  // The scales start at 1; the frames' rotated edges (72 B per face) are allocated by reset(),
+  // which every solve calls before its first step: a solver's first solve runs its rigid start
+  // (converged ARAP) without them.
+  frame_edge_.clear();
+  frame_edge_.shrink_to_fit();
+  s_ = Eigen::VectorXd::Ones(nf_);
+  if (free_reference_) s_bar_ = 1.0;
+  fit_b_ = Eigen::VectorXd::Zero(nf_);
   return Status::success();
 }
 
@@ -143,6 +150,7 @@ void ScaleControl::set_frame(int f, const Eigen::Matrix3d& R) {
 }
 
 void ScaleControl::update_rotations(const Eigen::VectorXd& x, const RowPositions& N) {
+  MD_ASSERT(!frame_edge_.empty());  // reset() comes first
   tie_energy_ = 0;
   const bool parallel = nf_ > 4000 && threads_ > 1;
   // Past ~1e6 the tie term swamps the fit in M and the in-plane angle is lost to round-off
@@ -254,6 +262,7 @@ Eigen::VectorXd ScaleControl::scale_rhs() const {
 }
 
 void ScaleControl::multiply_coupling(const Eigen::VectorXd& x, Eigen::VectorXd& out) const {
+  MD_ASSERT(!frame_edge_.empty());  // reset() comes first
   out.setZero(scale_unknowns());
   const bool parallel = nf_ > 4000 && threads_ > 1;
 #pragma omp parallel for schedule(static) num_threads(threads_) if (parallel)
@@ -289,6 +298,7 @@ Eigen::VectorXd ScaleControl::solve_scale_matrix(const Eigen::VectorXd& r) const
 }
 
 void ScaleControl::add_rhs(double rho, Eigen::VectorXd& b) const {
+  MD_ASSERT(!frame_edge_.empty());  // reset() comes first
   for (int f = 0; f < nf_; ++f) {
     for (int k = 0; k < 3; ++k) {
       const size_t c = 3 * static_cast<size_t>(f) + k;
@@ -300,6 +310,7 @@ void ScaleControl::add_rhs(double rho, Eigen::VectorXd& b) const {
 }
 
 double ScaleControl::energy(const Eigen::VectorXd& x) const {
+  MD_ASSERT(!frame_edge_.empty());  // reset() comes first
   const bool parallel = nf_ > 4000 && threads_ > 1;
   per_face_.resize(nf_);
 #pragma omp parallel for schedule(static) num_threads(threads_) if (parallel)

@@ -81,7 +81,8 @@ class ScaleControl {
   /// OpenMP threads of the per-face loops (rotation step, scale right-hand side, energy); the
   /// results do not depend on it (per-face values are summed in face order). Default 1.
   void set_threads(int threads) { threads_ = threads > 0 ? threads : 1; }
-  /// Resets s = s_bar = 1, R = identity.
+  /// Resets s = s_bar = 1, R = identity. Call before the first rotation or scale step, product
+  /// or energy of a solve (build() leaves the frames unallocated).
   void reset();
 
   /// Adds the fit term's right-hand side (the gradient's constant part), scaled by rho, to b.
