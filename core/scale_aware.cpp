@@ -1135,6 +1135,10 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
     arap_options.start = StartFrom::Laplacian;
     arap_options.track_metrics = false;
     MD_ASSIGN_OR_RETURN(const SolveReport guess, s.rigid_start->solve(targets, arap_options, {}, stop));
+    // Auto's cold start: the cold solve releases the ARAP solver at its end anyway (solve());
+    // free it now, so that its factor and arrays (Spot 47k: 32 MB) are not held beside the
+    // scale-aware iterations and the other start candidates.
+    if (options.start == StartFrom::Auto && !s.has_previous) s.rigid_start.reset();
     const RowPositions guess_rows = guess.V;
     x = Eigen::Map<const Eigen::VectorXd>(guess_rows.data(), 3 * s.nv);
     rotations_warm = false;
@@ -1453,10 +1457,6 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     int candidates = 1;
     for (const StartFrom next : {StartFrom::Laplacian, StartFrom::Paper}) {
       if (chosen.report.folded_edges == 0) break;
-      // The rigid start is done and this cold solve releases its solver anyway (below): free
-      // it before the Laplacian guess's denser factor is built, so the two are never held
-      // together (Spot 47k twist: 32 MB of ARAP beside the editor's 66 MB).
-      s.rigid_start.reset();
       MD_ASSIGN_OR_RETURN(Impl::Candidate other,
                           s.run_from(next, targets, options, progress, stop, start));
       ++candidates;
@@ -1506,8 +1506,8 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
   s.current = report.V;
   if (cold) {
     // Later Auto solves start from this result (Previous), so the cold start's solvers are
-    // dead weight: the rigid start's ARAP solver and, where the start candidates built it, the
-    // Laplacian guess's bi-Laplacian editor (Spot 47k: 32 and 66 MB, a fifth and two fifths of
+    // dead weight: the rigid start's ARAP solver (already freed after its guess where the rigid
+    // start ran) and, where the start candidates built it, the Laplacian guess's editor (Spot 47k: 32 and 66 MB, a fifth and two fifths of
     // the solver's own heap). reset() makes the next Auto solve cold again, which builds them
     // anew (the rigid start's factorization is 0.1 s at 47k vertices; a cold solve runs up to
     // rigid_start_iterations ARAP iterations after it). Explicit starts keep what they built.
