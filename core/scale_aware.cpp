@@ -136,7 +136,8 @@ struct ScaleAwareSolver::Impl {
   int threads = 1;
   std::optional<LaplacianEditor> laplacian;
   std::optional<RigidityStitcher> stitcher;  // built on the first ORA / magnification request
-  std::optional<ArapSolver> rigid_start;     // built at create, or on the first rigid start if lazy; released after a cold Auto solve
+  // Built at create, or on the first rigid start if lazy; freed by a cold Auto solve.
+  std::optional<ArapSolver> rigid_start;
   std::optional<RotationPropagationStart> propagated_start;  // built on the first Propagated start
 
   // Step two: A(N) = G^T G + lambda C^T C in a fixed 3x3-block pattern (full symmetric storage,
@@ -1506,11 +1507,12 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
   s.current = report.V;
   if (cold) {
     // Later Auto solves start from this result (Previous), so the cold start's solvers are
-    // dead weight: the rigid start's ARAP solver (already freed after its guess where the rigid
-    // start ran) and, where the start candidates built it, the Laplacian guess's editor (Spot 47k: 32 and 66 MB, a fifth and two fifths of
-    // the solver's own heap). reset() makes the next Auto solve cold again, which builds them
-    // anew (the rigid start's factorization is 0.1 s at 47k vertices; a cold solve runs up to
-    // rigid_start_iterations ARAP iterations after it). Explicit starts keep what they built.
+    // dead weight: the rigid start's ARAP solver (already freed after its guess where the
+    // rigid start ran) and, where the start candidates built it, the Laplacian guess's editor
+    // (Spot 47k: 32 and 66 MB). reset() makes the next Auto solve cold again, which builds
+    // them anew (the rigid start's factorization is 0.1 s at 47k vertices; a cold solve runs up
+    // to rigid_start_iterations ARAP iterations after it). Explicit starts keep what they
+    // built.
     s.rigid_start.reset();
     s.laplacian.reset();
   }

@@ -297,9 +297,9 @@ TEST(ScaleControl, AutoColdStartReturnsTheStartWithFewerFolds) {
   EXPECT_EQ(next->start, StartFrom::Previous);
   EXPECT_EQ(next->start_candidates, 1);
   EXPECT_LE((next->V - chosen->V).cwiseAbs().maxCoeff(), 1e-12 * bbox_diagonal(cylinder.mesh));
-  // The cold solve released its start solvers (ARAP's, and the Laplacian guess's editor, freed
-  // before and after the second candidate): after reset() the next Auto solve builds them again
-  // and repeats the cold solve exactly.
+  // The cold solve released its start solvers (ARAP's after its guess, the Laplacian guess's
+  // editor at its end): after reset() the next Auto solve builds them again and repeats the cold
+  // solve exactly.
   solver->reset();
   options.max_iterations = SolveOptions{}.max_iterations;
   auto again = solver->solve(setup->targets, options);
