@@ -819,7 +819,6 @@ void ScaleAwareSolver::Impl::multiply_free(const double* in, double* out, const 
   // in a fixed order: no races, and the same sums at any thread count.
   const bool parallel = nv > 2000 && threads > 1;
   const double rho = step_two_rho;
-  const ScaleControl* cotangent = rho > 0 ? &*scale_control : nullptr;
   if (face_products.empty()) face_products.resize(9 * static_cast<size_t>(nf));
   double* products = face_products.data();
 #pragma omp parallel for schedule(static) num_threads(threads) if (parallel)
@@ -842,9 +841,9 @@ void ScaleAwareSolver::Impl::multiply_free(const double* in, double* out, const 
     sum[0] -= y1 + y2;
     sum[1] += y1;
     sum[2] += y2;
-    if (cotangent != nullptr) {
+    if (rho > 0) {
       double block[9];
-      cotangent->face_laplacian_block(f, block);
+      scale_control->face_laplacian_block(f, block);
       for (int p = 0; p < 3; ++p) {
         sum[p] += rho * (block[3 * p] * v[0] + block[3 * p + 1] * v[1] + block[3 * p + 2] * v[2]);
       }

@@ -122,9 +122,7 @@ Status ScaleControl::build(const RowPositions& V0, const Triangles& F, const Mes
   // (converged ARAP) without them.
   frame_edge_.clear();
   frame_edge_.shrink_to_fit();
-  s_ = Eigen::VectorXd::Ones(nf_);
-  if (free_reference_) s_bar_ = 1.0;
-  fit_b_ = Eigen::VectorXd::Zero(nf_);
+  reset_scales();
   return Status::success();
 }
 
@@ -137,6 +135,10 @@ void ScaleControl::set_reference(const Positions& targets) {
 
 void ScaleControl::reset() {
   frame_edge_ = rest_edge_;  // identity frames
+  reset_scales();
+}
+
+void ScaleControl::reset_scales() {
   s_ = Eigen::VectorXd::Ones(nf_);
   if (free_reference_) s_bar_ = 1.0;
   fit_b_ = Eigen::VectorXd::Zero(nf_);

@@ -132,6 +132,8 @@ class ScaleControl {
   Eigen::VectorXd solve_scale_matrix(const Eigen::VectorXd& r) const;
 
  private:
+  /// s = s_bar = 1 and no rotation-step term: reset() without the frames.
+  void reset_scales();
   /// Stores face f's frame R as its rotated rest edges.
   void set_frame(int f, const Eigen::Matrix3d& R);
   /// e_k(x): the edge of face f opposite corner k, from corner k+1 to corner k+2.
