@@ -57,7 +57,8 @@ struct SetHandlesRequest {
   /// The method whose factorization to build now (others are built on their first move).
   core::Method prepare = core::Method::ScaleAware;
   /// The front end's name for the caller (as for rate limits): heavy work is admitted per client.
-  std::string client;
+  /// Empty by default (`{}`: aggregate initialisations that leave it out stay warning-free).
+  std::string client{};
 };
 
 /// A similarity transform of one handle group, relative to the group's anchor positions (its

@@ -624,9 +624,10 @@ TEST(WatchTest, OnlyTheNewestRevisionKeepsItsEncodedBytes) {
 TEST(WatchTest, SlowWatcherSkipsToNewestWithoutBlockingTheEditor) {
   DeformationService service(small_options());
   Fixture f = create_with_handles(service, "cylinder_small");
+  // Declared before the subscription: closing it (its destructor) notifies once more.
+  std::atomic<int> notifications{0};
   auto slow = service.watch(f.created.id, f.created.view_token);
   ASSERT_TRUE(slow.ok());
-  std::atomic<int> notifications{0};
   (*slow)->set_notify([&notifications] { notifications.fetch_add(1); });
   EXPECT_EQ(notifications.load(), 1);  // the join snapshot is already pending
   Result<DeformResult> last = Status(ErrorCode::Internal, "unset");

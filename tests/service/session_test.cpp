@@ -410,7 +410,7 @@ TEST(SessionTest, MoveNamesWhatIsWrongWithTheRequest) {
   Fixture f;
   f.create();
   f.set_columns(core::Method::Arap);
-  const int nv = 49;
+  constexpr int nv = 49;
   const int fixed_vertex = column_groups(f.mesh)[0].vertices[0];
   const int handle_vertex = f.handle_vertices()[0];
   int free_vertex = 0;
@@ -444,7 +444,7 @@ TEST(SessionTest, MoveNamesWhatIsWrongWithTheRequest) {
        [](MoveRequest& r) { r.moves[0].rotation = Eigen::Quaterniond(0, 0, 0, 0); },
        "moves[0].rotation is the zero quaternion"},
       {"target out of range",
-       [nv](MoveRequest& r) { r.targets.push_back(VertexTarget{nv, Eigen::Vector3d::Zero()}); },
+       [](MoveRequest& r) { r.targets.push_back(VertexTarget{nv, Eigen::Vector3d::Zero()}); },
        "targets.vertices[0]: vertex 49 is out of range (#V=49)"},
       {"target not constrained",
        [free_vertex](MoveRequest& r) {
