@@ -17,11 +17,10 @@
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cxx="${MESHDEFORM_SANITIZE_CXX:-clang++}"
-if [ "$cxx" = "clang++" ]; then
-  "$root/scripts/install-fuzz-deps.sh"  # the project's packages, clang, its runtimes, libomp
-else
-  "$root/scripts/install-deps.sh"
-fi
+case "$(basename "$cxx")" in
+  clang*) "$root/scripts/install-fuzz-deps.sh" ;;  # the project's packages, clang, its runtimes, libomp
+  *) "$root/scripts/install-deps.sh" ;;
+esac
 cmake -S "$root" -B "$root/build-asan" -DCMAKE_CXX_COMPILER="$cxx" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g1" \
   -DMESHDEFORM_SANITIZE=address,undefined -DMESHDEFORM_BUILD_BENCH=OFF \
