@@ -187,7 +187,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
   /// Starts the next write or the finish, if neither a write is in flight nor we are finished.
   /// gRPC operations are started outside the lock.
   void pump() {
-    enum class Next { Nothing, Write, FinishOk, FinishCancelled } next = Next::Nothing;
+    enum class Next { Nothing, Write, FinishClosed, FinishCancelled } next = Next::Nothing;
     {
       const std::lock_guard lock(mutex_);
       if (is_finished_ || is_writing_) return;
@@ -197,10 +197,11 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
         update_to_proto(*update, encoding_, &message_);
         next = Next::Write;
       } else if (subscription_->closed()) {
-        next = Next::FinishOk;  // the session was closed or evicted
+        // OK when the session was closed; otherwise what ended the watch (shutdown: UNAVAILABLE).
+        next = Next::FinishClosed;
       }
       if (next == Next::Write) is_writing_ = true;
-      if (next == Next::FinishOk || next == Next::FinishCancelled) is_finished_ = true;
+      if (next == Next::FinishClosed || next == Next::FinishCancelled) is_finished_ = true;
     }
     switch (next) {
       case Next::Nothing:
@@ -208,8 +209,8 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
       case Next::Write:
         StartWrite(&message_);
         break;
-      case Next::FinishOk:
-        Finish(call_.finish(Status::success()));
+      case Next::FinishClosed:
+        Finish(call_.finish(subscription_->close_status()));
         break;
       case Next::FinishCancelled:
         Finish(call_.finish(Error(ErrorCode::Cancelled, "watch cancelled")));
@@ -399,6 +400,12 @@ std::string client_identity(const grpc::CallbackServerContext& context,
     std::string forwarded = metadata_value(context, "x-forwarded-for");
     forwarded = forwarded.substr(0, forwarded.find(','));
     if (std::string name = sanitize_client(forwarded); !name.empty()) return "fwd:" + name;
+  }
+  if (options.resolve_peer) {
+    // Relayed by the front door: the client's own address, not the relay's loopback one.
+    if (std::optional<std::string> client = options.resolve_peer(peer)) {
+      return sanitize_client(*client);
+    }
   }
   if (peer.rfind("ipv4:", 0) != 0 && peer.rfind("ipv6:", 0) != 0 && peer.rfind("unix:", 0) != 0) {
     // In-process: the gateway forwarding a browser's call names the browser.

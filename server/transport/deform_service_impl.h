@@ -9,7 +9,10 @@
 /// timed in the service's MetricsRegistry and logged as one JSON line (never with its token).
 
 #include <chrono>
+#include <functional>
+#include <optional>
 #include <string>
+#include <string_view>
 
 #include "meshdeform/v1/deformation.grpc.pb.h"
 #include "server/service/deformation_service.h"
@@ -22,6 +25,9 @@ struct ClientIdentityOptions {
   /// server reachable solely through a proxy that sets that header itself (nginx:
   /// `grpc_set_header X-Forwarded-For $remote_addr;`): anyone else could pick their own name.
   bool trust_forwarded_for = false;
+  /// The client address of a connection the gRPC front door relays (GrpcFrontDoor::client_of),
+  /// given the peer gRPC reports; empty, or nullopt from it, keeps the reported peer.
+  std::function<std::optional<std::string>(std::string_view grpc_peer)> resolve_peer;
 };
 
 /// The rate-limit name of a call's client: with trust_forwarded_for, the first `x-forwarded-for`
