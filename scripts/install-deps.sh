@@ -15,7 +15,7 @@ packages=(
   libcli11-dev  # the command-line tools' flag parsing (common/command_line.h)
   nginx  # tests/scaleout: nginx in front of replicas (no daemon is started without systemd)
   procps  # scripts/kill-check.sh: pgrep finds the test's server child
-  libhiredis-dev  # --redis: sessions on Redis (server/service/redis_store.cpp)
+  libhiredis-dev  # --redis: sessions on Redis (server/redis/)
   redis-server  # tests/redis start their own on a loopback port (no daemon without systemd)
   "$@"
 )

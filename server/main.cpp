@@ -29,7 +29,7 @@
 #include "server/service/deformation_service.h"
 #include "server/service/log.h"
 #include "server/service/persistence.h"
-#include "server/service/redis_store.h"
+#include "server/redis/redis_store.h"
 #include "server/transport/deform_service_impl.h"
 #include "server/transport/connection_gate.h"
 #include "server/transport/grpc_front_door.h"
@@ -358,7 +358,7 @@ int main(int argc, char** argv) {
     if (!flags.state_dir.empty()) {
       return redis_error("--redis and --state-dir exclude each other: Redis holds the state");
     }
-    auto config = meshdeform::service::parse_redis_url(flags.redis_url);
+    auto config = meshdeform::redis::parse_redis_url(flags.redis_url);
     if (!config.ok()) return redis_error(config.status().message());
     if (!flags.redis_password_file.empty()) {
       std::ifstream file(flags.redis_password_file);
@@ -375,7 +375,7 @@ int main(int argc, char** argv) {
     config->lease = std::chrono::milliseconds(flags.redis_lease_ms);
     config->log_length = flags.redis_log_length;
     config->idle_ttl = std::chrono::seconds(flags.idle_ttl_seconds);
-    auto connected = meshdeform::service::RedisStateStore::connect(std::move(config).value());
+    auto connected = meshdeform::redis::RedisStateStore::connect(std::move(config).value());
     if (!connected.ok()) return redis_error(connected.status().message());
     shared = std::move(connected).value();
     log_event(LogLevel::Info, "redis",
