@@ -106,6 +106,12 @@ class ArapSolver {
   /// Forgets the previous result: positions() is the rest mesh again and the next Auto solve
   /// starts from the Laplacian guess.
   void reset();
+  /// Makes `V` the previous result, so that the next Auto or Previous solve starts from it (its
+  /// constrained rows are set to the targets then), e.g. a coarse level's result prolonged to
+  /// this mesh (core/multilevel.h).
+  /// @param[in] V  #V x 3 finite positions.
+  /// @return InvalidArgument for a wrong shape or a non-finite coordinate (the solver unchanged).
+  [[nodiscard]] Status set_positions(const Positions& V);
 
   ArapSolver(ArapSolver&&) noexcept;
   ArapSolver& operator=(ArapSolver&&) noexcept;
