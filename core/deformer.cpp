@@ -12,6 +12,7 @@
 #include "core/arap.h"
 #include "core/constraints.h"
 #include "core/measures.h"
+#include "core/multilevel.h"
 #include "core/multires.h"
 #include "core/scale_aware.h"
 #include "core/topology.h"
@@ -105,6 +106,36 @@ class MultiresScaleAwareDeformer final : public Deformer {
     static std::atomic<std::uint64_t> counter{0};
     return ++counter;
   }
+};
+
+// Scale-aware through a multilevel solver (DeformerSettings::multilevel_above): a cold Auto solve
+// runs the cascade, everything else the full-resolution solver.
+class MultilevelScaleAwareDeformer final : public Deformer {
+ public:
+  MultilevelScaleAwareDeformer(MultilevelSolver solver, const Eigen::VectorXi& constrained)
+      : solver_(std::move(solver)), constrained_(constrained) {}
+  Method method() const override { return Method::ScaleAware; }
+  Result<SolveReport> solve(const Positions& targets, const SolveOptions& options,
+                            const ProgressCallback& progress, std::stop_token stop) override {
+    const bool cascade = options.multilevel && options.start == StartFrom::Auto && !warm_;
+    Result<SolveReport> report = cascade
+                                     ? solver_.solve(targets, options, progress, std::move(stop))
+                                     : solver_.fine().solve(targets, options, progress,
+                                                            std::move(stop));
+    if (report.ok()) warm_ = true;
+    return report;
+  }
+  const Positions& positions() const override { return solver_.fine().positions(); }
+  const Eigen::VectorXi& constrained() const override { return constrained_; }
+  void reset() override {
+    solver_.fine().reset();
+    warm_ = false;
+  }
+
+ private:
+  MultilevelSolver solver_;
+  Eigen::VectorXi constrained_;
+  bool warm_ = false;  // the full-resolution solver holds a result to continue from
 };
 
 // Laplacian editing is one direct solve: no iterations, no start, nothing to warm.
@@ -264,6 +295,19 @@ Result<std::unique_ptr<Deformer>> make_deformer_impl(Method method, const Positi
                 : MultiresDeformer::create(V0, F, constrained, multires, progress, stop));
         return std::unique_ptr<Deformer>(
             std::make_unique<MultiresScaleAwareDeformer>(std::move(built), constrained));
+      }
+      if (settings.multilevel_above > 0 && V0.rows() > settings.multilevel_above) {
+        MultilevelSettings multilevel;
+        multilevel.solver = s;
+        multilevel.coarsest_vertices = std::max(settings.multilevel_coarsest_vertices, 100);
+        multilevel.threads = std::max(1, settings.threads);
+        MD_ASSIGN_OR_RETURN(
+            MultilevelSolver built,
+            checked != nullptr
+                ? MultilevelSolver::create(V0, F, *checked, constrained, multilevel, progress, stop)
+                : MultilevelSolver::create(V0, F, constrained, multilevel, progress, stop));
+        return std::unique_ptr<Deformer>(
+            std::make_unique<MultilevelScaleAwareDeformer>(std::move(built), constrained));
       }
       MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(V0, F, constrained, s, stop, progress));
       return std::unique_ptr<Deformer>(std::make_unique<ScaleAwareDeformer>(std::move(solver)));

@@ -38,6 +38,11 @@ const char* start_name(StartFrom start);
 /// Inverse of start_name; InvalidArgument names the bad value and the accepted ones.
 [[nodiscard]] Result<StartFrom> parse_start(std::string_view name);
 
+/// DeformerSettings::multilevel_above and multilevel_coarsest_vertices by default (chosen from
+/// the measurements in docs/multilevel.md).
+inline constexpr int kDefaultMultilevelAbove = 20000;
+inline constexpr int kDefaultMultilevelCoarsest = 1000;
+
 /// Settings fixed per handle set (they define the cached matrices).
 struct DeformerSettings {
   double lambda = 100.0;  ///< soft handle weight (scale-aware, Laplacian); ARAP pins handles exactly
@@ -58,6 +63,13 @@ struct DeformerSettings {
   /// The coarse level's target vertex count (it stays above when the constrained region
   /// borders need more).
   int multires_coarse_vertices = 10000;
+  /// Scale-aware on meshes of more vertices than this (0: never), unless multires_above
+  /// applies: a multilevel solver (core/multilevel.h, issue 41). Its cold Auto solves
+  /// (SolveOptions::multilevel) run the coarse-to-fine cascade; warm solves, explicit starts and
+  /// SolveOptions::multilevel = false solve at full resolution as the single-level solver does.
+  int multilevel_above = kDefaultMultilevelAbove;
+  /// The multilevel hierarchy's coarsest level target (MultilevelSettings::coarsest_vertices).
+  int multilevel_coarsest_vertices = kDefaultMultilevelCoarsest;
 };
 
 /// A prefactored deformation method for one mesh and one handle set.
