@@ -298,7 +298,8 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
                       {"iterations", level.iterations},
                       {"converged", level.converged},
                       {"seconds", level.seconds},
-                      {"energy", level.energy}});
+                      {"energy", level.energy},
+                      {"handle_error", level.handle_error}});
   }
   j["multilevel"] = {{"used", !report.levels.empty()}, {"levels", levels}};
   if (!report.history.empty()) {

@@ -202,6 +202,9 @@ struct LevelReport {
   bool converged = false;       ///< the stopping rule held (level tolerance; level 0: the solve's)
   double seconds = 0;           ///< the scale-aware part on this level (transfer included)
   double energy = 0;            ///< the level's final energy (its own mesh's)
+  /// The level's scale-aware result: the largest distance of a constrained vertex of this level
+  /// from its target, over the full-resolution mesh's bounding-box diagonal.
+  double handle_error = 0;
 };
 
 /// Wall time by phase. Single-level: start = everything before the returned result's first

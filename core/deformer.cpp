@@ -117,7 +117,10 @@ class MultilevelScaleAwareDeformer final : public Deformer {
   Method method() const override { return Method::ScaleAware; }
   Result<SolveReport> solve(const Positions& targets, const SolveOptions& options,
                             const ProgressCallback& progress, std::stop_token stop) override {
-    const bool cascade = options.multilevel && options.start == StartFrom::Auto && !warm_;
+    // The cascade replaces the rigid start of Auto; at rigidity 0 Auto is the paper's Laplacian
+    // start, which stays the single-level solve (the paper mode, unchanged).
+    const bool cascade = options.multilevel && options.start == StartFrom::Auto &&
+                         options.rigidity > 0 && !warm_;
     Result<SolveReport> report = cascade
                                      ? solver_.solve(targets, options, progress, std::move(stop))
                                      : solver_.fine().solve(targets, options, progress,

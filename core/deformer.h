@@ -65,8 +65,9 @@ struct DeformerSettings {
   int multires_coarse_vertices = 10000;
   /// Scale-aware on meshes of more vertices than this (0: never), unless multires_above
   /// applies: a multilevel solver (core/multilevel.h, issue 41). Its cold Auto solves
-  /// (SolveOptions::multilevel) run the coarse-to-fine cascade; warm solves, explicit starts and
-  /// SolveOptions::multilevel = false solve at full resolution as the single-level solver does.
+  /// (SolveOptions::multilevel) with rigidity > 0 run the coarse-to-fine cascade; warm solves,
+  /// explicit starts, rigidity 0 (the paper's Laplacian start) and SolveOptions::multilevel =
+  /// false solve at full resolution as the single-level solver does.
   int multilevel_above = kDefaultMultilevelAbove;
   /// The multilevel hierarchy's coarsest level target (MultilevelSettings::coarsest_vertices).
   int multilevel_coarsest_vertices = kDefaultMultilevelCoarsest;

@@ -90,6 +90,15 @@ struct MultilevelSolver::Impl {
   }
   /// The constrained vertices of level i in the order of targets_of(i).
   Eigen::VectorXi constrained_of(int i) const { return i == 0 ? constrained : level(i).constrained; }
+  /// LevelReport::handle_error of level i's positions `X`.
+  double handle_error(int i, const Positions& X, const Positions& level_targets) const {
+    const Eigen::VectorXi c = constrained_of(i);
+    double worst = 0;
+    for (Eigen::Index j = 0; j < c.size(); ++j) {
+      worst = std::max(worst, (X.row(c(j)) - level_targets.row(j)).norm());
+    }
+    return worst / std::max(bbox_diagonal, 1e-300);
+  }
 
   Status build(const Positions& V_in, const Triangles& F_in, const Eigen::VectorXi& constrained_in,
                const MultilevelSettings& settings_in, const BuildProgress& progress,
@@ -421,6 +430,7 @@ Result<SolveReport> MultilevelSolver::solve(const Positions& targets, const Solv
     lr.iterations = level_solve.iterations;
     lr.converged = level_solve.converged;
     lr.energy = level_solve.history.empty() ? 0.0 : level_solve.history.back().energy;
+    lr.handle_error = s.handle_error(i, level_solve.V, level_targets);
     lr.seconds = seconds_since(level_start);
     coarse_result = std::move(level_solve.V);
     if (i == 1 && s.settings.fine_corrections > 0) level_one.emplace(std::move(solver));
@@ -457,6 +467,7 @@ Result<SolveReport> MultilevelSolver::solve(const Positions& targets, const Solv
   lr.iterations = report.iterations;
   lr.converged = report.converged;
   lr.energy = report.history.empty() ? 0.0 : report.history.back().energy;
+  lr.handle_error = s.handle_error(0, report.V, targets);
   lr.seconds = seconds_since(fine_start);
   report.folded_edges =
       count_folds(s.rest_phi, dihedral_angles(report.V, s.F, s.topology, s.settings.solver.threads));
