@@ -84,7 +84,7 @@ fs::path fresh_dir(const std::string& what) {
 
 // --- solver time shared between sessions -------------------------------------------------------
 
-// Two sessions run 300-iteration solves on both workers; a third session's one-iteration move
+// Two sessions run 150-iteration solves on both workers; a third session's one-iteration move
 // is answered while both still run (they yield between iterations), not after one of them ends.
 TEST(FairnessTest, LongSolvesLetAnotherSessionsShortMoveThrough) {
   ServiceOptions options;
@@ -96,9 +96,9 @@ TEST(FairnessTest, LongSolvesLetAnotherSessionsShortMoveThrough) {
 
   std::promise<Result<DeformResult>> long_a, long_b, short_c;
   auto done_a = long_a.get_future(), done_b = long_b.get_future(), done_c = short_c.get_future();
-  service.move_handles_async(a.created.id, a.created.edit_token, twist(170, 300, 0), {},
+  service.move_handles_async(a.created.id, a.created.edit_token, twist(170, 150, 0), {},
                              [&](Result<DeformResult> r) { long_a.set_value(std::move(r)); });
-  service.move_handles_async(b.created.id, b.created.edit_token, twist(-170, 300, 0), {},
+  service.move_handles_async(b.created.id, b.created.edit_token, twist(-170, 150, 0), {},
                              [&](Result<DeformResult> r) { long_b.set_value(std::move(r)); });
   // Both long solves have a worker: nothing of theirs is queued any more.
   for (int i = 0; i < 6000 && service.stats().queued_normal > 0; ++i) {
