@@ -1,0 +1,34 @@
+#pragma once
+/// @file serial_executor.h
+/// One thread running posted tasks in order: the Watch streams' per-stream delta encoding runs
+/// here (issue 45), not on the worker that committed the revision (its notify must be quick)
+/// nor on a gRPC thread. Destroying it runs what is queued, then joins.
+
+#include <condition_variable>
+#include <deque>
+#include <functional>
+#include <mutex>
+#include <thread>
+
+namespace meshdeform::transport {
+
+class SerialExecutor {
+ public:
+  SerialExecutor();
+  ~SerialExecutor();
+  SerialExecutor(const SerialExecutor&) = delete;
+  SerialExecutor& operator=(const SerialExecutor&) = delete;
+
+  /// Queues `task` (must not throw; it runs on the executor's thread).
+  void post(std::function<void()> task);
+
+ private:
+  void run(std::stop_token stop);
+
+  std::mutex mutex_;
+  std::condition_variable_any cv_;
+  std::deque<std::function<void()>> tasks_;
+  std::jthread thread_;  // last: started after the members it uses
+};
+
+}  // namespace meshdeform::transport
