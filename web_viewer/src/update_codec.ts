@@ -8,8 +8,9 @@
 //   n index gaps unless bit 0, then per axis x, y, z:
 //     quantized: n zigzag varints, d_i - d_{i-1}: the vertex's grid delta in units of 2^shift;
 //     lossless:  8 planes (byte 7 down to 0) of n bytes: the XOR of old and new double bits.
+import { create } from "@bufbuild/protobuf";
 import { decompress } from "fzstd";
-import { DeltaMode, type DeformUpdate, type UpdateOptions, type VertexDelta } from "./gen/meshdeform/v1/deformation_pb";
+import { DeltaMode, UpdateOptionsSchema, type DeformUpdate, type UpdateOptions, type VertexDelta } from "./gen/meshdeform/v1/deformation_pb";
 
 /** The viewer's ask, from the page URL: ?updates=quantized|lossless[&tolerance=X][&budget=BYTES]. */
 export interface LinkSizedChoice {
@@ -31,13 +32,13 @@ export function parseLinkSized(params: URLSearchParams): LinkSizedChoice {
 }
 
 /** The WatchRequest.updates for a choice (undefined when off: the plain updates). */
-export function linkSizedOptions(choice: LinkSizedChoice): Partial<UpdateOptions> | undefined {
+export function linkSizedOptions(choice: LinkSizedChoice): UpdateOptions | undefined {
   if (choice.mode === "off") return undefined;
-  return {
+  return create(UpdateOptionsSchema, {
     mode: choice.mode === "lossless" ? DeltaMode.LOSSLESS : DeltaMode.QUANTIZED,
     relativeTolerance: choice.relativeTolerance,
     maxUpdateBytes: choice.maxUpdateBytes,
-  };
+  });
 }
 
 export class DeltaError extends Error {}
