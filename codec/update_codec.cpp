@@ -436,7 +436,17 @@ Status StreamDecoder::apply(const UpdateHeader& h, std::string_view payload) {
       for (std::size_t k = 0; k < n; ++k) {
         std::uint64_t z = 0;
         if (!in.varint(z)) return invalid("payload truncated in its values");
-        const std::int64_t d = previous + unzigzag(z);
+        // Every intermediate stays far inside int64 (no overflow whatever the bytes say): a
+        // difference, a value and its scaled form are each refused beyond the grid's range.
+        const std::int64_t step_change = unzigzag(z);
+        if (std::abs(static_cast<double>(step_change)) > 2 * kMaxGrid) {
+          return invalid("grid value out of range");
+        }
+        const std::int64_t d = previous + step_change;
+        const double scaled_value = static_cast<double>(d) * std::ldexp(1.0, static_cast<int>(h.shift));
+        if (std::abs(static_cast<double>(d)) > kMaxGrid || std::abs(scaled_value) > kMaxGrid) {
+          return invalid("grid value out of range");
+        }
         previous = d;
         const std::int64_t scaled = d * (std::int64_t{1} << h.shift);
         const std::size_t i = 3 * static_cast<std::size_t>(index[k]) + static_cast<std::size_t>(c);
