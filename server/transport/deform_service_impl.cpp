@@ -135,6 +135,11 @@ std::string sanitize_client(std::string_view text) {
   return out;
 }
 
+/// How long a link-sized stream waits after its last new revision before it sends the rest of
+/// a budget-limited one (continuations): the server's default refinement delay, the pause that
+/// ends a drag.
+constexpr std::chrono::milliseconds kContinuationDelay{150};
+
 /// Streams a subscription. Owned by itself (self_) until OnDone; the watcher's notify holds only a
 /// weak_ptr, so a notify racing with OnDone keeps the object alive but does nothing.
 class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
@@ -198,6 +203,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
   void pump() {
     enum class Next { Nothing, Write, Encode, FinishClosed, FinishCancelled } next = Next::Nothing;
     std::optional<service::DeformUpdate> to_encode;
+    std::optional<std::chrono::steady_clock::time_point> continuation_at;
     {
       const std::lock_guard lock(mutex_);
       if (is_finished_ || is_writing_ || is_encoding_) return;
@@ -207,9 +213,21 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
         // Link-sized updates: the newest revision if one came, else the next step toward the
         // last one while a byte budget left vertices pending; encoded off this thread.
         to_encode = subscription_->try_take();
-        if (to_encode || (encoder_ && encoder_->pending())) {
+        if (to_encode) {
           next = Next::Encode;
           is_encoding_ = true;
+        } else if (encoder_ && encoder_->pending()) {
+          // The rest of a budget-limited revision waits until revisions stop coming for
+          // kContinuationDelay: during a drag the line carries new revisions, not the remainder
+          // of ones about to be replaced.
+          const auto due = last_revision_at_ + kContinuationDelay;
+          if (std::chrono::steady_clock::now() >= due) {
+            next = Next::Encode;
+            is_encoding_ = true;
+          } else if (!is_continuation_scheduled_) {
+            is_continuation_scheduled_ = true;
+            continuation_at = due;
+          }
         } else if (subscription_->closed()) {
           next = Next::FinishClosed;
         }
@@ -222,6 +240,22 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
       }
       if (next == Next::Write) is_writing_ = true;
       if (next == Next::FinishClosed || next == Next::FinishCancelled) is_finished_ = true;
+    }
+    if (continuation_at) {
+      std::weak_ptr<WatchReactor> weak;
+      {
+        const std::lock_guard lock(mutex_);
+        weak = self_;
+      }
+      executor_->post_at(*continuation_at, [weak] {
+        if (std::shared_ptr<WatchReactor> strong = weak.lock()) {
+          {
+            const std::lock_guard lock(strong->mutex_);
+            strong->is_continuation_scheduled_ = false;
+          }
+          strong->pump();
+        }
+      });
     }
     switch (next) {
       case Next::Nothing:
@@ -273,6 +307,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
         MD_ASSIGN_OR_RETURN(codec::EncodedUpdate delta,
                             encoder_->encode(positions, update->result->revision));
         last_result_ = update->result;
+        last_revision_at_ = std::chrono::steady_clock::now();
         message_.set_skipped_revisions(update->skipped_revisions);
         wire::delta_to_proto(delta, message_.mutable_delta());
       } else {
@@ -319,6 +354,9 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
   std::optional<codec::StreamEncoder> encoder_;
   std::shared_ptr<const service::DeformResult> last_result_;
   SerialExecutor* executor_ = nullptr;
+  // When the last new revision was encoded: written while encoding, read by pump() after.
+  std::chrono::steady_clock::time_point last_revision_at_{};
+  bool is_continuation_scheduled_ = false;
   bool is_first_ = true;
   bool is_encoding_ = false;
   bool is_writing_ = false;
