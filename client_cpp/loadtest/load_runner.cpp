@@ -594,7 +594,7 @@ void LoadRun::drive(SessionState& session) {
     send_move(session, drag, seconds_between(first_tick, tick_time(tick)));
     // The first tick at or after the response; the ones before it came while the move was in
     // flight and are skipped (only those before the end of the run count).
-    const Clock::time_point now = Clock::now();
+    Clock::time_point now = Clock::now();
     std::int64_t next = tick + 1;
     if (tick_time(next) < now) {
       next = std::max(next, static_cast<std::int64_t>((now - first_tick) / period));
@@ -604,6 +604,22 @@ void LoadRun::drive(SessionState& session) {
       if (tick_time(k) >= run_end_) break;
       ++result.ticks;
       ++result.skipped_ticks;
+    }
+    // --send-on-response: a tick that came while the move was in flight is not lost: its
+    // newest target goes at once (as the viewer's drag does), then the schedule resumes.
+    while (options_.send_on_response && next > tick + 1 && has_budget() && now < run_end_) {
+      send_move(session, drag, seconds_between(first_tick, now));
+      ++result.sent_on_response;
+      const std::int64_t missed_before = next;
+      now = Clock::now();
+      while (tick_time(next) < now) ++next;
+      for (std::int64_t k = missed_before; k < next; ++k) {
+        if (tick_time(k) >= run_end_) break;
+        ++result.ticks;
+        ++result.skipped_ticks;
+      }
+      if (next == missed_before) break;  // the response came before the next tick
+      tick = missed_before - 1;  // ticks were missed again: loop with the newest target
     }
     tick = next;
   }

@@ -52,6 +52,9 @@ struct Options {
   bool allow_remote = false;      ///< permit a target that is not loopback
   bool fail_on_errors = false;    ///< exit kExitRunFailed when any move failed
   bool fixed_receive_window = false;  ///< --fixed-receive-window: no BDP probing (64 KiB)
+  /// --send-on-response: when ticks came while a move was in flight, send the newest target
+  /// as soon as the response arrives instead of waiting for the next tick (the viewer's drag).
+  bool send_on_response = false;
   int move_deadline_ms = 10'000;  ///< deadline of each MoveHandles call
   int max_message_mib = 64;       ///< client send/receive limit (snapshots of big meshes)
   std::string tls_ca_path;        ///< --tls-ca: TLS trusting these PEM roots (empty: plaintext)

@@ -325,6 +325,7 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
                         {"max_update_bytes", o.max_update_bytes},
                         {"via_link", o.via_link},
                         {"fixed_receive_window", o.fixed_receive_window},
+                        {"send_on_response", o.send_on_response},
                         {"move_deadline_ms", o.move_deadline_ms},
                         {"one_move_in_flight", true}};
   if (run.link.used) {
@@ -450,6 +451,7 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
         {"handle_vertices", s.handle_vertices},
         {"ticks", s.ticks},
         {"skipped_ticks", s.skipped_ticks},
+        {"sent_on_response", s.sent_on_response},
         {"moves_sent", s.moves_sent},
         {"moves_ok", s.moves_ok},
         {"errors_by_code", session_errors},
@@ -483,8 +485,10 @@ std::string report_markdown(const RunResult& run, const Aggregate& t) {
       << "\n";
   out << "- drag: moves per session " << moves_label(o) << ", " << rate_label(o)
       << "; one move in flight per session (a tick that comes while the previous move is in "
-         "flight is skipped and the next move aims at the newest target); move deadline "
-      << o.move_deadline_ms << " ms\n";
+         "flight is skipped and the next move aims at the newest target"
+      << (o.send_on_response ? ", sent as soon as the response arrives (--send-on-response)"
+                             : "")
+      << "); move deadline " << o.move_deadline_ms << " ms\n";
   out << "- watchers: " << o.watchers << " per session (view token)\n";
   if (run.link.used) {
     out << "- link (--via-link " << run.link.spec << "): " << run.link.description

@@ -81,6 +81,7 @@ struct SessionResult {
 
   std::int64_t ticks = 0;          ///< rate > 0: ticks reached (moves sent + skipped)
   std::int64_t skipped_ticks = 0;  ///< ticks that came while the previous move was in flight
+  std::int64_t sent_on_response = 0;  ///< --send-on-response: moves sent as a response came
   std::int64_t moves_sent = 0;
   std::int64_t moves_ok = 0;
   std::map<std::string, std::int64_t> errors_by_code;  ///< failed moves by status code name
