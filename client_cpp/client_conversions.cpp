@@ -179,6 +179,7 @@ Status move_to_proto(const MoveSpec& spec, v1::MoveHandlesRequest* out) {
   out->set_history(wire::history_to_proto(spec.history));
   out->set_gesture(spec.gesture);
   out->set_keep_settings(spec.keep_settings);
+  out->set_omit_positions(spec.omit_positions);
   return Status::success();
 }
 

@@ -316,6 +316,10 @@ void positions_to_proto(const service::DeformResult& result, Rows rows,
 }
 }  // namespace
 
+void result_figures_to_proto(const service::DeformResult& result, v1::DeformResult* out) {
+  result_metrics_to_proto(result, out);
+}
+
 void result_to_proto(const service::DeformResult& result, bool full_positions,
                      v1::PositionEncoding encoding, v1::DeformResult* out) {
   result_metrics_to_proto(result, out);
