@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "core/deformer.h"
+#include "core/edit_types.h"
 #include "core/io/mesh_io.h"
 #include "core/mesh_data.h"
 #include "core/status.h"
@@ -102,19 +103,14 @@ struct CallOptions {
 
 // ------------------------------------------------------------------------------- domain types
 
-/// Role of a handle group.
-enum class HandleRole {
-  Fixed,   ///< stays at its position of the time SetHandles was called
-  Handle,  ///< moved by GroupMove / VertexTarget
-};
-
-/// A set of constrained vertices with one role.
-struct HandleGroup {
-  HandleRole role = HandleRole::Handle;
-  std::vector<int> vertices;  ///< distinct indices into the session's cleaned mesh, >= 0
-
-  bool operator==(const HandleGroup&) const = default;
-};
+// The edit vocabulary (core/edit_types.h: one definition, shared with the server): handle
+// groups and roles, similarity moves of a group (GroupMove: absolute, relative to the group's
+// anchors, i.e. its positions when SetHandles was called), explicit vertex targets, undo/redo.
+using core::GroupMove;
+using core::HandleGroup;
+using core::HandleRole;
+using core::HistoryAction;
+using core::VertexTarget;
 
 /// A summary of a session (GetSessionInfo).
 struct SessionInfo {
@@ -166,30 +162,6 @@ struct CreateOptions {
   std::optional<double> lambda;  ///< soft handle weight, > 0 (server default 100)
   /// Scale control of the session's moves that set none (server default 100; see MoveSpec).
   std::optional<double> rigidity;
-};
-
-/// A similarity transform of one handle group, relative to the group's anchors (its positions
-/// when SetHandles was called); absolute, not incremental:
-/// target = pivot + scale * rotation * (anchor - pivot) + translation.
-struct GroupMove {
-  int group = 0;  ///< index into the groups given to set_handles; must be a Handle group
-  Eigen::Vector3d translation = Eigen::Vector3d::Zero();
-  Eigen::Quaterniond rotation = Eigen::Quaterniond::Identity();  ///< normalised by the server
-  double scale = 1.0;                                            ///< > 0
-  std::optional<Eigen::Vector3d> pivot;  ///< default: the centroid of the group's anchors
-};
-
-/// An explicit target for one vertex of a Handle group (applied after the group moves).
-struct VertexTarget {
-  int vertex = 0;
-  Eigen::Vector3d position = Eigen::Vector3d::Zero();
-};
-
-/// How a move changes the session's undo history (MoveHandlesRequest.history).
-enum class HistoryAction {
-  Record,  ///< the move's state becomes a new step (the default)
-  Undo,    ///< apply the previous step instead of moves and targets (send none)
-  Redo,    ///< apply the next step likewise
 };
 
 /// One MoveHandles request.

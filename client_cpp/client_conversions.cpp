@@ -42,7 +42,7 @@ Result<std::vector<HandleGroup>> groups_from_proto(
   std::vector<HandleGroup> out;
   for (const v1::HandleGroup& g : in) {
     HandleGroup group;
-    const std::optional<HandleRole> role = wire::role_from_proto<HandleRole>(g.role());
+    const std::optional<HandleRole> role = wire::role_from_proto(g.role());
     if (!role) return malformed(rpc, "handle role " + std::to_string(static_cast<int>(g.role())));
     group.role = *role;
     MD_ASSIGN_OR_RETURN(group.vertices, indices_from_proto(g.vertices(), rpc));
