@@ -62,6 +62,8 @@ struct Options {
   int cgal_iterations = 100;
   int cgal_max_iterations = 1000;            // cap of CGAL's own convergence run
   long cgal_converge_max_vertices = 250'000;
+  /// Runs per model (default, cgal, single, multilevel_converged, single_converged); empty: all.
+  std::vector<std::string> methods;
   bool variants = false;
   std::vector<std::string> variant_models = {"bumpy_plane_irregular", "cactus_irregular",
                                              "spot47k_bend", "spot47k_twist", "spot188k_bend"};
@@ -82,6 +84,8 @@ void print_usage(std::ostream& out) {
          "  --cgal-iterations N   CGAL's timed run (100)\n"
          "  --cgal-max-iterations N  cap of CGAL's own convergence run (1000)\n"
          "  --cgal-converge-max-vertices N  CGAL's convergence run up to N vertices (250000)\n"
+         "  --methods a,b         only these runs: default, cgal, single, multilevel_converged,\n"
+         "                        single_converged (default all; bounds a run at 750k)\n"
          "  --variants            also the multilevel study (docs/multilevel.md)\n"
          "  --variant-models a,b  models of the study (bumpy_plane_irregular, cactus_irregular,\n"
          "                        spot47k_bend, spot47k_twist, spot188k_bend)\n"
@@ -114,6 +118,16 @@ Result<Options> parse_options(int argc, char** argv) {
   flags.integer("--cgal-iterations", o.cgal_iterations, 1);
   flags.integer("--cgal-max-iterations", o.cgal_max_iterations, 1);
   flags.integer("--cgal-converge-max-vertices", o.cgal_converge_max_vertices, 0L);
+  flags.value("--methods", [&](const std::string& value) -> Status {
+    o.methods = split_commas(value);
+    for (const std::string& m : o.methods) {
+      if (m != "default" && m != "cgal" && m != "single" && m != "multilevel_converged" &&
+          m != "single_converged") {
+        return Error(ErrorCode::InvalidArgument, "--methods: unknown run '" + m + "'");
+      }
+    }
+    return Status::success();
+  });
   flags.flag("--variants", [&] { o.variants = true; });
   flags.value("--variant-models", [&](const std::string& value) {
     o.variant_models = split_commas(value);
@@ -629,6 +643,10 @@ Status run(int argc, char** argv) {
                          }});
     }
     for (auto& [method, body] : methods) {
+      if (!options.methods.empty() && std::find(options.methods.begin(), options.methods.end(),
+                                                method) == options.methods.end()) {
+        continue;
+      }
       std::cerr << "[" << spec.name << "] " << row.vertices << " vertices: " << method << " (load "
                 << read_load_average() << ")\n";
       Result<json> result = run_in_child(body);
