@@ -138,7 +138,9 @@ TEST(MultilevelSolver, RigidMotionsAndUniformScalingsAreExactThroughEveryLevel) 
       EXPECT_TRUE(level.converged) << "level " << level.level;
       EXPECT_LT(level.handle_error, test::kConvergedTol) << "level " << level.level;
     }
-    if (scale == 1.0) EXPECT_EQ(report->iterations, 1);
+    if (scale == 1.0) {
+      EXPECT_EQ(report->iterations, 1);
+    }
   }
 }
 
