@@ -6,7 +6,7 @@
 #include <cstdio>
 #include <string>
 
-#include "core/deform_types.h"
+#include "core/methods/deform_types.h"
 
 namespace meshdeform::cli {
 

@@ -19,9 +19,9 @@
 #include <string_view>
 #include <vector>
 
-#include "core/deformer.h"
-#include "core/mesh_data.h"
-#include "core/status.h"
+#include "core/methods/deformer.h"
+#include "core/mesh/mesh_data.h"
+#include "core/base/status.h"
 #include "server/service/types.h"
 
 namespace meshdeform::service {

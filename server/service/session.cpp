@@ -1,6 +1,6 @@
 #include "server/service/session.h"
 
-#include "core/similarity.h"
+#include "core/methods/similarity.h"
 
 #include <algorithm>
 #include <chrono>
@@ -9,10 +9,10 @@
 #include <thread>
 #include <unordered_map>
 
-#include "core/format_number.h"
-#include "core/ora.h"
+#include "core/base/format_number.h"
+#include "core/methods/ora.h"
 #include "server/service/call_stop.h"
-#include "core/validate.h"
+#include "core/mesh/validate.h"
 #include "server/service/edit_history.h"
 #include "server/service/log.h"
 #include "server/service/tokens.h"

@@ -1,7 +1,7 @@
 // Exact properties of ARAP (Sorkine & Alexa 2007): the rest pose and every rigid motion of it are
 // exact zeros of the energy, constrained vertices are met exactly, and the local/global
 // alternation is a block-coordinate descent, so the energy never increases.
-#include "core/arap.h"
+#include "core/methods/arap.h"
 
 #include <gtest/gtest.h>
 
