@@ -162,7 +162,7 @@ struct ScaleAwareSolver::Impl {
   // of handle and fixed regions) by their diagonal: [T_KK 0; 0 diag(T_DD)]. Every row of D
   // carries the handle weight lambda (1 + rho), which dominates it, and the coupling the split
   // drops, T_KD, joins two such rows: the free vertices keep all their coupling. Measured
-  // (README, issue 13): the PCG steps (within one in 15 iterations) and energies of the whole
+  // (docs/benchmarks.md, issue 13): the PCG steps (within one in 15 iterations) and energies of the whole
   // factor on the Spot edits and the irregular Table 1 models, a factor over 57% of the
   // vertices on Spot 47k's edits (43% constrained): create + prepare about 18% shorter, 14 MiB
   // less peak. (Dropping every constrained vertex instead, coupling to free vertices included,

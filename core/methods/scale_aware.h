@@ -69,7 +69,7 @@ struct ScaleAwareSettings {
   /// Infinity ties it exactly (R_f N0_f = N_f, only the in-plane angle free: the first design,
   /// which keeps E_phi low but leaves area at 1.5-5x ARAP's at every rigidity); 0 frees it
   /// (ARAP's rotation: area and E_theta fall, E_phi rises above ARAP's). 0.3 by measurement
-  /// (bench/results/rigidity_sweep.md, README "Scale control").
+  /// (bench/results/rigidity_sweep.md, docs/method.md "Scale control").
   double scale_normal_tie = 0.3;
   /// Build the default cold start's factorization (the rigid start's ARAP solver, see
   /// StartFrom::Auto) on the first solve that starts from it instead of at create. For solvers

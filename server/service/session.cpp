@@ -1118,7 +1118,7 @@ Status Session::sync_shared_locked() {
     }
     if (shared_version_ >= *stored) return Status::success();
   } else {
-    // The store went back (Redis lost acknowledged writes: see the README on appendfsync).
+    // The store went back (Redis lost acknowledged writes: see docs/scale-out.md on appendfsync).
     log_event(LogLevel::Error, "shared_state_went_back",
               LogFields().add("session", id_.value).add("held_version", shared_version_)
                   .add("stored_version", *stored));
