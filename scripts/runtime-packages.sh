@@ -46,6 +46,7 @@ esac
 [ $# -eq 1 ] || usage
 binary="$1"
 [ -f "$binary" ] || fail "$binary: no such file"
+[ "$mode" != check ] || [ -f "$list" ] || fail "$list: no such file"
 command -v ldd >/dev/null || fail "ldd is missing (Debian package libc-bin)"
 command -v dpkg-query >/dev/null || fail "dpkg-query is missing: this needs a Debian system"
 
@@ -75,7 +76,7 @@ while IFS= read -r line; do
     names+=("${BASH_REMATCH[1]}")
     paths+=("${BASH_REMATCH[2]}")
   elif [[ "$line" =~ ^(/[^[:space:]]+)\ \( ]]; then
-    names+=("$(basename "${BASH_REMATCH[1]}")")
+    names+=("${BASH_REMATCH[1]##*/}")
     paths+=("${BASH_REMATCH[1]}")
   fi
 done <<<"$ldd_out"
@@ -88,16 +89,18 @@ fi
 # through the other side of the merged /usr (/lib -> usr/lib) or through a symlink (the
 # libblas.so.3 alternative points into openblas-pthread/). Candidates per library, in order: the
 # path, its /usr twin, the symlink's target, the target's /usr twin.
-usr_twin() {
-  case "$1" in
-    /usr/*) echo "${1#/usr}" ;;
-    *) echo "/usr$1" ;;
-  esac
+# (No subshell per library: this runs in the test command, on a busy machine.)
+usr_twin() {  # sets twin to the other side of the merged /usr
+  if [[ "$1" == /usr/* ]]; then twin="${1#/usr}"; else twin="/usr$1"; fi
 }
+mapfile -t reals < <(readlink -f -- "${paths[@]}")
+[ ${#reals[@]} -eq ${#paths[@]} ] || fail "readlink -f could not resolve every library path"
 declare -a candidates=()
-for p in "${paths[@]}"; do
-  real="$(readlink -f "$p" || echo "$p")"
-  candidates+=("$p" "$(usr_twin "$p")" "$real" "$(usr_twin "$real")")
+for i in "${!paths[@]}"; do
+  usr_twin "${paths[$i]}"
+  path_twin="$twin"
+  usr_twin "${reals[$i]}"
+  candidates+=("${paths[$i]}" "$path_twin" "${reals[$i]}" "$twin")
 done
 # One dpkg-query for every candidate (it exits 1 when some have no owner; those are expected).
 declare -A owner=()
@@ -161,7 +164,6 @@ case "$mode" in
     echo "runtime-packages: wrote ${#packages[@]} packages to $list" >&2
     ;;
   check)
-    [ -f "$list" ] || fail "$list: no such file"
     declare -A listed=()
     while read -r p; do listed["$p"]=1; done < <(list_packages "$list")
     status=0
