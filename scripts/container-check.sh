@@ -209,7 +209,9 @@ run_single
 wait_for "/healthz answered" 90 curl -fsS "http://127.0.0.1:$http_port/healthz" ||
   fail "the server in $image never answered /healthz: $(podman logs --tail 20 "$single" 2>&1)"
 podman healthcheck run "$single" >/dev/null || fail "the image's HEALTHCHECK fails"
-curl -fsS "http://127.0.0.1:$http_port/" | grep -qi '<html' || fail "the viewer is not served at /"
+# (Into a file first: with pipefail, grep -q leaving early could fail curl's write.)
+curl -fsS -o "$scratch/index.html" "http://127.0.0.1:$http_port/" && grep -qi '<html' "$scratch/index.html" ||
+  fail "the viewer is not served at /"
 uid="$(podman exec "$single" sh -c 'awk "/^Uid:/ {print \$2}" /proc/1/status')"
 [ "$uid" = "10001" ] || fail "the server runs as uid $uid, not 10001"
 [ "$(podman exec "$single" id -un)" = "meshdeform" ] || fail "exec in the container is not user meshdeform"
@@ -445,7 +447,7 @@ seconds_after_kill() {
     print s - kill
   }'
 }
-first_ok_after="$(grep 'grpc_status=0' <<<"$after" | head -1 | seconds_after_kill)"
+first_ok_after="$(grep -m 1 'grpc_status=0' <<<"$after" | seconds_after_kill)"
 kill_iso="$(date -u -d "@$kill_epoch" +%Y-%m-%dT%H:%M:%S)"
 all_after_ok="$(grep MoveHandles "$scratch/nginx-access.log" | grep -v "sid=\"$sid\"" | grep 'grpc_status=0' |
   awk -v k="$kill_iso" 'substr($1, 1, 19) > k' | wc -l)"
