@@ -85,6 +85,12 @@ cleanup() {
   set +e
   [ -n "$loadtest_pid" ] && kill "$loadtest_pid" 2>/dev/null && wait "$loadtest_pid" 2>/dev/null
   if [ "$compose_started" -eq 1 ]; then
+    # On failure, each container's log (nginx's is the access log) stays with the other logs.
+    if [ "$status" -ne 0 ] || [ "$keep_logs" -eq 1 ]; then
+      for c in $(podman ps -a --format '{{.Names}}' --filter "label=io.podman.compose.project=$project"); do
+        podman logs "$c" >"$scratch/container-$c.log" 2>&1
+      done
+    fi
     # The project's containers with their anonymous volumes first (the image's VOLUME gives each
     # replica one; podman-compose 1.0's `down -v` removes only the named ones), then the rest.
     podman ps -a -q --filter "label=io.podman.compose.project=$project" |
