@@ -289,6 +289,20 @@ for r in "${replicas[@]}"; do
   uid="$(podman exec "$(container_of "$r")" sh -c 'awk "/^Uid:/ {print \$2}" /proc/1/status')"
   [ "$uid" = "10001" ] || fail "$r runs as uid $uid"
 done
+# The replicas open more Redis connections under load, each resolving the service name `redis`
+# (aardvark-dns, podman's resolver for the project's network). Each resolves it promptly before
+# the load starts, three times in a row: a resolver that does not answer would otherwise show up
+# only as sessions failing setup after some 40 s (the glibc resolver's timeouts, then the
+# host's resolver's NXDOMAIN: "redis at redis:6379 is unreachable: No address associated with
+# hostname").
+resolves_redis() {
+  local i
+  for i in 1 2 3; do timeout 3 podman exec "$1" getent ahostsv4 redis >/dev/null 2>&1 || return 1; done
+}
+for r in "${replicas[@]}"; do
+  wait_for "$r resolved redis" 60 resolves_redis "$(container_of "$r")" ||
+    fail "$r cannot resolve the service name redis (aardvark-dns)"
+done
 
 declare -A replica_of_ip=()
 # nginx's access log: one line per call, with the session id and the upstream(s) it went to.
@@ -417,7 +431,7 @@ loadtest_pid=""
 report="$scratch/loadtest.json"
 [ "$(jq -r .completed "$report")" = "true" ] || fail "the load test did not complete"
 bad="$(jq -r '[.sessions[] | select(.set_up != true or .close_status != "OK")] | length' "$report")"
-[ "$bad" = "0" ] || fail "$bad load-test sessions not set up or not closed OK: $(jq -c '[.sessions[] | {index, setup_status, close_status}]' "$report")"
+[ "$bad" = "0" ] || fail "$bad load-test sessions not set up or not closed OK: $(jq -c '[.sessions[] | {index, setup_status, setup_error, close_status}]' "$report")"
 codes="$(jq -r '[.sessions[].errors_by_code | keys[]] | unique | join(" ")' "$report")"
 for code in $codes; do
   case "$code" in
