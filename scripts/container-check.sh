@@ -5,7 +5,10 @@
 # anything under docker/ or the server's library dependencies, and record its result in
 # docker/README.md ("Last run").
 #
-#   scripts/container-check.sh [--skip-build] [--keep-logs]
+#   scripts/container-check.sh [--fresh | --skip-build] [--keep-logs]
+#     --fresh       build every stage again (podman build --no-cache): the run to record
+#     --skip-build  use the image built last (localhost/meshdeform-server:local) as it is
+#     --keep-logs   keep the logs (in /var/tmp/meshdeform-container-check.*) after a pass too
 #
 # What it checks, in order (each wait bounded; the first failure stops it with "FAIL: ..."):
 #  1. the base images exist (docker/make-base-images.sh: debootstrap, no registry) and the image
@@ -18,20 +21,24 @@
 #     (SIGTERM, clean exit) a new container on the same volume serves the session at the same
 #     revision with the same positions;
 #  4. compose.yaml's topology, started with podman-compose (Redis, three replicas, nginx; the
-#     ports published on 127.0.0.1 at free ports): meshdeform-loadtest (built on the host) drags 4
+#     ports published on 127.0.0.1 at free ports; every replica healthy, running as uid 10001 and
+#     resolving the service name redis): meshdeform-loadtest (built on the host) drags 4
 #     sessions through nginx at 10 Hz for 120 s; a meshdeform-client drag (converged moves: no
 #     background refinement revisions in between) runs on a session of its own that lands on a
 #     replica serving load-test sessions too; that replica's server process is killed with SIGKILL
 #     (a crash: its restart policy may bring it back) while the load tester's sessions on it are
 #     mid-drag. Then, through nginx: the drag's session is at exactly its last acknowledged revision
-#     with byte-identical positions and the drag goes on from it (consecutive revisions), the
-#     victim's load-test sessions go on moving, and the load tester ends with every session set up
+#     with byte-identical positions and the drag goes on from it (consecutive revisions), every
+#     load-test session of the victim moves again (printed: how long after the kill each one's
+#     first move was acknowledged, from nginx's log), at least 30 s of the load's move phase follow
+#     the kill (printed: how long it ran), and the load tester ends with every session set up
 #     and closed, every failed move UNAVAILABLE/ABORTED/DEADLINE_EXCEEDED/INTERNAL, and per session
 #     last_revision = moves_ok + revision_gaps (a consistency check: a revision lost in the
 #     failover would have its number handed out again; background refinement revisions between
 #     moves could hide that, which is why the drag's session is the exact check).
-# Everything it starts (containers, the compose project's network and volumes, the load tester) is
-# removed on exit, pass or fail (trap). The images stay (base images, stand-ins, the built image).
+# Everything it starts (containers and their anonymous volumes, the compose project's network and
+# volumes, the load tester) is removed on exit, pass or fail (trap); on failure the logs stay
+# (every container's too). The images stay (base images, stand-ins, the built image).
 #
 # Needs root (podman rootful, debootstrap) and the host's build of the client tools:
 #   cmake --build build --target meshdeform-loadtest meshdeform-client
@@ -45,11 +52,13 @@ jobs="${MESHDEFORM_CHECK_JOBS:-$(nproc)}"
 image=localhost/meshdeform-server:local
 skip_build=0
 keep_logs=0
+cache=()
 for arg in "$@"; do
   case "$arg" in
+    --fresh) cache=(--no-cache) ;;
     --skip-build) skip_build=1 ;;
     --keep-logs) keep_logs=1 ;;
-    *) sed -n '8p' "${BASH_SOURCE[0]}" | sed 's/^# *//' >&2; exit 2 ;;
+    *) sed -n '8,11p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2; exit 2 ;;
   esac
 done
 
@@ -148,13 +157,13 @@ if [ "$skip_build" -eq 0 ]; then
   secret=()
   [ -s /etc/ssl/certs/ca-certificates.crt ] &&
     secret=(--secret id=ca_bundle,src=/etc/ssl/certs/ca-certificates.crt)
-  if ! nice -n 5 podman build --pull=never --format docker "${secret[@]}" \
+  if ! nice -n 5 podman build --pull=never --format docker "${cache[@]}" "${secret[@]}" \
       --ignorefile "$root/docker/Dockerfile.dockerignore" --build-arg BUILD_JOBS="$jobs" \
       -f "$root/docker/Dockerfile" -t "$image" "$root" >"$scratch/build.log" 2>&1; then
     tail -40 "$scratch/build.log" >&2
     fail "podman build failed (log: $scratch/build.log)"
   fi
-  note "built $image in $((SECONDS - build_start)) s with $jobs compile jobs"
+  note "built $image in $((SECONDS - build_start)) s with $jobs compile jobs${cache:+, every stage anew (--no-cache)}"
 fi
 podman image exists "$image" || fail "$image does not exist (run without --skip-build)"
 note "image: $(podman image inspect --format '{{.Id}}' "$image" | cut -c1-12)," \
