@@ -227,7 +227,7 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
                    "give exactly one of mesh bytes and a sample name (got " +
                        std::string(has_bytes ? "both" : "neither") + ")");
     }
-    MD_RETURN_IF_ERROR(check_rigidity(request.rigidity));
+    if (request.rigidity) MD_RETURN_IF_ERROR(core::check_rigidity(*request.rigidity, kMaxRigidity));
     MD_RETURN_IF_ERROR(check_lambda(request.settings.lambda));
     CreatedSession created;
     MeshData mesh;

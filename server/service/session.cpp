@@ -84,7 +84,8 @@ Status check_budget(const MoveRequest& request) {
                  std::to_string(request.magnify.size()) + " magnify regions (at most " +
                      std::to_string(kMaxMagnifyRegions) + ")");
   }
-  return check_rigidity(request.rigidity);
+  if (!request.rigidity) return Status::success();
+  return core::check_rigidity(*request.rigidity, kMaxRigidity);
 }
 
 }  // namespace

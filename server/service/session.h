@@ -116,7 +116,7 @@ class Session : public std::enable_shared_from_this<Session> {
   /// The view token (handed to editors, who may share it; never logged).
   const Token& view_token() const { return view_token_; }
   /// The scale control (core::SolveOptions::rigidity) of scale-aware moves that do not set one.
-  /// Call before the session is shared. @pre is_valid_rigidity(rigidity).
+  /// Call before the session is shared. @pre core::check_rigidity(rigidity, kMaxRigidity) succeeds.
   void set_default_rigidity(double rigidity) { default_rigidity_ = rigidity; }
 
   /// Sets the handle groups, anchors them at the current positions (targets = anchors) and builds

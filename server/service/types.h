@@ -18,6 +18,7 @@
 #include <Eigen/Geometry>
 
 #include "core/deformer.h"
+#include "core/edit_types.h"
 #include "core/format_number.h"
 #include "core/io/mesh_io.h"
 #include "core/mesh_data.h"
@@ -41,17 +42,12 @@ struct Token {
 /// The clock used for idle-TTL bookkeeping; injectable for tests.
 using Clock = std::function<std::chrono::steady_clock::time_point()>;
 
-/// Role of a handle group.
-enum class HandleRole {
-  Fixed,   ///< stays where it was when the handles were set; cannot be moved
-  Handle,  ///< moved by GroupMove / VertexTarget
-};
-
-/// A set of constrained vertices with one role.
-struct HandleGroup {
-  HandleRole role = HandleRole::Handle;
-  std::vector<int> vertices;  ///< indices into the session's (cleaned) mesh, distinct
-};
+// The edit vocabulary (one definition, shared with the client and the wire mapping).
+using core::GroupMove;
+using core::HandleGroup;
+using core::HandleRole;
+using core::HistoryAction;
+using core::VertexTarget;
 
 /// Everything SetHandles takes.
 struct SetHandlesRequest {
@@ -61,32 +57,6 @@ struct SetHandlesRequest {
   /// The front end's name for the caller (as for rate limits): heavy work is admitted per client.
   /// Empty by default (`{}`: aggregate initialisations that leave it out stay warning-free).
   std::string client{};
-};
-
-/// A similarity transform of one handle group, relative to the group's anchor positions (its
-/// positions when set_handles was called: the rest pose on an undeformed session). Transforms are
-/// absolute, not incremental: sending the same move twice gives the same targets.
-/// target = pivot + scale * rotation * (anchor - pivot) + translation.
-struct GroupMove {
-  int group = 0;  ///< index into the groups given to set_handles; must be a Handle group
-  Eigen::Vector3d translation = Eigen::Vector3d::Zero();
-  Eigen::Quaterniond rotation = Eigen::Quaterniond::Identity();  ///< normalised by the service
-  double scale = 1.0;                                             ///< > 0
-  std::optional<Eigen::Vector3d> pivot;  ///< default: the centroid of the group's anchors
-};
-
-/// An explicit target for one constrained vertex of a Handle group (applied after the moves).
-struct VertexTarget {
-  int vertex = 0;
-  Eigen::Vector3d position = Eigen::Vector3d::Zero();
-};
-
-
-/// How a move changes the session's undo history (edit_history.h).
-enum class HistoryAction {
-  Record,  ///< the move's state becomes the newest step (or replaces it: same gesture)
-  Undo,    ///< apply the previous step instead of the request's moves and targets
-  Redo,    ///< apply the next step likewise
 };
 
 /// One state of a session's undo history: handle-group moves and explicit vertex targets that,
@@ -267,22 +237,9 @@ inline constexpr int kShortMoveIterations = 15;
 inline constexpr int kMaxMagnifyRegions = 64;
 
 /// The largest scale control a request may ask for (core::SolveOptions::rigidity): far past
-/// ARAP-like behaviour, and the solve stays well conditioned.
+/// ARAP-like behaviour, and the solve stays well conditioned. Requests are checked with
+/// core::check_rigidity(value, kMaxRigidity).
 inline constexpr double kMaxRigidity = 1e4;
-
-/// Whether `rigidity` is a valid scale control: finite, in [0, kMaxRigidity].
-inline bool is_valid_rigidity(double rigidity) {
-  return rigidity >= 0.0 && rigidity <= kMaxRigidity;  // false for NaN
-}
-
-/// The one range check of a requested scale control (CreateSession and MoveHandles).
-/// @return success when unset or valid; InvalidArgument naming the value and the range.
-inline Status check_rigidity(const std::optional<double>& rigidity) {
-  if (!rigidity || is_valid_rigidity(*rigidity)) return Status::success();
-  return Error(ErrorCode::InvalidArgument, "rigidity " + std::to_string(*rigidity) +
-                                               " is outside [0, " + std::to_string(kMaxRigidity) +
-                                               "]");
-}
 
 /// A group move's scale lies in [1 / kMaxMoveScale, kMaxMoveScale]: beyond, the handles' targets
 /// leave the range the solver represents (or collapse to a point).

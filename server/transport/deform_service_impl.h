@@ -10,12 +10,15 @@
 
 #include <chrono>
 #include <functional>
+#include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <string_view>
 
 #include "meshdeform/v1/deformation.grpc.pb.h"
 #include "server/service/deformation_service.h"
+#include "server/transport/serial_executor.h"
 
 namespace meshdeform::transport {
 
@@ -44,6 +47,7 @@ class DeformServiceImpl final : public v1::DeformationService::CallbackService {
   explicit DeformServiceImpl(service::DeformationService& service,
                              ClientIdentityOptions identity = {})
       : service_(service), identity_(identity) {}
+  ~DeformServiceImpl() override;
 
   grpc::ServerUnaryReactor* CreateSession(grpc::CallbackServerContext* context,
                                           const v1::CreateSessionRequest* request,
@@ -76,10 +80,14 @@ class DeformServiceImpl final : public v1::DeformationService::CallbackService {
 
  private:
   double uptime_seconds() const;
+  /// The thread that encodes link-sized Watch updates (started with the first such stream).
+  SerialExecutor& encode_executor();
 
   service::DeformationService& service_;
   ClientIdentityOptions identity_;
   std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
+  std::mutex executor_mutex_;
+  std::unique_ptr<SerialExecutor> encode_executor_;
 };
 
 }  // namespace meshdeform::transport

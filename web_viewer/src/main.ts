@@ -32,6 +32,7 @@ import { renderGroupList } from "./ui/groupsPanel";
 import { showBytes, showCounts, showResult } from "./ui/metrics";
 import { dismissFirstHint, hideLinkProblem, showFirstHint, showLinkProblem } from "./ui/notice";
 import { decoderReady, encodingName, parseEncoding, PositionState, updateWireBytes } from "./updates";
+import { linkSizedOptions, parseLinkSized } from "./update_codec";
 import "./style.css";
 
 type Role = "edit" | "view";
@@ -107,6 +108,8 @@ function centroidOfRows(a: Float32Array): THREE.Vector3 | null {
   return c.divideScalar(n);
 }
 const ENCODING = parseEncoding(query.get("encoding"));
+// ?updates=quantized|lossless[&tolerance=X][&budget=BYTES]: link-sized Watch updates (issue 45).
+const UPDATES = linkSizedOptions(parseLinkSized(query));
 const client = makeClient(location.origin);
 // ?lambda= soft handle weight for new sessions (server default 100 lets fixed vertices drift ~1e-4).
 const LAMBDA = Number(query.get("lambda")) > 0 ? Number(query.get("lambda")) : undefined;
@@ -679,6 +682,7 @@ class App {
         rigidity: this.rigidity(),
         maxIterations: t.reset ? 1 : this.iterationsValue,
         encoding: ENCODING,
+        omitPositions: UPDATES !== undefined, // geometry comes from Watch only
         editor: t.reset ? "web-viewer reset" : "web-viewer",
         history: t.history,
         gesture: t.gesture,
@@ -938,7 +942,7 @@ class App {
       s.watchAbort = ac;
       try {
         const stream = client.watch(
-          { sessionId: s.creds.sessionId, token: s.creds.token, encoding: ENCODING },
+          { sessionId: s.creds.sessionId, token: s.creds.token, encoding: ENCODING, updates: UPDATES },
           { signal: ac.signal, contextValues: createContextValues().set(kSessionId, s.creds.sessionId) },
         );
         for await (const upd of stream) {
