@@ -29,14 +29,15 @@
 #include "bench/bench_process.h"
 #include "bench/cgal_arap.h"
 #include "bench/machine_info.h"
-#include "core/convergence.h"
-#include "core/deform_types.h"
-#include "core/deformer.h"
-#include "core/measures.h"
-#include "core/multilevel.h"
-#include "core/procedural.h"
-#include "core/status.h"
-#include "core/topology.h"
+#include "core/base/status.h"
+#include "core/mesh/measures.h"
+#include "core/mesh/topology.h"
+#include "core/methods/convergence.h"
+#include "core/methods/deform_types.h"
+#include "core/methods/deformer.h"
+#include "core/multires/multilevel.h"
+#include "core/samples/generators.h"
+#include "core/samples/samples.h"
 
 namespace meshdeform::bench {
 namespace {

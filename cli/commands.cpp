@@ -15,7 +15,7 @@
 #include "cli/paths.h"
 #include "core/io/deform_spec.h"
 #include "core/io/mesh_io.h"
-#include "core/procedural.h"
+#include "core/samples/samples.h"
 
 namespace meshdeform::cli {
 namespace {

@@ -9,8 +9,8 @@
 
 #include "core/io/mesh_io.h"
 #include "core/io/report_json.h"
-#include "core/topology.h"
-#include "core/validate.h"
+#include "core/mesh/topology.h"
+#include "core/mesh/validate.h"
 
 namespace meshdeform::cli {
 namespace {

@@ -4,7 +4,7 @@
 /// outer iteration when asked for (--verbose), nothing otherwise.
 ///
 /// Phases, in order: "setup" (the precompute: the hierarchy's decimation, prolongations,
-/// factorizations), then for a multilevel solve (core/multilevel.h) "start" (the rigid start's
+/// factorizations), then for a multilevel solve (core/multires/multilevel.h) "start" (the rigid start's
 /// ARAP on every level), "levels" (the scale-aware iteration on the coarse levels) and "fine"
 /// (full resolution); a single-level solve shows "setup" and "fine" (its start's ARAP
 /// iterations are not reported one by one). On a terminal each phase redraws one line and
@@ -15,7 +15,7 @@
 #include <string>
 #include <string_view>
 
-#include "core/deform_types.h"
+#include "core/methods/deform_types.h"
 
 namespace meshdeform::cli {
 

@@ -14,7 +14,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "core/status.h"
+#include "core/base/status.h"
 #include "server/service/binary_codec.h"
 #include "server/service/types.h"
 

@@ -1,5 +1,5 @@
-// The stopping rule (core/convergence.h): energies in, a verdict out.
-#include "core/convergence.h"
+// The stopping rule (core/methods/convergence.h): energies in, a verdict out.
+#include "core/methods/convergence.h"
 
 #include <gtest/gtest.h>
 

@@ -1,5 +1,5 @@
-// The multilevel solve (core/multilevel.h, issue 41) and the paper mode it must leave unchanged.
-#include "core/multilevel.h"
+// The multilevel solve (core/multires/multilevel.h, issue 41) and the paper mode it must leave unchanged.
+#include "core/multires/multilevel.h"
 
 #include <gtest/gtest.h>
 
@@ -12,12 +12,13 @@
 
 #include <Eigen/Geometry>
 
-#include "core/deformer.h"
 #include "core/io/mesh_io.h"
-#include "core/measures.h"
-#include "core/procedural.h"
-#include "core/scale_aware.h"
-#include "core/topology.h"
+#include "core/mesh/measures.h"
+#include "core/mesh/topology.h"
+#include "core/methods/deformer.h"
+#include "core/methods/scale_aware.h"
+#include "core/samples/generators.h"
+#include "core/samples/samples.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

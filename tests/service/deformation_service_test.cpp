@@ -12,9 +12,9 @@
 #include <thread>
 #include <vector>
 
-#include "core/deformer.h"
 #include "core/io/mesh_io.h"
-#include "core/procedural.h"
+#include "core/methods/deformer.h"
+#include "core/samples/samples.h"
 #include "server/service/tokens.h"
 #include "server/service/worker_pool.h"
 #include "tests/support/mesh_factories.h"
