@@ -13,13 +13,14 @@
 #include <Eigen/LU>
 
 #include "core/linalg/anderson.h"
-#include "core/methods/constraints.h"
-#include "core/mesh/measures.h"
-#include "core/methods/normals_step.h"
 #include "core/linalg/rotation_fit.h"
 #include "core/linalg/sparse_cholesky.h"
+#include "core/mesh/measures.h"
 #include "core/mesh/topology.h"
 #include "core/mesh/validate.h"
+#include "core/methods/constraints.h"
+#include "core/methods/convergence.h"
+#include "core/methods/normals_step.h"
 
 namespace meshdeform::core {
 namespace {
@@ -273,6 +274,19 @@ void ArapSolver::reset() {
   s.has_previous = false;
 }
 
+Status ArapSolver::set_positions(const Positions& V) {
+  Impl& s = *impl_;
+  if (V.rows() != s.nv || !V.allFinite()) {
+    return Error(ErrorCode::InvalidArgument,
+                 "set_positions needs " + std::to_string(s.nv) + " finite rows, got " +
+                     std::to_string(V.rows()) + (V.allFinite() ? "" : " with a non-finite value"));
+  }
+  s.x = V;
+  s.current = V;
+  s.has_previous = true;
+  return Status::success();
+}
+
 Result<SolveReport> ArapSolver::solve(const Positions& targets, const SolveOptions& options,
                                       const ProgressCallback& progress, std::stop_token stop) {
   Impl& s = *impl_;
@@ -336,11 +350,14 @@ Result<SolveReport> ArapSolver::solve(const Positions& targets, const SolveOptio
     if (progress) progress(info);
   }
 
+  // The stopping rule (core/methods/convergence.h).
+  ConvergenceMonitor monitor(options.stopping_rule, options.tolerance, energy_floor);
+  if (monitor.start(report.history.back().energy)) report.converged = true;
+  report.estimated_remaining = monitor.estimated_remaining();
   double previous_energy = report.history.back().energy;
-  if (previous_energy <= energy_floor) report.converged = true;
-  // Anderson acceleration (core/linalg/anderson.h) over the positions: x -> G(x) is one local step (the
-  // rotations of x) and one global step. The constrained rows of every G(x) are the targets, so
-  // every mix of them is feasible too. Safeguard: an accelerated iterate whose energy exceeds the
+  // Anderson acceleration (core/linalg/anderson.h) over the positions: x -> G(x) is one local
+  // step (the rotations of x) and one global step. The constrained rows of every G(x) are the
+  // targets, so every mix of them is feasible too. Safeguard: an accelerated iterate whose energy exceeds the
   // last accepted one is replaced by the plain update and the window restarts, so the energy
   // still never increases.
   const bool accelerate = options.anderson_window > 0;
@@ -385,10 +402,9 @@ Result<SolveReport> ArapSolver::solve(const Positions& targets, const SolveOptio
     report.iterations = it;
     if (progress) progress(info);
 
-    const double change =
-        std::abs(previous_energy - info.energy) / std::max(previous_energy, energy_floor);
     previous_energy = info.energy;
-    if (info.energy <= energy_floor || change < options.tolerance) report.converged = true;
+    if (monitor.add(info.energy)) report.converged = true;
+    report.estimated_remaining = monitor.estimated_remaining();
   }
 
   // Commit.
@@ -397,6 +413,7 @@ Result<SolveReport> ArapSolver::solve(const Positions& targets, const SolveOptio
   s.has_previous = true;
   report.V = s.current;
   report.seconds = seconds_since(start);
+  report.phases.fine = report.seconds;
   return report;
 }
 

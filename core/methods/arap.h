@@ -28,10 +28,10 @@
 
 #include <Eigen/Core>
 
-#include "core/methods/deform_types.h"
-#include "core/mesh/mesh_data.h"
 #include "core/base/status.h"
+#include "core/mesh/mesh_data.h"
 #include "core/mesh/topology.h"
+#include "core/methods/deform_types.h"
 
 namespace meshdeform::core {
 
@@ -106,6 +106,12 @@ class ArapSolver {
   /// Forgets the previous result: positions() is the rest mesh again and the next Auto solve
   /// starts from the Laplacian guess.
   void reset();
+  /// Makes `V` the previous result, so that the next Auto or Previous solve starts from it (its
+  /// constrained rows are set to the targets then), e.g. a coarse level's result prolonged to
+  /// this mesh (core/multires/multilevel.h).
+  /// @param[in] V  #V x 3 finite positions.
+  /// @return InvalidArgument for a wrong shape or a non-finite coordinate (the solver unchanged).
+  [[nodiscard]] Status set_positions(const Positions& V);
 
   ArapSolver(ArapSolver&&) noexcept;
   ArapSolver& operator=(ArapSolver&&) noexcept;

@@ -13,8 +13,9 @@
 #include <Eigen/Core>
 
 #include "core/base/format_number.h"
-#include "core/mesh/mesh_data.h"
 #include "core/base/status.h"
+#include "core/mesh/mesh_data.h"
+#include "core/methods/convergence.h"
 
 namespace meshdeform::core {
 
@@ -93,8 +94,21 @@ inline constexpr double kDefaultRigidity = 30.0;
 
 /// Per-solve options. Defaults follow docs/algorithm.md.
 struct SolveOptions {
-  int max_iterations = 15;      ///< outer (step one + step two) iterations, the budget
-  double tolerance = 1e-4;      ///< stop when the relative energy change falls below this
+  /// Outer (step one + step two) iterations, the budget; of a multilevel solve
+  /// (core/multires/multilevel.h), the budget of the full-resolution level (coarse levels: their own).
+  int max_iterations = 15;
+  /// Stop when `stopping_rule` holds at this tolerance (core/methods/convergence.h): by default when the
+  /// estimated remaining relative energy change is at most this. 1e-3 by measurement
+  /// (docs/multilevel.md): the result's E_theta / E_phi within about 1% of where the iteration
+  /// settles. (Before issue 41: 1e-4 on the last relative change, StoppingRule::Change.)
+  double tolerance = 1e-3;
+  /// The stopping rule (core/methods/convergence.h): Remaining, the default, or Change (the rule before
+  /// issue 41: the last relative energy change below `tolerance`).
+  StoppingRule stopping_rule = StoppingRule::Remaining;
+  /// Scale-aware deformers built with DeformerSettings::multilevel_above: a cold Auto solve runs
+  /// the multilevel cascade (core/multires/multilevel.h). false: the single-level solve at full
+  /// resolution, as without a hierarchy (for comparison). Other deformers ignore it.
+  bool multilevel = true;
   int inner_iterations = 5;     ///< cap on step-one local/global sweeps per outer iteration
   double lambda = 100.0;        ///< handle weight of Eq. 12 (fixed per solver; see precompute)
   StartFrom start = StartFrom::Auto;
@@ -146,6 +160,26 @@ struct SolveOptions {
   bool full_resolution = false;
 };
 
+/// Which part of a solve an iteration belongs to (a multilevel solve, core/multires/multilevel.h, runs all
+/// three; a single-level solve reports its own iterations as Fine).
+enum class SolvePhase {
+  Fine,    ///< the scale-aware iteration at full resolution (the result's own iterations)
+  Start,   ///< the rigid start's ARAP iterations (a multilevel solve: on every level)
+  Levels,  ///< the scale-aware iteration on a coarse level of a multilevel solve
+};
+/// "fine", "start", "levels".
+inline const char* solve_phase_name(SolvePhase phase) {
+  switch (phase) {
+    case SolvePhase::Start:
+      return "start";
+    case SolvePhase::Levels:
+      return "levels";
+    case SolvePhase::Fine:
+      return "fine";
+  }
+  return "fine";
+}
+
 /// What one outer iteration did (iteration 0 is the starting guess).
 struct IterationInfo {
   int iteration = 0;
@@ -164,10 +198,46 @@ struct IterationInfo {
   double normals_seconds = 0;   ///< step one (normals on the Gauss map)
   double assemble_seconds = 0;  ///< filling step two's matrix
   double linear_seconds = 0;    ///< refactorization and PCG
+  /// A multilevel solve's progress (core/multires/multilevel.h) also reports its start's ARAP iterations
+  /// and its coarse levels' iterations: their phase, the level (0 = full resolution) and its
+  /// vertex count; elapsed_seconds then counts from the start of the whole solve. A
+  /// single-level solve reports Fine, level 0, vertices 0. SolveReport::history holds the
+  /// full-resolution iterations only.
+  SolvePhase phase = SolvePhase::Fine;
+  int level = 0;
+  int level_vertices = 0;
 };
 
-/// Called after every outer iteration; runs on the solving thread.
+/// Called after every outer iteration (of every phase and level of a multilevel solve); runs on
+/// the solving thread. A general per-iteration hook: besides progress displays, a caller may do
+/// other work between iterations here (the service runs waiting short moves of other sessions).
 using ProgressCallback = std::function<void(const IterationInfo&)>;
+
+/// One level of a multilevel solve (core/multires/multilevel.h), coarsest first.
+struct LevelReport {
+  int level = 0;                ///< 0 = full resolution
+  int vertices = 0;
+  int start_iterations = 0;     ///< ARAP iterations of the rigid start on this level
+  double start_seconds = 0;
+  int iterations = 0;           ///< scale-aware outer iterations on this level
+  bool converged = false;       ///< the stopping rule held (level tolerance; level 0: the solve's)
+  double seconds = 0;           ///< the scale-aware part on this level (transfer included)
+  double energy = 0;            ///< the level's final energy (its own mesh's)
+  /// The level's scale-aware result: the largest distance of a constrained vertex of this level
+  /// from its target, over the full-resolution mesh's bounding-box diagonal.
+  double handle_error = 0;
+};
+
+/// Wall time by phase. Single-level: start = everything before the returned result's first
+/// outer iteration (the rigid start, other start candidates), fine = its iterations, levels 0.
+/// Multilevel: start = the rigid start's ARAP cascade on every level (solver set-up included),
+/// levels = the scale-aware iteration on the coarse levels and the transfers between them,
+/// fine = the transfer to full resolution and the full-resolution iterations.
+struct PhaseSeconds {
+  double start = 0;
+  double levels = 0;
+  double fine = 0;
+};
 
 /// Errors before and after the ORA / magnification stitch.
 struct StitchReport {
@@ -203,6 +273,13 @@ struct SolveReport {
   /// Folded edges of the returned result when that check ran; -1 when it did not.
   int folded_edges = -1;
   StitchReport stitch;                  ///< ORA / magnification, when requested
+  /// The stopping rule's last estimate (ConvergenceMonitor::estimated_remaining; infinity when
+  /// it could not be formed, e.g. after one iteration).
+  double estimated_remaining = 0;
+  PhaseSeconds phases;                  ///< where `seconds` went
+  /// A multilevel solve's levels, coarsest first, full resolution last; empty for a
+  /// single-level solve.
+  std::vector<LevelReport> levels;
 };
 
 }  // namespace meshdeform::core

@@ -9,13 +9,14 @@
 #include <string>
 #include <utility>
 
-#include "core/methods/arap.h"
-#include "core/methods/constraints.h"
 #include "core/mesh/measures.h"
-#include "core/multires/multires.h"
-#include "core/methods/scale_aware.h"
 #include "core/mesh/topology.h"
 #include "core/mesh/validate.h"
+#include "core/methods/arap.h"
+#include "core/methods/constraints.h"
+#include "core/methods/scale_aware.h"
+#include "core/multires/multilevel.h"
+#include "core/multires/multires.h"
 
 namespace meshdeform::core {
 namespace {
@@ -105,6 +106,39 @@ class MultiresScaleAwareDeformer final : public Deformer {
     static std::atomic<std::uint64_t> counter{0};
     return ++counter;
   }
+};
+
+// Scale-aware through a multilevel solver (DeformerSettings::multilevel_above): a cold Auto solve
+// runs the cascade, everything else the full-resolution solver.
+class MultilevelScaleAwareDeformer final : public Deformer {
+ public:
+  MultilevelScaleAwareDeformer(MultilevelSolver solver, const Eigen::VectorXi& constrained)
+      : solver_(std::move(solver)), constrained_(constrained) {}
+  Method method() const override { return Method::ScaleAware; }
+  Result<SolveReport> solve(const Positions& targets, const SolveOptions& options,
+                            const ProgressCallback& progress, std::stop_token stop) override {
+    // The cascade replaces the rigid start of Auto; at rigidity 0 Auto is the paper's Laplacian
+    // start, which stays the single-level solve (the paper mode, unchanged).
+    const bool cascade = options.multilevel && options.start == StartFrom::Auto &&
+                         options.rigidity > 0 && !warm_;
+    Result<SolveReport> report = cascade
+                                     ? solver_.solve(targets, options, progress, std::move(stop))
+                                     : solver_.fine().solve(targets, options, progress,
+                                                            std::move(stop));
+    if (report.ok()) warm_ = true;
+    return report;
+  }
+  const Positions& positions() const override { return solver_.fine().positions(); }
+  const Eigen::VectorXi& constrained() const override { return constrained_; }
+  void reset() override {
+    solver_.fine().reset();
+    warm_ = false;
+  }
+
+ private:
+  MultilevelSolver solver_;
+  Eigen::VectorXi constrained_;
+  bool warm_ = false;  // the full-resolution solver holds a result to continue from
 };
 
 // Laplacian editing is one direct solve: no iterations, no start, nothing to warm.
@@ -264,6 +298,19 @@ Result<std::unique_ptr<Deformer>> make_deformer_impl(Method method, const Positi
                 : MultiresDeformer::create(V0, F, constrained, multires, progress, stop));
         return std::unique_ptr<Deformer>(
             std::make_unique<MultiresScaleAwareDeformer>(std::move(built), constrained));
+      }
+      if (settings.multilevel_above > 0 && V0.rows() > settings.multilevel_above) {
+        MultilevelSettings multilevel;
+        multilevel.solver = s;
+        multilevel.coarsest_vertices = std::max(settings.multilevel_coarsest_vertices, 100);
+        multilevel.threads = std::max(1, settings.threads);
+        MD_ASSIGN_OR_RETURN(
+            MultilevelSolver built,
+            checked != nullptr
+                ? MultilevelSolver::create(V0, F, *checked, constrained, multilevel, progress, stop)
+                : MultilevelSolver::create(V0, F, constrained, multilevel, progress, stop));
+        return std::unique_ptr<Deformer>(
+            std::make_unique<MultilevelScaleAwareDeformer>(std::move(built), constrained));
       }
       MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(V0, F, constrained, s, stop, progress));
       return std::unique_ptr<Deformer>(std::make_unique<ScaleAwareDeformer>(std::move(solver)));

@@ -13,12 +13,12 @@
 
 #include <Eigen/Core>
 
+#include "core/base/status.h"
+#include "core/mesh/mesh_data.h"
+#include "core/mesh/topology.h"
 #include "core/methods/deform_types.h"
 #include "core/methods/laplacian.h"
-#include "core/mesh/mesh_data.h"
 #include "core/methods/scale_aware.h"
-#include "core/base/status.h"
-#include "core/mesh/topology.h"
 
 namespace meshdeform::core {
 
@@ -37,6 +37,11 @@ const char* method_name(Method method);
 const char* start_name(StartFrom start);
 /// Inverse of start_name; InvalidArgument names the bad value and the accepted ones.
 [[nodiscard]] Result<StartFrom> parse_start(std::string_view name);
+
+/// DeformerSettings::multilevel_above and multilevel_coarsest_vertices by default (chosen from
+/// the measurements in docs/multilevel.md).
+inline constexpr int kDefaultMultilevelAbove = 20000;
+inline constexpr int kDefaultMultilevelCoarsest = 1000;
 
 /// Settings fixed per handle set (they define the cached matrices).
 struct DeformerSettings {
@@ -58,6 +63,14 @@ struct DeformerSettings {
   /// The coarse level's target vertex count (it stays above when the constrained region
   /// borders need more).
   int multires_coarse_vertices = 10000;
+  /// Scale-aware on meshes of more vertices than this (0: never), unless multires_above
+  /// applies: a multilevel solver (core/multires/multilevel.h, issue 41). Its cold Auto solves
+  /// (SolveOptions::multilevel) with rigidity > 0 run the coarse-to-fine cascade; warm solves,
+  /// explicit starts, rigidity 0 (the paper's Laplacian start) and SolveOptions::multilevel =
+  /// false solve at full resolution as the single-level solver does.
+  int multilevel_above = kDefaultMultilevelAbove;
+  /// The multilevel hierarchy's coarsest level target (MultilevelSettings::coarsest_vertices).
+  int multilevel_coarsest_vertices = kDefaultMultilevelCoarsest;
 };
 
 /// A prefactored deformation method for one mesh and one handle set.

@@ -15,17 +15,18 @@
 #include <Eigen/Geometry>
 
 #include "core/linalg/anderson.h"
+#include "core/linalg/sparse_cholesky.h"
+#include "core/mesh/measures.h"
+#include "core/mesh/topology.h"
+#include "core/mesh/validate.h"
 #include "core/methods/arap.h"
 #include "core/methods/constraints.h"
+#include "core/methods/convergence.h"
 #include "core/methods/laplacian.h"
-#include "core/mesh/measures.h"
 #include "core/methods/normals_step.h"
 #include "core/methods/ora.h"
 #include "core/methods/rotation_start.h"
 #include "core/methods/scale_control.h"
-#include "core/linalg/sparse_cholesky.h"
-#include "core/mesh/topology.h"
-#include "core/mesh/validate.h"
 
 namespace meshdeform::core {
 namespace {
@@ -199,6 +200,13 @@ struct ScaleAwareSolver::Impl {
   std::vector<Eigen::Quaterniond> rotations;
   bool has_previous = false;
   bool rotations_warm = false;
+  // The stopping rule's state after the last committed solve, its targets and rigidity: a solve
+  // that continues it (Previous, the same targets and test) carries it over
+  // (core/methods/convergence.h), so that short solves in a row are judged as one. Cleared by reset()
+  // and set_positions().
+  std::optional<ConvergenceMonitor> carried_monitor;
+  Positions carried_targets;
+  double carried_rho = -1;
 
   Status build(const Positions& V0_in, const Triangles& F_in, const Eigen::VectorXi& constrained_in,
                const ScaleAwareSettings& settings_in, const std::stop_token& stop,
@@ -252,6 +260,7 @@ struct ScaleAwareSolver::Impl {
     RowPositions N;
     std::vector<Eigen::Quaterniond> rotations;
     bool rotations_warm = false;
+    std::optional<ConvergenceMonitor> monitor;  // the stopping rule's state at its end
   };
   /// The outer iterations of solve() from one start (Rigid, Laplacian, Propagated, Paper or
   /// Previous),
@@ -1062,6 +1071,7 @@ void ScaleAwareSolver::reset() {
   s.rotations.assign(s.nv, Eigen::Quaterniond::Identity());
   s.rotations_warm = true;
   s.has_previous = false;
+  s.carried_monitor.reset();
 }
 
 Status ScaleAwareSolver::set_positions(const Positions& V) {
@@ -1078,6 +1088,7 @@ Status ScaleAwareSolver::set_positions(const Positions& V) {
   s.rotations.assign(s.nv, Eigen::Quaterniond::Identity());
   s.rotations_warm = false;
   s.has_previous = true;
+  s.carried_monitor.reset();
   return Status::success();
 }
 
@@ -1125,6 +1136,8 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
     arap_options.tolerance = options.rigid_start_tolerance;
     arap_options.start = StartFrom::Laplacian;
     arap_options.track_metrics = false;
+    // rigid_start_tolerance is a relative change (its documented meaning, measured so).
+    arap_options.stopping_rule = StoppingRule::Change;
     MD_ASSIGN_OR_RETURN(const SolveReport guess, s.rigid_start->solve(targets, arap_options, {}, stop));
     // Auto's cold start: the cold solve releases the ARAP solver at its end anyway (solve());
     // free it now, so that its factor and arrays (Spot 47k: 32 MB) are not held beside the
@@ -1201,7 +1214,19 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
     if (progress) progress(info);
   }
 
-  double previous_energy = report.history.back().energy;
+  // The stopping rule (core/methods/convergence.h); its last relative change also sets step two's
+  // inexact PCG tolerance below.
+  ConvergenceMonitor monitor(options.stopping_rule, options.tolerance, energy_floor);
+  const bool continues = from == StartFrom::Previous && state == nullptr && !until_fold_free &&
+                         s.carried_monitor && s.carried_monitor->same_test(monitor) &&
+                         s.carried_rho == rho && s.carried_targets.rows() == targets.rows() &&
+                         s.carried_targets == targets;
+  if (continues) {
+    monitor = *s.carried_monitor;  // the iterations before this solve count too
+  } else {
+    monitor.start(report.history.back().energy);
+  }
+  report.estimated_remaining = monitor.estimated_remaining();
   double previous_change = 1.0;
   // Anderson acceleration of the outer iteration over the positions (core/linalg/anderson.h; Peng et
   // al. 2018): x -> G(x) is step one at x (normals, face frames, exact scale step) and step two.
@@ -1349,11 +1374,10 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
     report.iterations = it;
     if (progress) progress(info);
 
-    const double change =
-        std::abs(previous_energy - info.energy) / std::max(previous_energy, energy_floor);
-    previous_change = change;
-    previous_energy = info.energy;
-    if (info.energy <= energy_floor || change < options.tolerance) {
+    const bool converged = monitor.add(info.energy);
+    previous_change = monitor.last_change();
+    report.estimated_remaining = monitor.estimated_remaining();
+    if (converged) {
       report.converged = true;
       break;
     }
@@ -1372,6 +1396,7 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
   candidate.N = std::move(N);
   candidate.rotations = std::move(rotations);
   candidate.rotations_warm = rotations_warm;
+  candidate.monitor = monitor;
   return candidate;
 }
 
@@ -1494,6 +1519,9 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
   s.rotations = std::move(rotations);
   s.rotations_warm = rotations_warm;
   s.has_previous = true;
+  s.carried_monitor = std::move(chosen.monitor);
+  s.carried_targets = targets;
+  s.carried_rho = rho;
   s.current = report.V;
   if (cold) {
     // Later Auto solves start from this result (Previous), so the cold start's solvers are
@@ -1507,6 +1535,8 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     s.laplacian.reset();
   }
   report.seconds = seconds_since(start);
+  report.phases.start = report.history.empty() ? 0.0 : report.history.front().elapsed_seconds;
+  report.phases.fine = report.seconds - report.phases.start;
   return report;
 }
 

@@ -64,15 +64,16 @@
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
 
-#include "core/methods/deform_types.h"
-#include "core/mesh/mesh_data.h"
-#include "core/methods/scale_aware.h"
 #include "core/base/status.h"
+#include "core/mesh/mesh_data.h"
 #include "core/mesh/topology.h"
+#include "core/methods/deform_types.h"
+#include "core/methods/scale_aware.h"
 
 namespace meshdeform::core {
 
 class MultiresDeformer;
+class MultilevelSolver;
 
 /// Which constrained vertices the coarse levels keep.
 enum class ConstraintLevels {
@@ -163,6 +164,7 @@ class MeshHierarchy {
 
  private:
   friend class MultiresDeformer;
+  friend class MultilevelSolver;
   /// build() on a mesh already validated, with its topology.
   [[nodiscard]] static Result<MeshHierarchy> build_checked(
       const Positions& V, const Triangles& F, const MeshTopology& topology,
@@ -207,6 +209,7 @@ class Prolongation {
 
  private:
   friend class MultiresDeformer;
+  friend class MultilevelSolver;
   /// create() on a mesh already validated, with its topology; `laplacian`, when given, yields
   /// its clamped-cotangent Laplacian (built on another thread meanwhile).
   [[nodiscard]] static Result<Prolongation> create_checked(
