@@ -105,7 +105,9 @@ struct MoveRequest {
   std::vector<core::MagnifyRegion> magnify;
   /// Outer-iteration budget, 1..kMaxMoveIterations; small for interactive drags.
   int max_iterations = 2;
-  double tolerance = 1e-4; ///< relative energy change that stops the solve early, >= 0
+  /// The estimated remaining relative energy change that stops the solve early
+  /// (core/methods/convergence.h), >= 0.
+  double tolerance = 1e-4;
   /// Undo history: Record (the default) records the move's state as a step; Undo / Redo apply
   /// the previous / next step instead of `moves` and `targets` (which must then be empty).
   HistoryAction history = HistoryAction::Record;
