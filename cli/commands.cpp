@@ -185,7 +185,7 @@ std::optional<std::string> apply_solver_flags(const ParsedArgs& parsed, RunSetti
   if (parsed.has("ora")) run.options.ora = true;
   if (auto text = parsed.get("rigidity")) {
     const auto value = parse_double(*text);
-    if (!value || !(*value >= 0) || !std::isfinite(*value)) {
+    if (!value || !core::check_rigidity(*value).ok()) {
       return "--rigidity must be a finite number >= 0, got '" + *text + "'";
     }
     run.options.rigidity = *value;

@@ -11,6 +11,8 @@
 #include <utility>
 
 #include "client_cpp/client_conversions.h"
+#include "codec/update_codec.h"
+#include "proto/wire/delta_mapping.h"
 #include "meshdeform/v1/deformation.grpc.pb.h"
 #include "proto/wire/wire_mapping.h"
 
@@ -337,6 +339,8 @@ struct WatchStream::State {
   std::atomic<bool> is_cancelled_by_caller{false};
   bool is_done = false;
   std::optional<std::stop_callback<std::function<void()>>> on_stop;
+  /// Link-sized updates: the positions reconstructed so far.
+  std::optional<codec::StreamDecoder> decoder;
 
   void cancel() {
     is_cancelled_by_caller.store(true);
@@ -391,6 +395,34 @@ Result<std::optional<WatchUpdate>> WatchStream::next() {
   v1::DeformUpdate message;
   if (state_->reader->Read(&message)) {
     Result<WatchUpdate> update = detail::update_from_proto(message);
+    if (update.ok() && message.has_delta()) {
+      // A link-sized update: apply the delta to what this stream delivered so far.
+      Result<codec::UpdateHeader> header =
+          wire::delta_header_from_proto(message.delta(), message.result().revision());
+      Status applied = header.status();
+      if (applied.ok()) {
+        if (!state_->decoder) state_->decoder.emplace();
+        applied = state_->decoder->apply(*header, message.delta().payload());
+      }
+      if (!applied.ok()) {
+        update = Error(ErrorCode::InvalidArgument,
+                       "Watch: malformed response: update " +
+                           std::to_string(message.delta().sequence()) + ": " + applied.message());
+      } else {
+        DeltaStats stats;
+        stats.sequence = header->sequence;
+        stats.vertices_sent = header->vertices_sent;
+        stats.shift = header->shift;
+        stats.max_error = header->max_error;
+        stats.pending_vertices = header->pending_vertices;
+        stats.payload_bytes = message.delta().payload().size();
+        stats.raw_bytes = header->raw_bytes;
+        stats.continuation = message.continuation();
+        update->delta = stats;
+        update->result.positions = state_->decoder->positions();
+      }
+    }
+    if (update.ok()) update->wire_bytes = message.ByteSizeLong();
     if (!update.ok()) {
       state_->cancel();
       (void)state_->finish();
@@ -409,7 +441,8 @@ Result<std::optional<WatchUpdate>> WatchStream::next() {
   return from_grpc("Watch", status);
 }
 
-WatchStream Client::open_watch(const SessionRef& session, const CallOptions& call) const {
+WatchStream Client::open_watch(const SessionRef& session, const CallOptions& call,
+                               const UpdateOptions& updates) const {
   auto state = std::make_unique<WatchStream::State>();
   Status ok = check_timeout(call);
   if (ok.ok()) ok = check_session_id(session.id);
@@ -422,6 +455,14 @@ WatchStream Client::open_watch(const SessionRef& session, const CallOptions& cal
   v1::WatchRequest request;
   request.set_session_id(session.id);
   request.set_token(session.token);
+  if (updates.mode != UpdateOptions::Mode::Off) {
+    v1::UpdateOptions* options = request.mutable_updates();
+    options->set_mode(updates.mode == UpdateOptions::Mode::Lossless ? v1::DELTA_MODE_LOSSLESS
+                                                                    : v1::DELTA_MODE_QUANTIZED);
+    options->set_tolerance(updates.tolerance);
+    options->set_relative_tolerance(updates.relative_tolerance);
+    options->set_max_update_bytes(updates.max_update_bytes);
+  }
   state->reader = impl_->stub->Watch(&state->context, request);
   WatchStream::State* raw = state.get();
   state->on_stop.emplace(call.stop, std::function<void()>([raw] { raw->cancel(); }));
@@ -430,8 +471,8 @@ WatchStream Client::open_watch(const SessionRef& session, const CallOptions& cal
 
 Result<WatchEnd> Client::watch(const SessionRef& session,
                                const std::function<bool(const WatchUpdate&)>& on_update,
-                               const CallOptions& call) const {
-  WatchStream stream = open_watch(session, call);
+                               const CallOptions& call, const UpdateOptions& updates) const {
+  WatchStream stream = open_watch(session, call, updates);
   // Bounded by the stream's deadline: every Read returns by then.
   for (;;) {
     Result<std::optional<WatchUpdate>> next = stream.next();

@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "core/deformer.h"
+#include "core/edit_types.h"
 #include "core/io/mesh_io.h"
 #include "core/mesh_data.h"
 #include "core/status.h"
@@ -102,19 +103,14 @@ struct CallOptions {
 
 // ------------------------------------------------------------------------------- domain types
 
-/// Role of a handle group.
-enum class HandleRole {
-  Fixed,   ///< stays at its position of the time SetHandles was called
-  Handle,  ///< moved by GroupMove / VertexTarget
-};
-
-/// A set of constrained vertices with one role.
-struct HandleGroup {
-  HandleRole role = HandleRole::Handle;
-  std::vector<int> vertices;  ///< distinct indices into the session's cleaned mesh, >= 0
-
-  bool operator==(const HandleGroup&) const = default;
-};
+// The edit vocabulary (core/edit_types.h: one definition, shared with the server): handle
+// groups and roles, similarity moves of a group (GroupMove: absolute, relative to the group's
+// anchors, i.e. its positions when SetHandles was called), explicit vertex targets, undo/redo.
+using core::GroupMove;
+using core::HandleGroup;
+using core::HandleRole;
+using core::HistoryAction;
+using core::VertexTarget;
 
 /// A summary of a session (GetSessionInfo).
 struct SessionInfo {
@@ -168,30 +164,6 @@ struct CreateOptions {
   std::optional<double> rigidity;
 };
 
-/// A similarity transform of one handle group, relative to the group's anchors (its positions
-/// when SetHandles was called); absolute, not incremental:
-/// target = pivot + scale * rotation * (anchor - pivot) + translation.
-struct GroupMove {
-  int group = 0;  ///< index into the groups given to set_handles; must be a Handle group
-  Eigen::Vector3d translation = Eigen::Vector3d::Zero();
-  Eigen::Quaterniond rotation = Eigen::Quaterniond::Identity();  ///< normalised by the server
-  double scale = 1.0;                                            ///< > 0
-  std::optional<Eigen::Vector3d> pivot;  ///< default: the centroid of the group's anchors
-};
-
-/// An explicit target for one vertex of a Handle group (applied after the group moves).
-struct VertexTarget {
-  int vertex = 0;
-  Eigen::Vector3d position = Eigen::Vector3d::Zero();
-};
-
-/// How a move changes the session's undo history (MoveHandlesRequest.history).
-enum class HistoryAction {
-  Record,  ///< the move's state becomes a new step (the default)
-  Undo,    ///< apply the previous step instead of moves and targets (send none)
-  Redo,    ///< apply the next step likewise
-};
-
 /// One MoveHandles request.
 struct MoveSpec {
   std::vector<GroupMove> moves;
@@ -209,6 +181,41 @@ struct MoveSpec {
   /// Moves of one gesture (a drag) make one undo step: give them the same non-zero id.
   std::uint64_t gesture = 0;
   bool keep_settings = false;  ///< a one-off solve: the session's stored settings stay
+  /// The result carries its figures only, no positions or changed lists (an editor that takes
+  /// its geometry from a Watch stream with UpdateOptions).
+  bool omit_positions = false;
+};
+
+/// Link-sized Watch updates (meshdeform.v1.UpdateOptions, issue 45): every update is a delta
+/// against what the stream already delivered, zstd-compressed; the client reconstructs the
+/// positions (WatchUpdate::result.positions).
+struct UpdateOptions {
+  enum class Mode {
+    Off,        ///< the plain updates (doubles, snapshots and changed lists)
+    Quantized,  ///< positions within `tolerance` of the solver's once an update is complete
+    Lossless,   ///< bit-exact (the byte budget does not apply)
+  };
+  Mode mode = Mode::Off;
+  /// Quantized: in model units (> 0); 0: relative_tolerance x the rest bounding-box diagonal.
+  double tolerance = 0;
+  /// Quantized, when tolerance is 0: a fraction of the diagonal in (0, 0.1]; 0: 1e-4.
+  double relative_tolerance = 0;
+  /// Quantized: most payload bytes per update (0: no limit; else >= 1024). The server sends a
+  /// coarser or partial update and continues toward the same revision (continuation updates).
+  std::uint32_t max_update_bytes = 0;
+};
+
+/// What a link-sized update cost and how close it brought the client (VertexDelta).
+struct DeltaStats {
+  std::uint64_t sequence = 0;
+  std::uint32_t vertices_sent = 0;
+  std::uint32_t shift = 0;             ///< values in units of 2^shift grid steps
+  double max_error = 0;                ///< largest distance left to the revision's positions
+  std::uint32_t pending_vertices = 0;  ///< still farther than the tolerance (0: complete)
+  std::size_t payload_bytes = 0;       ///< compressed
+  std::uint64_t raw_bytes = 0;         ///< before compression
+  bool continuation = false;           ///< the same revision as the update before, further on
+  bool complete() const { return pending_vertices == 0; }
 };
 
 /// A committed revision (a MoveHandles result or a Watch update's payload).
@@ -238,6 +245,11 @@ struct WatchUpdate {
   /// are empty.
   bool is_snapshot = false;
   std::uint64_t skipped_revisions = 0;  ///< revisions this watcher never saw (0 unless a gap)
+  /// Streams with UpdateOptions: what the update cost. result.positions then always holds the
+  /// reconstructed positions (is_snapshot is true for the stream's first update only).
+  std::optional<DeltaStats> delta;
+  /// The message's size on the wire (serialized bytes), for reports.
+  std::size_t wire_bytes = 0;
 };
 
 /// Process-wide figures (GetServerStats).
@@ -337,14 +349,19 @@ class Client {
   /// @return how it ended; PermissionDenied, NotFound, DeadlineExceeded, the transport errors
   ///         (e.g. Unavailable when the server goes away), InvalidArgument for a
   ///         malformed update.
+  /// @param[in] updates  link-sized updates (default off); InvalidArgument from the server for
+  ///                      a bad tolerance or budget, DataLoss-like InvalidArgument for an
+  ///                      update that does not decode or is out of sequence.
   [[nodiscard]] Result<WatchEnd> watch(const SessionRef& session,
                                        const std::function<bool(const WatchUpdate&)>& on_update,
-                                       const CallOptions& call = {}) const;
+                                       const CallOptions& call = {},
+                                       const UpdateOptions& updates = {}) const;
 
   /// Opens a Watch stream to read update by update (see WatchStream).
   /// @return the stream (errors such as NotFound surface from its first next()).
   [[nodiscard]] WatchStream open_watch(const SessionRef& session,
-                                       const CallOptions& call = {}) const;
+                                       const CallOptions& call = {},
+                                       const UpdateOptions& updates = {}) const;
 
   /// The mesh at `revision` (default: current) as file bytes. View or edit token.
   /// @return the bytes; NotFound for an unknown session or a revision no longer kept;
@@ -406,7 +423,8 @@ class WatchStream {
 /// move results): a snapshot replaces every position, a delta writes the changed rows.
 class SessionMirror {
  public:
-  /// Applies a Watch update.
+  /// Applies a Watch update (a link-sized one, WatchUpdate::delta, as the full positions it
+  /// carries).
   /// @return success; FailedPrecondition for a delta before any snapshot or a delta whose
   ///         revision does not follow the mirrored one; InvalidArgument for a snapshot without
   ///         positions, a row count that changes, mismatched changed lists or an index out of

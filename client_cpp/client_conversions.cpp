@@ -42,7 +42,7 @@ Result<std::vector<HandleGroup>> groups_from_proto(
   std::vector<HandleGroup> out;
   for (const v1::HandleGroup& g : in) {
     HandleGroup group;
-    const std::optional<HandleRole> role = wire::role_from_proto<HandleRole>(g.role());
+    const std::optional<HandleRole> role = wire::role_from_proto(g.role());
     if (!role) return malformed(rpc, "handle role " + std::to_string(static_cast<int>(g.role())));
     group.role = *role;
     MD_ASSIGN_OR_RETURN(group.vertices, indices_from_proto(g.vertices(), rpc));
@@ -179,6 +179,7 @@ Status move_to_proto(const MoveSpec& spec, v1::MoveHandlesRequest* out) {
   out->set_history(wire::history_to_proto(spec.history));
   out->set_gesture(spec.gesture);
   out->set_keep_settings(spec.keep_settings);
+  out->set_omit_positions(spec.omit_positions);
   return Status::success();
 }
 

@@ -58,7 +58,9 @@ Status SessionMirror::apply_delta(const DeformResult& result) {
 }
 
 Status SessionMirror::apply(const WatchUpdate& update) {
-  return update.is_snapshot ? apply_snapshot(update.result) : apply_delta(update.result);
+  // A link-sized update carries the positions the client reconstructed: all of them.
+  return update.is_snapshot || update.delta ? apply_snapshot(update.result)
+                                            : apply_delta(update.result);
 }
 
 Status SessionMirror::apply(const DeformResult& result) {

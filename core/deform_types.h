@@ -3,13 +3,18 @@
 /// Options, progress and reports shared by every deformation method (scale-aware, and the
 /// baselines added later), so callers switch methods without changing code.
 
+#include <cmath>
 #include <functional>
+#include <limits>
+#include <string>
 #include <string_view>
 #include <vector>
 
 #include <Eigen/Core>
 
+#include "core/format_number.h"
 #include "core/mesh_data.h"
+#include "core/status.h"
 
 namespace meshdeform::core {
 
@@ -69,6 +74,22 @@ inline void report_progress(const BuildProgress& progress, std::string_view phas
 /// ScaleAwareSettings::scale_normal_tie 0.3 and Auto's rigid start: all three targets of issue 12
 /// on 12 of its 12 edits; 100 meets 11, the bar's E_phi 1.02x ARAP's).
 inline constexpr double kDefaultRigidity = 30.0;
+
+/// The one check of a scale control (SolveOptions::rigidity) everywhere it is taken: finite and
+/// in [0, upper]. The library's range is [0, infinity) (solve(), prepare(), the CLI); the service
+/// caps requests lower (service::kMaxRigidity) and passes its cap as `upper`.
+/// @return InvalidArgument naming the value and the range (NaN included).
+[[nodiscard]] inline Status check_rigidity(
+    double rigidity, double upper = std::numeric_limits<double>::infinity()) {
+  if (rigidity >= 0.0 && rigidity <= upper && std::isfinite(rigidity)) return Status::success();
+  if (std::isinf(upper)) {
+    return Error(ErrorCode::InvalidArgument,
+                 "rigidity must be a finite number >= 0, got " + format_number(rigidity, "%g"));
+  }
+  return Error(ErrorCode::InvalidArgument, "rigidity " + format_number(rigidity, "%g") +
+                                               " is outside [0, " + format_number(upper, "%g") +
+                                               "]");
+}
 
 /// Per-solve options. Defaults follow docs/algorithm.md.
 struct SolveOptions {

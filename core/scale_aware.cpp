@@ -43,15 +43,6 @@ Eigen::Matrix3d rodrigues(const Eigen::Vector3d& n, double c, double s) {
   return c * Eigen::Matrix3d::Identity() + s * K + (1.0 - c) * n * n.transpose();
 }
 
-// The one range check of a rigidity (solve() and prepare()).
-Status check_rigidity(double rigidity) {
-  if (!(rigidity >= 0) || !std::isfinite(rigidity)) {
-    return Error(ErrorCode::InvalidArgument,
-                 "rigidity must be a finite number >= 0, got " + std::to_string(rigidity));
-  }
-  return Status::success();
-}
-
 // Step two's conjugate-gradient iteration preconditioned by a (possibly lagged) factor.
 struct PcgOutcome {
   int iterations = 0;

@@ -34,7 +34,7 @@ if [ $# -gt 0 ]; then
   targets=("$@")
 else
   targets=(fuzz_mesh_obj fuzz_mesh_off fuzz_mesh_ply fuzz_mesh_stl fuzz_mesh_glb fuzz_mesh_gltf
-           fuzz_sel fuzz_def fuzz_edit_spec fuzz_clean fuzz_request fuzz_state)
+           fuzz_sel fuzz_def fuzz_edit_spec fuzz_clean fuzz_request fuzz_state fuzz_update_delta)
 fi
 
 scratch="$(mktemp -d)"

@@ -12,10 +12,11 @@ packages=(
   libcgal-dev libopenmesh-dev  # OpenMesh: irregular remeshing and subdivision in core/procedural.cpp
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libboost-dev libmeshoptimizer-dev libssl-dev openssl
+  libzstd-dev  # link-sized vertex updates (codec/update_codec.cpp)
   libcli11-dev  # the command-line tools' flag parsing (common/command_line.h)
   nginx  # tests/scaleout: nginx in front of replicas (no daemon is started without systemd)
   procps  # scripts/kill-check.sh: pgrep finds the test's server child
-  libhiredis-dev  # --redis: sessions on Redis (server/service/redis_store.cpp)
+  libhiredis-dev  # --redis: sessions on Redis (server/redis/)
   redis-server  # tests/redis start their own on a loopback port (no daemon without systemd)
   "$@"
 )

@@ -29,8 +29,10 @@
 #include "server/service/deformation_service.h"
 #include "server/service/log.h"
 #include "server/service/persistence.h"
-#include "server/service/redis_store.h"
+#include "server/redis/redis_store.h"
 #include "server/transport/deform_service_impl.h"
+#include "server/transport/connection_gate.h"
+#include "server/transport/grpc_front_door.h"
 #include "server/transport/grpc_web_gateway.h"
 #include "server/transport/http_router.h"
 #include "server/transport/http_server.h"
@@ -76,6 +78,11 @@ struct Flags {
   int heavy_per_client = 4;   // uploads/precomputes admitted at once per client
   int heavy_total = 16;       // ... and over all clients
   int heavy_lanes = 0;        // workers that may run them (0 = workers - 1)
+  int max_sessions_per_client = 0;       // 0 = a quarter of --max-sessions
+  int memory_budget_per_client_mib = 0;  // 0 = half of --memory-budget-mib
+  int max_connections = 1024;            // per port
+  int max_connections_per_address = 64;  // per port and client address
+  int header_timeout_seconds = 10;       // first bytes of a connection / a request's header
   bool test_hooks = false;    // SIGUSR1 expires every idle session now (tests only)
 };
 
@@ -155,6 +162,22 @@ constexpr const char* kUsage =
     "  --heavy-total N             ... over all clients (default 16)\n"
     "  --heavy-lanes N             workers that may run that heavy work (default 0 = workers - 1,\n"
     "                              at least 1): the others keep serving moves and reads\n"
+    "  --max-sessions-per-client N sessions one client may hold open (default 0 = a quarter of\n"
+    "                              --max-sessions); over it: RESOURCE_EXHAUSTED\n"
+    "  --memory-budget-per-client-mib N  what one client's sessions may hold of the memory\n"
+    "                              budget (default 0 = half of it). Room is made by evicting\n"
+    "                              the client's own idle sessions, then those of clients over\n"
+    "                              this quota, then (with --state-dir or --redis only, where\n"
+    "                              eviction loses nothing) any idle session; in memory only,\n"
+    "                              another client's session within its quota is never evicted\n"
+    "  --max-connections N         open connections per port (gRPC and HTTP each; default 1024;\n"
+    "                              lowered at start to fit the descriptor limit, which the\n"
+    "                              server first raises to its hard limit); more are closed at once\n"
+    "  --max-connections-per-address N  ... from one client address (default 64; behind a\n"
+    "                              proxy every client has the proxy's address: raise it)\n"
+    "  --header-timeout-seconds N  a connection's first bytes (gRPC) or a request's header\n"
+    "                              (HTTP), and a TLS handshake, must arrive within N s (default\n"
+    "                              10): silent sockets are closed\n"
     "  --test-hooks                for tests only: SIGUSR1 expires every idle session at once (as\n"
     "                              if --idle-ttl-seconds had passed) and logs \"expired_by_signal\"\n"
     "  --trust-forwarded-for       name clients by the x-forwarded-for header for those limits;\n"
@@ -235,6 +258,11 @@ bool parse_flags(int argc, char** argv, Flags& flags, bool& help) {
   number("--heavy-per-client", 1, 1024, flags.heavy_per_client);
   number("--heavy-total", 1, 4096, flags.heavy_total);
   number("--heavy-lanes", 0, 1024, flags.heavy_lanes);
+  number("--max-sessions-per-client", 0, 1'000'000, flags.max_sessions_per_client);
+  number("--memory-budget-per-client-mib", 0, 1'000'000, flags.memory_budget_per_client_mib);
+  number("--max-connections", 1, 1'000'000, flags.max_connections);
+  number("--max-connections-per-address", 1, 1'000'000, flags.max_connections_per_address);
+  number("--header-timeout-seconds", 1, 3600, flags.header_timeout_seconds);
   number("--shutdown-grace-seconds", 0, 3600, flags.shutdown_grace_seconds);
 
   const std::optional<command_line::Problem> problem = command_line::parse(
@@ -309,6 +337,9 @@ int main(int argc, char** argv) {
   options.move_rate = {flags.move_rate, flags.move_burst};
   options.heavy_work = {flags.heavy_per_client, flags.heavy_total};
   options.heavy_lanes = flags.heavy_lanes;
+  options.max_sessions_per_client = flags.max_sessions_per_client;
+  options.memory_budget_per_client_bytes =
+      static_cast<std::size_t>(flags.memory_budget_per_client_mib) << 20;
   if (!flags.state_dir.empty()) {
     if (auto dir = meshdeform::service::StateDirectory::open(flags.state_dir); !dir.ok()) {
       log_event(LogLevel::Error, "state_dir_unusable",
@@ -327,7 +358,7 @@ int main(int argc, char** argv) {
     if (!flags.state_dir.empty()) {
       return redis_error("--redis and --state-dir exclude each other: Redis holds the state");
     }
-    auto config = meshdeform::service::parse_redis_url(flags.redis_url);
+    auto config = meshdeform::redis::parse_redis_url(flags.redis_url);
     if (!config.ok()) return redis_error(config.status().message());
     if (!flags.redis_password_file.empty()) {
       std::ifstream file(flags.redis_password_file);
@@ -344,7 +375,7 @@ int main(int argc, char** argv) {
     config->lease = std::chrono::milliseconds(flags.redis_lease_ms);
     config->log_length = flags.redis_log_length;
     config->idle_ttl = std::chrono::seconds(flags.idle_ttl_seconds);
-    auto connected = meshdeform::service::RedisStateStore::connect(std::move(config).value());
+    auto connected = meshdeform::redis::RedisStateStore::connect(std::move(config).value());
     if (!connected.ok()) return redis_error(connected.status().message());
     shared = std::move(connected).value();
     log_event(LogLevel::Info, "redis",
@@ -377,13 +408,34 @@ int main(int argc, char** argv) {
     }
     tls = std::move(loaded).value();
   }
+  // Connection caps that fit the descriptors this process may open (raised to the hard limit
+  // first): a flood of idle connections is refused before it starves state files of
+  // descriptors.
+  meshdeform::transport::ConnectionLimits grpc_limits{
+      static_cast<std::size_t>(flags.max_connections_per_address),
+      static_cast<std::size_t>(flags.max_connections)};
+  meshdeform::transport::ConnectionLimits http_limits = grpc_limits;
+  const long descriptors = meshdeform::transport::raise_descriptor_limit();
+  if (meshdeform::transport::fit_connection_limits(
+          descriptors, /*reserve=*/128, grpc_limits,
+          flags.http_listen.empty() ? nullptr : &http_limits)) {
+    log_event(LogLevel::Warn, "connection_caps_lowered",
+              LogFields()
+                  .add("descriptors", static_cast<std::int64_t>(descriptors))
+                  .add("grpc_total", static_cast<std::uint64_t>(grpc_limits.total))
+                  .add("http_total", static_cast<std::uint64_t>(http_limits.total)));
+  }
   meshdeform::service::DeformationService service(options, shared);
-  meshdeform::transport::DeformServiceImpl impl(
-      service, meshdeform::transport::ClientIdentityOptions{flags.trust_forwarded_for});
+  std::unique_ptr<meshdeform::transport::GrpcFrontDoor> front_door;  // outlives impl
+  meshdeform::transport::ClientIdentityOptions identity;
+  identity.trust_forwarded_for = flags.trust_forwarded_for;
+  identity.resolve_peer = [&front_door](std::string_view peer) -> std::optional<std::string> {
+    return front_door ? front_door->client_of(peer) : std::nullopt;
+  };
+  meshdeform::transport::DeformServiceImpl impl(service, identity);
 
   meshdeform::transport::enable_health_and_reflection();
   grpc::ServerBuilder builder;
-  int port = 0;
   std::shared_ptr<grpc::ServerCredentials> credentials = grpc::InsecureServerCredentials();
   if (tls) {
     grpc::SslServerCredentialsOptions ssl(
@@ -393,13 +445,31 @@ int main(int argc, char** argv) {
     ssl.pem_key_cert_pairs.push_back({tls->private_key_pem, tls->cert_chain_pem});
     credentials = grpc::SslServerCredentials(ssl);
   }
-  builder.AddListeningPort(flags.listen, credentials, &port);
+  // gRPC listens on a loopback port of its own; the front door takes the public address.
+  int upstream_port = 0;
+  builder.AddListeningPort("127.0.0.1:0", credentials, &upstream_port);
+  builder.AddChannelArgument(GRPC_ARG_SERVER_HANDSHAKE_TIMEOUT_MS,
+                             flags.header_timeout_seconds * 1000);
   meshdeform::transport::configure_builder(builder, impl, flags.max_message_mib);
   std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
-  if (!server || port == 0) {
-    log_event(LogLevel::Error, "listen_failed", LogFields().add("address", flags.listen));
+  if (!server || upstream_port == 0) {
+    log_event(LogLevel::Error, "listen_failed", LogFields().add("address", "127.0.0.1:0"));
     return 1;
   }
+  {
+    meshdeform::transport::FrontDoorOptions door;
+    door.limits = grpc_limits;
+    door.first_bytes_timeout_seconds = flags.header_timeout_seconds;
+    auto opened = meshdeform::transport::GrpcFrontDoor::start(
+        flags.listen, "127.0.0.1:" + std::to_string(upstream_port), door);
+    if (!opened.ok()) {
+      log_event(LogLevel::Error, "listen_failed",
+                LogFields().add("address", flags.listen).add("message", opened.status().message()));
+      return 1;
+    }
+    front_door = std::move(opened).value();
+  }
+  const int port = front_door->port();
   log_event(LogLevel::Info, "listening",
             LogFields()
                 .add("address", flags.listen)
@@ -412,6 +482,14 @@ int main(int argc, char** argv) {
                 .add("parallel_solve_above", flags.parallel_solve_above));
 
   std::atomic<bool> serving{true};
+  auto http_gate = std::make_shared<meshdeform::transport::ConnectionGate>(http_limits);
+  service.metrics().add_section([&front_door, http_gate, has_http = !flags.http_listen.empty()](
+                                    std::string& out) {
+    std::vector<std::pair<std::string, meshdeform::transport::ConnectionStats>> ports;
+    if (front_door) ports.emplace_back("grpc", front_door->stats());
+    if (has_http) ports.emplace_back("http", http_gate->stats());
+    meshdeform::transport::render_connection_metrics(ports, out);
+  });
   // Declared in this order so that the gateway and the files outlive the listener using them.
   std::unique_ptr<meshdeform::transport::GrpcWebGateway> gateway;
   std::optional<meshdeform::transport::StaticFileServer> files;
@@ -433,6 +511,8 @@ int main(int argc, char** argv) {
     }
     meshdeform::transport::HttpServerOptions http_options;
     http_options.threads = 2;
+    http_options.header_timeout_seconds = flags.header_timeout_seconds;
+    http_options.gate = http_gate;
     http_options.body_limit = meshdeform::transport::make_body_limit(*gateway);
     http_options.tls = tls;
     auto started = meshdeform::transport::HttpServer::start_async(
@@ -491,6 +571,7 @@ int main(int argc, char** argv) {
   server->Shutdown(std::chrono::system_clock::now() +
                    std::chrono::seconds(flags.shutdown_grace_seconds));
   sweeper.request_stop();
+  front_door->stop();  // the gRPC server has drained: close the relayed connections
   if (gateway) gateway->stop();  // quick by now: the gRPC server has drained
   if (http) http->stop();
   log_event(LogLevel::Info, "stopped");

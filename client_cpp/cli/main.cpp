@@ -80,8 +80,13 @@ it out of the process list):
       --rigidity X: scale control of the scale-aware method, 0..10000 (0 = the paper's pure
       method; default: the session's, set by create --rigidity, else 30).
   watch --session ID --token T [--max-updates N] [--seconds S]
+        [--updates quantized|lossless [--tolerance X | --relative-tolerance X]
+         [--max-update-bytes N]]
       Prints one JSON line per committed revision (the first is a snapshot) until the session
-      closes, N updates were printed or S seconds passed.
+      closes, N updates were printed or S seconds passed. --updates asks for link-sized updates
+      (deltas against what this stream delivered, zstd; quantized within the tolerance, default
+      1e-4 of the bounding-box diagonal, or lossless); each line then also has "delta" (bytes,
+      vertices sent, max error, pending vertices, continuation).
   get --session ID --token T --out FILE [--revision N]
       Downloads the mesh; the format comes from the extension.
   info --session ID --token T       Prints the session summary.
@@ -119,7 +124,8 @@ const std::map<std::string, std::set<std::string>> kCommandValues = {
     {"handles", {"session", "token", "sel", "groups", "prepare"}},
     {"move",
      {"session", "token", "def", "edit", "method", "rigidity", "iterations", "tolerance", "editor"}},
-    {"watch", {"session", "token", "max-updates", "seconds"}},
+    {"watch", {"session", "token", "max-updates", "seconds", "updates", "tolerance",
+               "relative-tolerance", "max-update-bytes"}},
     {"get", {"session", "token", "out", "revision"}},
     {"info", {"session", "token"}},
     {"close", {"session", "token"}},
@@ -632,6 +638,29 @@ int cmd_watch(const mc::Client& client, const Args& args) {
                        std::chrono::duration<double>(*seconds)) +
                    std::chrono::seconds(30);
   }
+  mc::UpdateOptions updates;
+  if (auto mode = args.get("updates")) {
+    if (*mode == "quantized") {
+      updates.mode = mc::UpdateOptions::Mode::Quantized;
+    } else if (*mode == "lossless") {
+      updates.mode = mc::UpdateOptions::Mode::Lossless;
+    } else if (*mode != "off") {
+      throw UsageError{"--updates must be off, quantized or lossless, got '" + *mode + "'"};
+    }
+  }
+  for (const char* flag : {"tolerance", "relative-tolerance", "max-update-bytes"}) {
+    if (args.get(flag) && updates.mode != mc::UpdateOptions::Mode::Quantized) {
+      throw UsageError{std::string("--") + flag + " needs --updates quantized"};
+    }
+  }
+  if (auto t = args.get("tolerance")) updates.tolerance = parse_double_or_throw("tolerance", *t);
+  if (auto t = args.get("relative-tolerance")) {
+    updates.relative_tolerance = parse_double_or_throw("relative-tolerance", *t);
+  }
+  if (auto b = args.get("max-update-bytes")) {
+    updates.max_update_bytes =
+        static_cast<std::uint32_t>(parse_int_or_throw("max-update-bytes", *b, 0, 1 << 30));
+  }
   mc::SessionMirror mirror;
   Status mirror_error;
   long long printed = 0;
@@ -646,11 +675,22 @@ int cmd_watch(const mc::Client& client, const Args& args) {
         line["vertices"] = mirror.positions().rows();
         const Eigen::RowVector3d centroid = mirror.positions().colwise().mean();
         line["centroid"] = vec_json(centroid.transpose());
+        if (update.delta) {
+          const mc::DeltaStats& d = *update.delta;
+          line["delta"] = json{{"sequence", d.sequence},
+                               {"payload_bytes", d.payload_bytes},
+                               {"wire_bytes", update.wire_bytes},
+                               {"vertices_sent", d.vertices_sent},
+                               {"shift", d.shift},
+                               {"max_error", d.max_error},
+                               {"pending_vertices", d.pending_vertices},
+                               {"continuation", d.continuation}};
+        }
         std::cout << line.dump() << std::endl;
         ++printed;
         return !(max_updates && printed >= *max_updates);
       },
-      call);
+      call, updates);
   timer.request_stop();
   if (!mirror_error.ok()) return server_error("watch", mirror_error);
   if (!end.ok()) return server_error("watch", end.status());

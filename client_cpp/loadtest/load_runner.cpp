@@ -29,7 +29,10 @@
 #include <vector>
 
 #include "client_cpp/loadtest/scripted_drag.h"
+#include "codec/update_codec.h"
+#include "linkemu/link_emulator.h"
 #include "meshdeform/v1/deformation.grpc.pb.h"
+#include "proto/wire/delta_mapping.h"
 #include "proto/wire/wire_mapping.h"
 
 namespace meshdeform::loadtest {
@@ -428,13 +431,49 @@ void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
     request.set_session_id(session.session_id);
     request.set_token(session.view_token);  // a viewer, as in a shared editing session
     request.set_encoding(encoding_to_proto(options_.encoding));
+    if (options_.updates != Updates::Off) {
+      v1::UpdateOptions* updates = request.mutable_updates();
+      updates->set_mode(options_.updates == Updates::Lossless ? v1::DELTA_MODE_LOSSLESS
+                                                              : v1::DELTA_MODE_QUANTIZED);
+      updates->set_tolerance(options_.tolerance);
+      updates->set_relative_tolerance(options_.relative_tolerance);
+      updates->set_max_update_bytes(options_.max_update_bytes);
+    }
+    codec::StreamDecoder decoder;
     const Clock::time_point started = Clock::now();
     std::unique_ptr<grpc::ClientReader<v1::DeformUpdate>> reader =
         session.stub->Watch(watcher.context.get(), request);
     v1::DeformUpdate update;
     while (reader->Read(&update)) {
-      const Clock::time_point at = Clock::now();
       const v1::DeformResult& deform = update.result();
+      if (update.has_delta()) {
+        // A link-sized update counts as arrived once it is applied (what a viewer shows).
+        const Clock::time_point decode_start = Clock::now();
+        const Result<codec::UpdateHeader> header =
+            wire::delta_header_from_proto(update.delta(), deform.revision());
+        const Status applied =
+            header.ok() ? decoder.apply(*header, update.delta().payload()) : header.status();
+        if (!applied.ok()) {
+          ++result.decode_failures;
+          result.end_message = truncated(applied.message());
+          watcher.context->TryCancel();
+          break;
+        }
+        if (result.updates > 0) {
+          result.decode_ms.push_back(ms_between(decode_start, Clock::now()));
+          result.update_bytes.push_back(static_cast<double>(update.ByteSizeLong()));
+          result.max_error.push_back(update.delta().max_error());
+          if (update.continuation()) {
+            ++result.continuations;
+          } else {
+            ++result.revision_updates;
+          }
+          if (update.delta().pending_vertices() == 0) ++result.complete_updates;
+        } else {
+          result.join_bytes = static_cast<double>(update.ByteSizeLong());
+        }
+      }
+      const Clock::time_point at = Clock::now();
       if (result.updates == 0) {
         result.has_join_snapshot = update.is_snapshot();
         result.join_ms = ms_between(started, at);
@@ -455,8 +494,8 @@ void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
       mark_joined();
     }
     const grpc::Status status = reader->Finish();
-    result.end_status = code_name(status.error_code());
-    result.end_message = truncated(status.error_message());
+    result.end_status = result.decode_failures > 0 ? "DECODE_FAILED" : code_name(status.error_code());
+    if (result.decode_failures == 0) result.end_message = truncated(status.error_message());
   } catch (const std::exception& e) {
     result.end_status = "CLIENT_EXCEPTION";
     result.end_message = truncated(e.what());
@@ -476,6 +515,9 @@ void LoadRun::send_move(SessionState& session, const ScriptedDrag& drag, double 
   request.set_method(wire::method_to_proto(options_.method));
   request.set_max_iterations(static_cast<std::uint32_t>(options_.iterations));
   request.set_encoding(encoding_to_proto(options_.encoding));
+  // Link-sized updates: the editor's geometry comes from its watch stream, the response carries
+  // only the result's figures.
+  request.set_omit_positions(options_.updates != Updates::Off);
   request.set_editor("loadtest-" + std::to_string(result.index));
   v1::GroupMove* move = request.add_moves();
   move->set_group(session.handle_group);
@@ -552,7 +594,7 @@ void LoadRun::drive(SessionState& session) {
     send_move(session, drag, seconds_between(first_tick, tick_time(tick)));
     // The first tick at or after the response; the ones before it came while the move was in
     // flight and are skipped (only those before the end of the run count).
-    const Clock::time_point now = Clock::now();
+    Clock::time_point now = Clock::now();
     std::int64_t next = tick + 1;
     if (tick_time(next) < now) {
       next = std::max(next, static_cast<std::int64_t>((now - first_tick) / period));
@@ -562,6 +604,22 @@ void LoadRun::drive(SessionState& session) {
       if (tick_time(k) >= run_end_) break;
       ++result.ticks;
       ++result.skipped_ticks;
+    }
+    // --send-on-response: a tick that came while the move was in flight is not lost: its
+    // newest target goes at once (as the viewer's drag does), then the schedule resumes.
+    while (options_.send_on_response && next > tick + 1 && has_budget() && now < run_end_) {
+      send_move(session, drag, seconds_between(first_tick, now));
+      ++result.sent_on_response;
+      const std::int64_t missed_before = next;
+      now = Clock::now();
+      while (tick_time(next) < now) ++next;
+      for (std::int64_t k = missed_before; k < next; ++k) {
+        if (tick_time(k) >= run_end_) break;
+        ++result.ticks;
+        ++result.skipped_ticks;
+      }
+      if (next == missed_before) break;  // the response came before the next tick
+      tick = missed_before - 1;  // ticks were missed again: loop with the newest target
     }
     tick = next;
   }
@@ -651,6 +709,42 @@ RunResult LoadRun::run() {
     ssl.pem_root_certs = options_.tls_root_certs;
     credentials = grpc::SslCredentials(ssl);
   }
+  // --via-link: one emulator in front of the server; each channel is its own TCP connection and
+  // so its own emulated line (the watchers of a session share their editor's).
+  std::unique_ptr<linkemu::LinkEmulator> link;
+  std::string target = options_.server;
+  if (!options_.via_link.empty()) {
+    std::string error, host;
+    int port = 0;
+    const std::optional<linkemu::LinkSettings> settings =
+        linkemu::parse_link_spec(options_.via_link, error);
+    std::string server = options_.server;
+    for (const char* scheme : {"dns:///", "ipv4:", "ipv6:"}) {
+      if (server.rfind(scheme, 0) == 0) server = server.substr(std::string(scheme).size());
+    }
+    if (settings && linkemu::split_host_port(server, host, port)) {
+      link = linkemu::LinkEmulator::start(*settings, host, port, error);
+    } else if (settings) {
+      error = "--via-link needs --server as HOST:PORT, got '" + options_.server + "'";
+    }
+    run.link.used = true;
+    run.link.spec = options_.via_link;
+    if (!link) {
+      run.link.description = "not started: " + error;
+      run.total_seconds = seconds_between(start_, Clock::now());
+      return run;  // no session is set up: the run fails with the reason in the report
+    }
+    target = link->address();
+    run.link.description = linkemu::describe_link(*settings);
+    const linkemu::LinkSummary m = linkemu::summarize_link(*settings);
+    run.link.down_mbit = m.down_mbit;
+    run.link.up_mbit = m.up_mbit;
+    run.link.rtt_ms = m.rtt_ms;
+    run.link.jitter_ms = m.jitter_ms;
+    run.link.loss = m.loss;
+    run.link.queue_bytes_down = m.queue_bytes_down;
+    run.link.queue_bytes_up = m.queue_bytes_up;
+  }
   const int channel_count = options_.channel_count();
   for (int c = 0; c < channel_count; ++c) {
     grpc::ChannelArguments arguments;
@@ -659,11 +753,12 @@ RunResult LoadRun::run() {
     arguments.SetMaxSendMessageSize(limit);
     // Separate connections: without these, channels with equal arguments share one subchannel.
     arguments.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+    if (options_.fixed_receive_window) arguments.SetInt(GRPC_ARG_HTTP2_BDP_PROBE, 0);
     arguments.SetInt("meshdeform.loadtest.channel", c);
     if (!options_.tls_server_name.empty()) {
       arguments.SetSslTargetNameOverride(options_.tls_server_name);
     }
-    channels_.push_back(grpc::CreateCustomChannel(options_.server, credentials, arguments));
+    channels_.push_back(grpc::CreateCustomChannel(target, credentials, arguments));
     stubs_.push_back(v1::DeformationService::NewStub(channels_.back()));
   }
   run.stats_before = fetch_stats();
@@ -711,6 +806,14 @@ RunResult LoadRun::run() {
   }
   for (std::thread& thread : threads) thread.join();
   run.stats_after_close = fetch_stats();
+  if (link) {
+    const linkemu::LinkCounters counters = link->counters();
+    run.link.bytes_down = counters.down.bytes_delivered;
+    run.link.bytes_up = counters.up.bytes_delivered;
+    run.link.losses = counters.down.losses + counters.up.losses;
+    run.link.full_queue_waits_down = counters.down.full_queue_waits;
+    run.link.connections = counters.connections_accepted;
+  }
   run.total_seconds = seconds_between(start_, Clock::now());
   run.machine.load_average_end = load_average();
 
@@ -725,6 +828,16 @@ RunResult LoadRun::run() {
         if (delay < 0.0) ++watcher->result.seen_before_response;
         watcher->result.delays_ms.push_back(delay);
         watcher->result.delays_after_send_ms.push_back(ms_between(found->second.first, seen.at));
+      }
+      // Every own move, skipped revisions included: the first update at or past its revision.
+      std::size_t next_seen = 0;
+      for (const auto& [revision, times] : session->move_times) {
+        while (next_seen < watcher->seen.size() && watcher->seen[next_seen].revision < revision) {
+          ++next_seen;
+        }
+        if (next_seen == watcher->seen.size()) break;
+        watcher->result.applied_after_send_ms.push_back(
+            ms_between(times.first, watcher->seen[next_seen].at));
       }
       result.watchers.push_back(std::move(watcher->result));
     }

@@ -1,5 +1,7 @@
 #include "client_cpp/loadtest/options.h"
 
+#include "linkemu/link_emulator.h"
+
 #include <arpa/inet.h>
 
 #include <algorithm>
@@ -92,6 +94,18 @@ std::string_view method_name(Method method) {
   return "scale_aware";
 }
 
+std::string_view updates_name(Updates updates) {
+  switch (updates) {
+    case Updates::Quantized:
+      return "quantized";
+    case Updates::Lossless:
+      return "lossless";
+    case Updates::Off:
+      break;
+  }
+  return "off";
+}
+
 std::string_view encoding_name(Encoding encoding) {
   switch (encoding) {
     case Encoding::Doubles:
@@ -137,6 +151,23 @@ std::string usage_text() {
          "  --method NAME          scale_aware, arap or laplacian (default scale_aware)\n"
          "  --encoding NAME        positions in move responses and watch updates: doubles,\n"
          "                         float32 or meshopt (default doubles)\n"
+         "  --updates MODE         link-sized watch updates: off (default), quantized or\n"
+         "                         lossless; moves then carry no positions (the editor's\n"
+         "                         geometry comes from its watch stream: use --watchers >= 1)\n"
+         "  --tolerance X          quantized: the tolerance in model units (default: relative)\n"
+         "  --relative-tolerance X quantized: fraction of the bounding-box diagonal (server\n"
+         "                         default 1e-4)\n"
+         "  --max-update-bytes N   quantized: payload budget per update (0: none; >= 1024)\n"
+         "  --fixed-receive-window keep gRPC's 64 KiB receive window (no BDP probing): HTTP/2\n"
+         "                         flow control then bounds what a watch has in flight, and a\n"
+         "                         slow line skips to the newest revision (a remote viewer's\n"
+         "                         setting; ClientOptions::adaptive_receive_window false)\n"
+         "  --send-on-response     when ticks came while a move was in flight, send the newest\n"
+         "                         target as soon as the response arrives (the viewer's drag)\n"
+         "                         instead of at the next tick; still one move in flight\n"
+         "  --via-link SPEC        run every channel through an emulated link, e.g. 20mbit,40ms\n"
+         "                         or 100mbit,20ms,jitter=2ms,loss=0.1% (a line per channel;\n"
+         "                         see meshdeform-link --help); reports name the link\n"
          "  --connections C        gRPC channels to spread the sessions over (default 0 = one per\n"
          "                         session); a session's watchers share its channel\n"
          "  --move-deadline-ms MS  deadline of each move (default 10000)\n"
@@ -168,6 +199,8 @@ ParseOutcome parse_options(const std::vector<std::string>& args, Options& option
   command_line::add_help(app, help, true);
   command_line::add_flag(app, "--allow-remote", options.allow_remote);
   command_line::add_flag(app, "--fail-on-errors", options.fail_on_errors);
+  command_line::add_flag(app, "--fixed-receive-window", options.fixed_receive_window);
+  command_line::add_flag(app, "--send-on-response", options.send_on_response);
   bool has_sample = false;
   // The value is refused with the generic message below; no per-flag text.
   const auto check = [](bool ok) { return ok ? std::nullopt : std::optional<std::string>(""); };
@@ -214,6 +247,24 @@ ParseOutcome parse_options(const std::vector<std::string>& args, Options& option
     }
     return check(false);
   });
+  command_line::add_checked(app, "--updates", [&](const std::string& value) {
+    for (Updates u : {Updates::Off, Updates::Quantized, Updates::Lossless}) {
+      if (value == updates_name(u)) {
+        options.updates = u;
+        return check(true);
+      }
+    }
+    return check(false);
+  });
+  number("--tolerance", 0.0, 1e6, options.tolerance);
+  number("--relative-tolerance", 0.0, 0.1, options.relative_tolerance);
+  command_line::add_checked(app, "--max-update-bytes", [&](const std::string& value) {
+    int bytes = 0;
+    const bool ok = parse_int(value, 0, 1 << 30, bytes) && (bytes == 0 || bytes >= 1024);
+    options.max_update_bytes = static_cast<std::uint32_t>(bytes);
+    return check(ok);
+  });
+  text("--via-link", options.via_link);
   text("--json", options.json_path);
   text("--markdown", options.markdown_path);
   integer("--connections", 0, 1024, options.connections);
@@ -257,6 +308,16 @@ ParseOutcome parse_options(const std::vector<std::string>& args, Options& option
       return usage_error("cannot read --tls-ca file '" + options.tls_ca_path +
                          "' (missing or empty)");
     }
+  }
+  if (!options.via_link.empty()) {
+    std::string error;
+    if (!linkemu::parse_link_spec(options.via_link, error)) {
+      return usage_error("--via-link: " + error);
+    }
+  }
+  if (options.updates == Updates::Off &&
+      (options.tolerance > 0 || options.relative_tolerance > 0 || options.max_update_bytes > 0)) {
+    return usage_error("--tolerance, --relative-tolerance and --max-update-bytes need --updates");
   }
   if (has_sample && !options.mesh_path.empty()) {
     return usage_error("give --sample or --mesh, not both");

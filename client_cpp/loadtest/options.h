@@ -27,6 +27,12 @@ enum class Encoding { Doubles, Float32, Meshopt };
 /// "doubles", "float32" or "meshopt".
 std::string_view encoding_name(Encoding encoding);
 
+/// Link-sized Watch updates (UpdateOptions in the proto): off, quantized or lossless.
+enum class Updates { Off, Quantized, Lossless };
+
+/// "off", "quantized" or "lossless".
+std::string_view updates_name(Updates updates);
+
 /// Everything the command line configures. Defaults are the documented ones.
 struct Options {
   std::string server;               ///< gRPC target, e.g. "127.0.0.1:50051"
@@ -45,11 +51,24 @@ struct Options {
   int connections = 0;            ///< gRPC channels; 0 = one per session
   bool allow_remote = false;      ///< permit a target that is not loopback
   bool fail_on_errors = false;    ///< exit kExitRunFailed when any move failed
+  bool fixed_receive_window = false;  ///< --fixed-receive-window: no BDP probing (64 KiB)
+  /// --send-on-response: when ticks came while a move was in flight, send the newest target
+  /// as soon as the response arrives instead of waiting for the next tick (the viewer's drag).
+  bool send_on_response = false;
   int move_deadline_ms = 10'000;  ///< deadline of each MoveHandles call
   int max_message_mib = 64;       ///< client send/receive limit (snapshots of big meshes)
   std::string tls_ca_path;        ///< --tls-ca: TLS trusting these PEM roots (empty: plaintext)
   std::string tls_root_certs;     ///< the text of tls_ca_path, read by parse_options
   std::string tls_server_name;    ///< --tls-server-name: the name the certificate must carry
+  /// --via-link: run every connection through an emulated link (linkemu, e.g. "20mbit,40ms"),
+  /// each channel on a line of its own; empty: direct.
+  std::string via_link;
+  /// --updates: link-sized Watch updates; with them moves ask for no positions
+  /// (omit_positions: the editor's geometry comes from its watch stream).
+  Updates updates = Updates::Off;
+  double tolerance = 0.0;           ///< --tolerance (model units; 0: relative)
+  double relative_tolerance = 0.0;  ///< --relative-tolerance (0: the server's default 1e-4)
+  std::uint32_t max_update_bytes = 0;  ///< --max-update-bytes (0: no budget)
 
   /// Channels actually used: `connections`, or one per session when 0 (never more than sessions).
   int channel_count() const;

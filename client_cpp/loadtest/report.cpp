@@ -127,7 +127,8 @@ Aggregate aggregate(const RunResult& run) {
   Aggregate totals;
   totals.sessions = static_cast<int>(run.sessions.size());
   std::vector<double> setup, create, set_handles, latency, solve, per_session, delays, joins;
-  std::vector<double> delays_after_send;
+  std::vector<double> delays_after_send, applied, update_bytes, max_error, decode_ms;
+  double join_bytes = 0;
   std::int64_t iterations = 0;
   std::uint64_t response_bytes = 0, delta_bytes = 0;
   const double phase = run.move_phase_seconds;
@@ -178,6 +179,17 @@ Aggregate aggregate(const RunResult& run) {
       delays_after_send.insert(delays_after_send.end(), watcher.delays_after_send_ms.begin(),
                                watcher.delays_after_send_ms.end());
       ++totals.watcher_end_status[watcher.end_status];
+      applied.insert(applied.end(), watcher.applied_after_send_ms.begin(),
+                     watcher.applied_after_send_ms.end());
+      update_bytes.insert(update_bytes.end(), watcher.update_bytes.begin(),
+                          watcher.update_bytes.end());
+      max_error.insert(max_error.end(), watcher.max_error.begin(), watcher.max_error.end());
+      decode_ms.insert(decode_ms.end(), watcher.decode_ms.begin(), watcher.decode_ms.end());
+      join_bytes += watcher.join_bytes;
+      totals.watcher_revision_updates += watcher.revision_updates;
+      totals.watcher_continuations += watcher.continuations;
+      totals.watcher_complete_updates += watcher.complete_updates;
+      totals.watcher_decode_failures += watcher.decode_failures;
     }
   }
   totals.setup_ms = summarize(std::move(setup));
@@ -189,6 +201,15 @@ Aggregate aggregate(const RunResult& run) {
   totals.watcher_delay_ms = summarize(std::move(delays));
   totals.watcher_delay_after_send_ms = summarize(std::move(delays_after_send));
   totals.watcher_join_ms = summarize(std::move(joins));
+  totals.watcher_applied_after_send_ms = summarize(std::move(applied));
+  totals.watcher_update_bytes = summarize(std::move(update_bytes));
+  totals.watcher_max_error = summarize(std::move(max_error));
+  totals.watcher_decode_ms = summarize(std::move(decode_ms));
+  if (totals.watchers > 0) totals.watcher_join_bytes = join_bytes / totals.watchers;
+  if (phase > 0.0 && totals.watchers > 0) {
+    totals.watcher_revision_updates_per_second_each =
+        static_cast<double>(totals.watcher_revision_updates) / phase / totals.watchers;
+  }
   if (phase > 0.0) {
     totals.moves_per_second = static_cast<double>(totals.moves_ok) / phase;
     const std::int64_t after_join = totals.watcher_updates - totals.watchers_with_join_snapshot;
@@ -298,8 +319,32 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
                         {"method", std::string(method_name(o.method))},
                         {"encoding", std::string(encoding_name(o.encoding))},
                         {"connections", o.channel_count()},
+                        {"updates", std::string(updates_name(o.updates))},
+                        {"tolerance", o.tolerance},
+                        {"relative_tolerance", o.relative_tolerance},
+                        {"max_update_bytes", o.max_update_bytes},
+                        {"via_link", o.via_link},
+                        {"fixed_receive_window", o.fixed_receive_window},
+                        {"send_on_response", o.send_on_response},
                         {"move_deadline_ms", o.move_deadline_ms},
                         {"one_move_in_flight", true}};
+  if (run.link.used) {
+    const LinkResult& l = run.link;
+    json["link"] = Json{{"spec", l.spec},
+                        {"description", l.description},
+                        {"down_mbit", l.down_mbit},
+                        {"up_mbit", l.up_mbit},
+                        {"rtt_ms", l.rtt_ms},
+                        {"jitter_ms", l.jitter_ms},
+                        {"loss", l.loss},
+                        {"queue_bytes_down", l.queue_bytes_down},
+                        {"queue_bytes_up", l.queue_bytes_up},
+                        {"connections", l.connections},
+                        {"bytes_down", l.bytes_down},
+                        {"bytes_up", l.bytes_up},
+                        {"losses", l.losses},
+                        {"full_queue_waits_down", l.full_queue_waits_down}};
+  }
   json["phases"] = Json{{"setup_seconds", rounded(run.setup_phase_seconds)},
                         {"move_seconds", rounded(run.move_phase_seconds)},
                         {"total_seconds", rounded(run.total_seconds)}};
@@ -349,7 +394,19 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
            {"seen_before_response", t.watcher_seen_before_response},
            {"delay_after_send_ms", summary_json(t.watcher_delay_after_send_ms)},
            {"join_ms", summary_json(t.watcher_join_ms)},
-           {"end_status", end_status}};
+           {"end_status", end_status},
+           {"link_sized",
+            Json{{"revision_updates", t.watcher_revision_updates},
+                 {"revision_updates_per_second_per_watcher",
+                  rounded(t.watcher_revision_updates_per_second_each)},
+                 {"continuations", t.watcher_continuations},
+                 {"complete_updates", t.watcher_complete_updates},
+                 {"decode_failures", t.watcher_decode_failures},
+                 {"join_bytes_mean", rounded(t.watcher_join_bytes)},
+                 {"update_bytes", summary_json(t.watcher_update_bytes)},
+                 {"max_error", summary_json(t.watcher_max_error)},
+                 {"decode_ms", summary_json(t.watcher_decode_ms)},
+                 {"applied_after_send_ms", summary_json(t.watcher_applied_after_send_ms)}}}};
   json["server"] = Json{{"stats_available", run.stats_loaded.is_available},
                         {"resident_bytes_before", resident_json(run.stats_before)},
                         {"resident_bytes_loaded", resident_json(run.stats_loaded)},
@@ -394,6 +451,7 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
         {"handle_vertices", s.handle_vertices},
         {"ticks", s.ticks},
         {"skipped_ticks", s.skipped_ticks},
+        {"sent_on_response", s.sent_on_response},
         {"moves_sent", s.moves_sent},
         {"moves_ok", s.moves_ok},
         {"errors_by_code", session_errors},
@@ -427,9 +485,27 @@ std::string report_markdown(const RunResult& run, const Aggregate& t) {
       << "\n";
   out << "- drag: moves per session " << moves_label(o) << ", " << rate_label(o)
       << "; one move in flight per session (a tick that comes while the previous move is in "
-         "flight is skipped and the next move aims at the newest target); move deadline "
-      << o.move_deadline_ms << " ms\n";
+         "flight is skipped and the next move aims at the newest target"
+      << (o.send_on_response ? ", sent as soon as the response arrives (--send-on-response)"
+                             : "")
+      << "); move deadline " << o.move_deadline_ms << " ms\n";
   out << "- watchers: " << o.watchers << " per session (view token)\n";
+  if (run.link.used) {
+    out << "- link (--via-link " << run.link.spec << "): " << run.link.description
+        << "; each gRPC channel its own line through the emulator (linkemu); carried "
+        << mib_text(run.link.bytes_down) << " down, " << mib_text(run.link.bytes_up) << " up, "
+        << run.link.losses << " losses; receive window "
+        << (o.fixed_receive_window ? "fixed 64 KiB" : "adaptive (BDP probing)") << "\n";
+  }
+  if (o.updates != Updates::Off) {
+    out << "- updates: " << updates_name(o.updates) << " (link-sized Watch updates); tolerance "
+        << (o.tolerance > 0 ? format("%g", o.tolerance) + " model units"
+                            : format("%g", o.relative_tolerance > 0 ? o.relative_tolerance : 1e-4) +
+                                  " of the bounding-box diagonal")
+        << ", budget " << (o.max_update_bytes > 0 ? std::to_string(o.max_update_bytes) + " bytes"
+                                                  : std::string("none"))
+        << " per update; moves ask for no positions (omit_positions)\n";
+  }
   out << "- duration: " << format("%g", o.duration_seconds) << " s bound; setup "
       << format("%.2f", run.setup_phase_seconds) << " s, measured move phase "
       << format("%.2f", run.move_phase_seconds) << " s, total " << format("%.2f", run.total_seconds)
@@ -463,6 +539,25 @@ std::string report_markdown(const RunResult& run, const Aggregate& t) {
     out << "| mean bytes per watcher delta update | "
         << format("%.0f", t.mean_watcher_delta_bytes) << " |\n";
   }
+  if (o.updates != Updates::Off && t.watchers > 0) {
+    out << "| link-sized: newer revisions applied per second, per watcher | "
+        << rate_text(t.watcher_revision_updates_per_second_each) << " |\n";
+    out << "| link-sized: updates (newer revision / continuation / complete) | "
+        << t.watcher_revision_updates << " / " << t.watcher_continuations << " / "
+        << t.watcher_complete_updates << " |\n";
+    out << "| link-sized: bytes per update p50 / p95 / max | "
+        << format("%.0f", t.watcher_update_bytes.p50.value_or(0)) << " / "
+        << format("%.0f", t.watcher_update_bytes.p95.value_or(0)) << " / "
+        << format("%.0f", t.watcher_update_bytes.max.value_or(0)) << " |\n";
+    out << "| link-sized: join update bytes (mean) | " << format("%.0f", t.watcher_join_bytes)
+        << " |\n";
+    out << "| link-sized: max error after an update p50 / max (model units) | "
+        << format("%.3g", t.watcher_max_error.p50.value_or(0)) << " / "
+        << format("%.3g", t.watcher_max_error.max.value_or(0)) << " |\n";
+    out << "| link-sized: client decode ms p50 / max | " << ms_text(t.watcher_decode_ms.p50)
+        << " / " << ms_text(t.watcher_decode_ms.max) << " |\n";
+    out << "| link-sized: decode failures | " << t.watcher_decode_failures << " |\n";
+  }
   out << "\n## Latency (ms)\n\n";
   out << "| | count | p50 | p95 | p99 | max |\n|---|---:|---:|---:|---:|---:|\n";
   const auto row = [&](const std::string& name, const Summary& s) {
@@ -474,6 +569,10 @@ std::string report_markdown(const RunResult& run, const Aggregate& t) {
   if (t.watchers > 0) {
     row("watcher receipt after the move response", t.watcher_delay_ms);
     row("watcher receipt after the move was sent", t.watcher_delay_after_send_ms);
+    if (o.updates != Updates::Off) {
+      row("move sent to an update at or past it applied (every move)",
+          t.watcher_applied_after_send_ms);
+    }
   }
   row("setup: create + set handles", t.setup_ms);
   out << "\n## Errors\n\n";

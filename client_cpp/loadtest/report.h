@@ -56,6 +56,17 @@ struct Aggregate {
   Summary watcher_delay_after_send_ms;  ///< receipt minus the editor's send, same revisions
   Summary watcher_join_ms;
   std::map<std::string, int> watcher_end_status;
+  // --updates (link-sized updates):
+  Summary watcher_applied_after_send_ms;  ///< own move sent -> first update at/past it applied
+  Summary watcher_update_bytes;           ///< serialized update, after the join
+  Summary watcher_max_error;              ///< VertexDelta.max_error after each update
+  Summary watcher_decode_ms;              ///< applying one update at the client
+  double watcher_join_bytes = 0;          ///< mean serialized join update
+  std::int64_t watcher_revision_updates = 0;
+  std::int64_t watcher_continuations = 0;
+  std::int64_t watcher_complete_updates = 0;
+  std::int64_t watcher_decode_failures = 0;
+  double watcher_revision_updates_per_second_each = 0;  ///< newer revisions applied per second
 };
 
 Aggregate aggregate(const RunResult& run);

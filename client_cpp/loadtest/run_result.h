@@ -48,6 +48,18 @@ struct WatcherResult {
   std::int64_t seen_before_response = 0;
   /// Watcher receipt minus the editor's MoveHandles send time, for the same revisions (ms).
   std::vector<double> delays_after_send_ms;
+  // --updates (link-sized updates), after the join update:
+  std::int64_t revision_updates = 0;  ///< updates that brought a newer revision
+  std::int64_t continuations = 0;     ///< updates toward the same revision (a budget's remainder)
+  std::int64_t complete_updates = 0;  ///< updates that left the client within the tolerance
+  std::int64_t decode_failures = 0;   ///< updates the client could not apply (the stream ends)
+  std::vector<double> update_bytes;   ///< serialized size of every update after the join
+  std::vector<double> max_error;      ///< VertexDelta.max_error of every update after the join
+  std::vector<double> decode_ms;      ///< time to apply each update (decompress + reconstruct)
+  double join_bytes = 0;              ///< serialized size of the join update
+  /// For each move the editor committed: its send time to the first update of this watcher
+  /// with that revision or a newer one, applied (ms): what a user sees of their own drag.
+  std::vector<double> applied_after_send_ms;
   std::string end_status = "NOT_STARTED";  ///< the stream's final status code name
   std::string end_message;
 };
@@ -69,6 +81,7 @@ struct SessionResult {
 
   std::int64_t ticks = 0;          ///< rate > 0: ticks reached (moves sent + skipped)
   std::int64_t skipped_ticks = 0;  ///< ticks that came while the previous move was in flight
+  std::int64_t sent_on_response = 0;  ///< --send-on-response: moves sent as a response came
   std::int64_t moves_sent = 0;
   std::int64_t moves_ok = 0;
   std::map<std::string, std::int64_t> errors_by_code;  ///< failed moves by status code name
@@ -96,8 +109,20 @@ struct MachineFacts {
   std::string build_type = "unknown";  ///< of the load tester itself
 };
 
+/// The emulated link of --via-link (what it was, what it carried).
+struct LinkResult {
+  bool used = false;
+  std::string spec;         ///< as given
+  std::string description;  ///< describe_link()
+  double down_mbit = 0, up_mbit = 0, rtt_ms = 0, jitter_ms = 0, loss = 0;
+  std::uint64_t queue_bytes_down = 0, queue_bytes_up = 0;
+  std::uint64_t bytes_down = 0, bytes_up = 0, losses = 0, full_queue_waits_down = 0;
+  std::uint64_t connections = 0;
+};
+
 /// The whole run.
 struct RunResult {
+  LinkResult link;
   Options options;
   MachineFacts machine;
   std::string mesh_label;  ///< the sample name, or the uploaded file's name

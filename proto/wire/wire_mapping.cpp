@@ -174,4 +174,73 @@ std::optional<Positions> rows_from_proto(const google::protobuf::RepeatedField<d
   return rows;
 }
 
+v1::HandleRole role_to_proto(core::HandleRole role) {
+  switch (role) {
+    case core::HandleRole::Fixed:
+      return v1::HANDLE_ROLE_FIXED;
+    case core::HandleRole::Handle:
+      return v1::HANDLE_ROLE_HANDLE;
+  }
+  return v1::HANDLE_ROLE_UNSPECIFIED;
+}
+
+std::optional<core::HandleRole> role_from_proto(v1::HandleRole role) {
+  switch (role) {
+    case v1::HANDLE_ROLE_FIXED:
+      return core::HandleRole::Fixed;
+    case v1::HANDLE_ROLE_HANDLE:
+      return core::HandleRole::Handle;
+    case v1::HANDLE_ROLE_UNSPECIFIED:
+    case v1::HandleRole_INT_MIN_SENTINEL_DO_NOT_USE_:
+    case v1::HandleRole_INT_MAX_SENTINEL_DO_NOT_USE_:
+      break;
+  }
+  return std::nullopt;
+}
+
+v1::HistoryAction history_to_proto(core::HistoryAction action) {
+  switch (action) {
+    case core::HistoryAction::Undo:
+      return v1::HISTORY_ACTION_UNDO;
+    case core::HistoryAction::Redo:
+      return v1::HISTORY_ACTION_REDO;
+    case core::HistoryAction::Record:
+      break;
+  }
+  return v1::HISTORY_ACTION_UNSPECIFIED;
+}
+
+std::optional<core::HistoryAction> history_from_proto(v1::HistoryAction action) {
+  switch (action) {
+    case v1::HISTORY_ACTION_UNSPECIFIED:
+      return core::HistoryAction::Record;
+    case v1::HISTORY_ACTION_UNDO:
+      return core::HistoryAction::Undo;
+    case v1::HISTORY_ACTION_REDO:
+      return core::HistoryAction::Redo;
+    case v1::HistoryAction_INT_MIN_SENTINEL_DO_NOT_USE_:
+    case v1::HistoryAction_INT_MAX_SENTINEL_DO_NOT_USE_:
+      break;
+  }
+  return std::nullopt;
+}
+
+void group_move_to_proto(const core::GroupMove& move, v1::GroupMove* out) {
+  out->set_group(static_cast<std::uint32_t>(move.group));
+  vec_to_proto(move.translation, out->mutable_translation());
+  quat_to_proto(move.rotation, out->mutable_rotation());
+  out->set_scale(move.scale);
+  if (move.pivot) vec_to_proto(*move.pivot, out->mutable_pivot());
+}
+
+core::GroupMove group_move_from_proto(const v1::GroupMove& in) {
+  core::GroupMove out;
+  out.group = static_cast<int>(in.group());
+  if (in.has_translation()) out.translation = vec_from_proto(in.translation());
+  if (in.has_rotation()) out.rotation = quat_from_proto(in.rotation());
+  if (in.has_scale()) out.scale = in.scale();
+  if (in.has_pivot()) out.pivot = vec_from_proto(in.pivot());
+  return out;
+}
+
 }  // namespace meshdeform::wire

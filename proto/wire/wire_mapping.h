@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "core/deformer.h"
+#include "core/edit_types.h"
 #include "core/io/mesh_io.h"
 #include "core/mesh_data.h"
 #include "core/status.h"
@@ -64,66 +65,14 @@ v1::MeshFormat format_to_proto(io::MeshFormat format);
 ///         for a value outside the enum.
 [[nodiscard]] Result<std::optional<io::MeshFormat>> format_from_proto(v1::MeshFormat format);
 
-/// HandleRole of either side (service::HandleRole, client::HandleRole: any enum with Fixed and
-/// Handle) -> v1::HandleRole.
-template <typename Role>
-v1::HandleRole role_to_proto(Role role) {
-  switch (role) {
-    case Role::Fixed:
-      return v1::HANDLE_ROLE_FIXED;
-    case Role::Handle:
-      return v1::HANDLE_ROLE_HANDLE;
-  }
-  return v1::HANDLE_ROLE_UNSPECIFIED;
-}
-
+v1::HandleRole role_to_proto(core::HandleRole role);
 /// @return the role; nullopt for HANDLE_ROLE_UNSPECIFIED or a value outside the enum.
-template <typename Role>
-std::optional<Role> role_from_proto(v1::HandleRole role) {
-  switch (role) {
-    case v1::HANDLE_ROLE_FIXED:
-      return Role::Fixed;
-    case v1::HANDLE_ROLE_HANDLE:
-      return Role::Handle;
-    case v1::HANDLE_ROLE_UNSPECIFIED:
-    case v1::HandleRole_INT_MIN_SENTINEL_DO_NOT_USE_:
-    case v1::HandleRole_INT_MAX_SENTINEL_DO_NOT_USE_:
-      break;
-  }
-  return std::nullopt;
-}
+std::optional<core::HandleRole> role_from_proto(v1::HandleRole role);
 
-/// HistoryAction of either side (service::HistoryAction, client::HistoryAction: any enum with
-/// Record, Undo and Redo) -> v1::HistoryAction (Record is UNSPECIFIED, the default).
-template <typename Action>
-v1::HistoryAction history_to_proto(Action action) {
-  switch (action) {
-    case Action::Undo:
-      return v1::HISTORY_ACTION_UNDO;
-    case Action::Redo:
-      return v1::HISTORY_ACTION_REDO;
-    case Action::Record:
-      break;
-  }
-  return v1::HISTORY_ACTION_UNSPECIFIED;
-}
-
+/// Record is HISTORY_ACTION_UNSPECIFIED, the default.
+v1::HistoryAction history_to_proto(core::HistoryAction action);
 /// @return the action (UNSPECIFIED is Record); nullopt for a value outside the enum.
-template <typename Action>
-std::optional<Action> history_from_proto(v1::HistoryAction action) {
-  switch (action) {
-    case v1::HISTORY_ACTION_UNSPECIFIED:
-      return Action::Record;
-    case v1::HISTORY_ACTION_UNDO:
-      return Action::Undo;
-    case v1::HISTORY_ACTION_REDO:
-      return Action::Redo;
-    case v1::HistoryAction_INT_MIN_SENTINEL_DO_NOT_USE_:
-    case v1::HistoryAction_INT_MAX_SENTINEL_DO_NOT_USE_:
-      break;
-  }
-  return std::nullopt;
-}
+std::optional<core::HistoryAction> history_from_proto(v1::HistoryAction action);
 
 // -------------------------------------------------------------------------------------- values
 
@@ -155,31 +104,12 @@ std::optional<Positions> rows_from_proto(const google::protobuf::RepeatedField<d
 
 // ---------------------------------------------------------------------------------- GroupMove
 
-/// A GroupMove of either side (service::GroupMove, client::GroupMove: group, translation,
-/// rotation, scale, optional pivot) -> v1::GroupMove. Every field is sent.
-/// @pre move.group >= 0.
-template <typename Move>
-void group_move_to_proto(const Move& move, v1::GroupMove* out) {
-  out->set_group(static_cast<std::uint32_t>(move.group));
-  vec_to_proto(move.translation, out->mutable_translation());
-  quat_to_proto(move.rotation, out->mutable_rotation());
-  out->set_scale(move.scale);
-  if (move.pivot) vec_to_proto(*move.pivot, out->mutable_pivot());
-}
+/// Every field is sent. @pre move.group >= 0.
+void group_move_to_proto(const core::GroupMove& move, v1::GroupMove* out);
 
-/// v1::GroupMove -> a GroupMove of either side; absent fields keep Move's defaults (no
-/// translation, identity rotation, scale 1, no pivot). Values are taken as they are (the caller
-/// checks finiteness, the zero quaternion, the scale).
-/// @pre index_from_proto(in.group()) has a value.
-template <typename Move>
-Move group_move_from_proto(const v1::GroupMove& in) {
-  Move out;
-  out.group = static_cast<int>(in.group());
-  if (in.has_translation()) out.translation = vec_from_proto(in.translation());
-  if (in.has_rotation()) out.rotation = quat_from_proto(in.rotation());
-  if (in.has_scale()) out.scale = in.scale();
-  if (in.has_pivot()) out.pivot = vec_from_proto(in.pivot());
-  return out;
-}
+/// Absent fields keep GroupMove's defaults (no translation, identity rotation, scale 1, no
+/// pivot). Values are taken as they are (the caller checks finiteness, the zero quaternion, the
+/// scale). @pre index_from_proto(in.group()) has a value.
+core::GroupMove group_move_from_proto(const v1::GroupMove& in);
 
 }  // namespace meshdeform::wire

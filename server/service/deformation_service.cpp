@@ -21,6 +21,18 @@
 namespace meshdeform::service {
 namespace {
 
+/// Counts a solve in ServiceCounters::solves_running for its lifetime.
+class RunningSolve {
+ public:
+  explicit RunningSolve(std::atomic<std::uint64_t>& count) : count_(count) { count_.fetch_add(1); }
+  ~RunningSolve() { count_.fetch_sub(1); }
+  RunningSolve(const RunningSolve&) = delete;
+  RunningSolve& operator=(const RunningSolve&) = delete;
+
+ private:
+  std::atomic<std::uint64_t>& count_;
+};
+
 /// Turns phase reports into ProgressEvents timed from its construction (the admission of the
 /// call). Empty function: reports nothing. Copies share the start time.
 class PhaseReporter {
@@ -134,6 +146,7 @@ DeformationService::DeformationService(ServiceOptions options,
         return std::move(options);
       }()) {
   shared_ = std::move(shared);
+  if (shared_) store_.set_eviction_lossless(true);  // an evicted session comes back from Redis
   if (shared_) feed_ = std::jthread([this](std::stop_token stop) { feed_loop(stop); });
 }
 
@@ -148,16 +161,31 @@ DeformationService::DeformationService(ServiceOptions options)
       store_(options_),
       pool_(options_.workers, options_.heavy_lanes) {
   if (options_.state_dir.empty()) return;
-  Result<StateDirectory> dir = StateDirectory::open(options_.state_dir);
+  // A state file holds the rest mesh, the positions and the history: far less than 1 KiB per
+  // vertex (the bound keeps an endless file from being read whole).
+  const std::uint64_t max_file_bytes =
+      (std::uint64_t{64} << 20) + std::uint64_t{1024} * static_cast<std::uint64_t>(options_.max_vertices);
+  Result<StateDirectory> dir =
+      StateDirectory::open(options_.state_dir, options_.state_write_fault, max_file_bytes);
   if (!dir.ok()) {
     log_event(LogLevel::Error, "state_dir_unusable",
               LogFields().add("path", options_.state_dir).add("message", dir.status().message()));
     return;
   }
   state_dir_.emplace(std::move(dir).value());
-  // Check every file now so corruption is reported at start; sessions load on first use.
+  store_.set_eviction_lossless(true);  // an evicted session comes back from its file
+  // Check every file now so corruption is reported at start; sessions load on first use. Only
+  // regular files of bounded size are opened (a FIFO would block, a link to /dev/zero would
+  // never end): the others are reported one by one.
+  std::vector<SkippedStateFile> skipped;
+  const std::vector<SessionId> ids = state_dir_->scan(skipped);
+  for (const SkippedStateFile& file : skipped) {
+    state_files_corrupt_.fetch_add(1);
+    log_event(LogLevel::Warn, "state_file_skipped",
+              LogFields().add("file", file.file).add("reason", file.reason));
+  }
   int good = 0;
-  for (const SessionId& id : state_dir_->list()) {
+  for (const SessionId& id : ids) {
     Result<PersistedSession> state = state_dir_->read(id);
     if (state.ok()) {
       ++good;
@@ -199,12 +227,8 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
                    "give exactly one of mesh bytes and a sample name (got " +
                        std::string(has_bytes ? "both" : "neither") + ")");
     }
-    MD_RETURN_IF_ERROR(check_rigidity(request.rigidity));
-    const double lambda = request.settings.lambda;
-    if (!std::isfinite(lambda) || lambda <= 0) {
-      return Error(ErrorCode::InvalidArgument,
-                   "lambda " + std::to_string(lambda) + " is not positive and finite");
-    }
+    if (request.rigidity) MD_RETURN_IF_ERROR(core::check_rigidity(*request.rigidity, kMaxRigidity));
+    MD_RETURN_IF_ERROR(check_lambda(request.settings.lambda));
     CreatedSession created;
     MeshData mesh;
     progress("parse", 0.0);
@@ -246,18 +270,25 @@ Result<CreatedSession> DeformationService::create_session(const CreateSessionReq
                           return store->reserve(bytes, requester);
                         }));
     if (request.rigidity) session->set_default_rigidity(*request.rigidity);
+    session->set_owner(request.client);
     // The caller left while the session was built: commit nothing (it would never be used).
     if (stop.stop_requested()) return cancelled();
+    // Limits first (nobody knows the id yet), then stored before anyone hears of it: durable,
+    // and with a shared store any replica can serve it from the first call on.
+    MD_RETURN_IF_ERROR(store_.insert(session));
+    Status stored;
     if (state_dir_) {
       session->set_state_directory(&*state_dir_);
-      session->persist();
+      stored = session->persist();
     }
     if (shared_) {
-      // Stored before anyone hears of it: any replica can serve it from the first call on.
       session->set_shared_store(shared_.get(), 0);
-      MD_RETURN_IF_ERROR(shared_->create(session->persisted_state()));
+      stored = shared_->create(session->persisted_state());
     }
-    MD_RETURN_IF_ERROR(store_.insert(session));
+    if (!stored.ok()) {
+      store_.erase(session->id());
+      return stored;
+    }
     created.info = session->info();
     progress("session", 1.0);
     return created;
@@ -316,24 +347,25 @@ std::shared_ptr<Session> DeformationService::find_or_restore(const SessionId& id
   std::shared_ptr<Session> cached = store_.find(id);
   // With a shared state directory another replica may have served the session since this copy
   // last wrote or read its file (a failover and back, or the replica that created it): one stat
-  // tells, and a stale copy is dropped for the file's newer state (or for NotFound when the file
-  // is gone: closed or expired elsewhere).
+  // tells (never confused by this copy's own writes: Session::is_fresh), and a stale copy is
+  // replaced by the file's newer state, its watchers handed over (or, when the file is gone,
+  // closed elsewhere or expired, the session is gone here too).
   if (cached && cached->is_fresh()) return cached;
   if (!state_dir_ || !is_valid_session_id(id.value)) return nullptr;
   const std::lock_guard lock(restore_mutex_);
   cached = store_.find(id);
   if (cached && cached->is_fresh()) return cached;  // restored meanwhile
+  std::shared_ptr<Session> stale;
   if (cached) {
-    store_.erase(id);
+    store_.erase_without_closing(id);
+    stale = std::move(cached);
     stale_copies_dropped_.fetch_add(1);
     log_event(LogLevel::Info, "session_stale_dropped", LogFields().add("session", id.value));
   }
-  const std::optional<double> age = state_dir_->age_seconds(id);
-  if (!age) return nullptr;
-  if (*age > std::chrono::duration<double>(options_.idle_ttl).count()) {
-    state_dir_->remove(id);  // expired while no server held it
+  auto gone = [&stale]() -> std::shared_ptr<Session> {
+    if (stale) stale->close();  // closed or expired elsewhere: its watches end OK
     return nullptr;
-  }
+  };
   FileStamp stamp;
   Result<PersistedSession> state = state_dir_->read(id, &stamp);
   if (!state.ok()) {
@@ -342,7 +374,12 @@ std::shared_ptr<Session> DeformationService::find_or_restore(const SessionId& id
       log_event(LogLevel::Warn, "state_file_corrupt",
                 LogFields().add("session", id.value).add("message", state.status().message()));
     }
-    return nullptr;
+    return gone();
+  }
+  const std::optional<double> age = state_dir_->age_seconds(id);
+  if (!age || *age > std::chrono::duration<double>(options_.idle_ttl).count()) {
+    state_dir_->remove_if(id, stamp);  // expired while no server held it
+    return gone();
   }
   SessionStore* store = &store_;
   Result<std::shared_ptr<Session>> restored = run_guarded("restore", [&] {
@@ -355,7 +392,7 @@ std::shared_ptr<Session> DeformationService::find_or_restore(const SessionId& id
     state_files_corrupt_.fetch_add(1);
     log_event(LogLevel::Warn, "state_restore_failed",
               LogFields().add("session", id.value).add("message", restored.status().message()));
-    return nullptr;
+    return gone();
   }
   std::shared_ptr<Session> session = std::move(restored).value();
   session->set_state_directory(&*state_dir_);
@@ -363,8 +400,14 @@ std::shared_ptr<Session> DeformationService::find_or_restore(const SessionId& id
   if (const Status inserted = store_.insert(session); !inserted.ok()) {
     log_event(LogLevel::Warn, "state_restore_refused",
               LogFields().add("session", id.value).add("message", inserted.message()));
+    if (stale) {
+      stale->close(Error(ErrorCode::Unavailable, "session " + short_id(id) +
+                                                     " could not be reloaded here: " +
+                                                     inserted.message()));
+    }
     return nullptr;
   }
+  if (stale) stale->hand_over_watchers(*session);  // watches go on with the newer state
   sessions_restored_.fetch_add(1);
   log_event(LogLevel::Info, "session_restored",
             LogFields().add("session", id.value).add("revision", session->revision()));
@@ -490,13 +533,27 @@ void DeformationService::post(const std::shared_ptr<Session>& session, std::func
   struct Drain {
     std::shared_ptr<Session> session;
     WorkerPool* pool;
-    void operator()() const {
-      if (const std::optional<Session::StrandStep> next = session->run_next()) {
-        pool->submit(Drain{session, pool}, next->task_class, next->client);
+    void operator()() const { schedule(pool, session, session->run_next()); }
+    static void schedule(WorkerPool* pool, const std::shared_ptr<Session>& session,
+                         const std::optional<Session::StrandStep>& step) {
+      if (!step) return;
+      if (step->task_class == TaskClass::Normal && step->is_short) {
+        pool->submit_short(Drain{session, pool});
+      } else {
+        pool->submit(Drain{session, pool}, step->task_class, step->client);
       }
     }
   };
-  pool_.submit(Drain{session, &pool_}, first->task_class, first->client);
+  Drain::schedule(&pool_, session, first);
+}
+
+core::ProgressCallback DeformationService::yield_point() {
+  return [this](const core::IterationInfo&) {
+    // A few at most: the solve that yields is paused while they run.
+    constexpr int kMostPerYield = 8;
+    int ran = 0;
+    while (ran < kMostPerYield && pool_.run_short_here()) ++ran;
+  };
 }
 
 void DeformationService::set_handles_async(const SessionId& id, const Token& edit_token,
@@ -560,15 +617,21 @@ void DeformationService::move_handles_async(const SessionId& id, const Token& ed
   }
   std::shared_ptr<Session> session = std::move(found).value();
   session->note_move_arrival();
-  post(session, [this, session, request = std::move(request), stop = std::move(stop),
-                 done = std::move(done)] {
-    Result<DeformResult> result = run_guarded("MoveHandles", [&]() -> Result<DeformResult> {
-      const CallStop call_stop(stop, shutdown_.get_token(), request.deadline, deadlines_);
-      return session->move(request, call_stop.token());
-    });
-    done(std::move(result));
-    schedule_refinement(session, /*after_move=*/true);
-  });
+  Session::StrandStep step;
+  step.is_short = request.max_iterations <= kShortMoveIterations;
+  post(
+      session,
+      [this, session, request = std::move(request), stop = std::move(stop),
+       done = std::move(done)] {
+        Result<DeformResult> result = run_guarded("MoveHandles", [&]() -> Result<DeformResult> {
+          const CallStop call_stop(stop, shutdown_.get_token(), request.deadline, deadlines_);
+          const RunningSolve running(counters_->solves_running);
+          return session->move(request, call_stop.token(), yield_point());
+        });
+        done(std::move(result));
+        schedule_refinement(session, /*after_move=*/true);
+      },
+      /*is_refinement=*/false, std::move(step));
 }
 
 void DeformationService::schedule_refinement(const std::shared_ptr<Session>& session,
@@ -609,7 +672,8 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
           const Result<std::optional<DeformResult>> refined = run_guarded(
               "refinement", [&]() -> Result<std::optional<DeformResult>> {
                 const CallStop slice({}, shutdown_.get_token());
-                return session->refine(slice.source());
+                const RunningSolve running(counters_->solves_running);
+                return session->refine(slice.source(), yield_point());
               });
           if (refined.ok() && refined->has_value()) {
             const DeformResult& r = **refined;
@@ -702,6 +766,8 @@ Result<SessionInfo> DeformationService::session_info(const SessionId& id, const 
 Status DeformationService::close_session(const SessionId& id, const Token& edit_token) {
   Result<std::shared_ptr<Session>> found = find_for_edit(id, edit_token);
   if (!found.ok()) return found.status();
+  // Closed first: its running solve stops and no write of it can follow; then its state goes.
+  (*found)->close();
   store_.erase(id);
   if (state_dir_) state_dir_->remove(id);
   if (shared_) shared_->remove(id);
@@ -711,8 +777,7 @@ Status DeformationService::close_session(const SessionId& id, const Token& edit_
 Result<Subscription> DeformationService::watch(const SessionId& id, const Token& view_token) {
   return run_guarded("Watch", [&]() -> Result<Subscription> {
     MD_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, find_for_view(id, view_token));
-    std::shared_ptr<Watcher> watcher = session->add_watcher();
-    return Subscription(session, std::move(watcher));
+    return Subscription(session->add_watcher());
   });
 }
 
@@ -752,6 +817,8 @@ ServiceStats DeformationService::stats() const {
   stats.sessions_restored = sessions_restored_.load();
   stats.state_files_corrupt = state_files_corrupt_.load();
   stats.persist_failures = counters_->persist_failures.load();
+  stats.solves_running = counters_->solves_running.load();
+  stats.yielded_tasks = pool_.ran_at_yield_points();
   stats.watchers = store_.watcher_count();
   stats.evicted_lru = store_.evicted_lru();
   stats.evicted_idle = store_.evicted_idle();

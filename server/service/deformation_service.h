@@ -140,9 +140,13 @@ class DeformationService {
 
   /// Removes sessions idle for longer than the TTL (call from a timer; create_session also does).
   /// @return how many were removed.
-  /// Server shutdown: ends every open watch (streams finish OK) so that draining does not wait
-  /// for streams that would never end on their own. Sessions stay open.
-  void end_watches() { store_.close_all_watchers(); }
+  /// Server shutdown: ends every open watch (with Unavailable: the session lives on, a client
+  /// may watch again) so that draining does not wait for streams that would never end on their
+  /// own. Sessions stay open.
+  void end_watches() {
+    store_.close_all_watchers(
+        Error(ErrorCode::Unavailable, "the server is shutting down; watch again to continue"));
+  }
 
   std::size_t evict_expired();
   std::size_t evict_expired(std::chrono::steady_clock::time_point now);
@@ -184,6 +188,10 @@ class DeformationService {
   /// when no edit of any session waits) and, after it, the next. `after_move`, or a move that
   /// arrived or committed within ServiceOptions::refine_delay: wait for that much rest first.
   void schedule_refinement(const std::shared_ptr<Session>& session, bool after_move);
+  /// What a solve calls between its iterations: runs short moves of other sessions that wait
+  /// while every worker is busy (WorkerPool::run_short_here), so that long solves share the
+  /// workers with them.
+  core::ProgressCallback yield_point();
   /// Starts the background build refinement needs (Session::take_background_build ->
   /// run_background_build). Strand only. @return true if one is running now (started here or
   /// before): refinement waits for its install, which schedules refinement again.

@@ -257,7 +257,7 @@ Status read_settings(BinaryReader& in, EditSettings& s, int vertices) {
   MD_RETURN_IF_ERROR(in.pod(iterations, "settings iterations"));
   s.max_iterations = iterations;
   MD_RETURN_IF_ERROR(in.pod(s.tolerance, "settings tolerance"));
-  if (!is_valid_rigidity(s.rigidity) || iterations < 1 || iterations > kMaxMoveIterations ||
+  if (!core::check_rigidity(s.rigidity, kMaxRigidity).ok() || iterations < 1 || iterations > kMaxMoveIterations ||
       !(s.tolerance >= 0) || !std::isfinite(s.tolerance)) {
     return in.corrupt("settings out of range");
   }

@@ -175,6 +175,16 @@ std::string MetricsRegistry::render(const ServiceStats& stats) const {
          "reason=\"memory_budget\"");
   sample(out, "meshdeform_sessions_evicted_total", static_cast<double>(stats.evicted_idle),
          "reason=\"idle_ttl\"");
+  counter("meshdeform_state_write_failures_total",
+          "Session state writes that failed (state directory or shared store): each failed the "
+          "edit it was for, which was not acknowledged.",
+          static_cast<double>(stats.persist_failures));
+  gauge("meshdeform_solves_running", "Moves and refinement slices solving now.",
+        static_cast<double>(stats.solves_running));
+  counter("meshdeform_yielded_tasks_total",
+          "Short moves run by a long solve between two of its iterations (solver time shared "
+          "between sessions).",
+          static_cast<double>(stats.yielded_tasks));
   counter("meshdeform_stale_copies_dropped_total",
           "Cached sessions dropped because another replica changed their state file.",
           static_cast<double>(stats.stale_copies_dropped));
@@ -205,7 +215,18 @@ std::string MetricsRegistry::render(const ServiceStats& stats) const {
          "kind=\"upload\"");
   sample(out, "meshdeform_work_cancelled_total", static_cast<double>(stats.precomputes_cancelled),
          "kind=\"precompute\"");
+  std::vector<std::function<void(std::string&)>> sections;
+  {
+    std::lock_guard lock(mutex_);
+    sections = sections_;
+  }
+  for (const auto& section : sections) section(out);
   return out;
+}
+
+void MetricsRegistry::add_section(std::function<void(std::string& out)> render) {
+  std::lock_guard lock(mutex_);
+  sections_.push_back(std::move(render));
 }
 
 }  // namespace meshdeform::service

@@ -9,6 +9,7 @@
 #include <array>
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <tuple>
@@ -53,13 +54,18 @@ class MetricsRegistry {
   /// One committed solve: a move or a background refinement slice.
   void record_solve(bool refinement, double seconds);
 
-  /// The whole exposition: RPC and solve metrics plus `stats` as gauges and counters.
+  /// The whole exposition: RPC and solve metrics plus `stats` as gauges and counters, then the
+  /// added sections.
   std::string render(const ServiceStats& stats) const;
+  /// Adds a section rendered after the service's own (complete `# HELP`/`# TYPE` blocks): the
+  /// transport's connection counters. Called at render time, on the scraping thread.
+  void add_section(std::function<void(std::string& out)> render);
 
  private:
   mutable std::mutex mutex_;
   std::map<std::tuple<std::string, std::string, std::string>, std::uint64_t> rpc_counts_;
   std::map<std::pair<std::string, std::string>, std::unique_ptr<Histogram>> rpc_latency_;
+  std::vector<std::function<void(std::string&)>> sections_;
   Histogram move_solve_;
   Histogram refinement_solve_;
 };

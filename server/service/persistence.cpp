@@ -5,6 +5,7 @@
 
 #include <dirent.h>
 #include <fcntl.h>
+#include <sys/file.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -14,6 +15,8 @@
 #include <chrono>
 #include <cstring>
 #include <limits>
+#include <mutex>
+#include <utility>
 
 namespace meshdeform::service {
 namespace {
@@ -183,7 +186,81 @@ Result<PersistedSession> decode_session(std::string_view bytes) {
   return s;
 }
 
-Result<StateDirectory> StateDirectory::open(std::string path) {
+/// The directory's lock: a mutex for the threads of this process (flock locks belong to the
+/// open file description, which they share) and flock on `.lock` for the other processes.
+struct StateDirectory::Lock {
+  std::mutex mutex;
+  int fd = -1;
+  ~Lock() {
+    if (fd >= 0) ::close(fd);
+  }
+};
+
+namespace {
+
+/// Holds the directory's lock for one check-and-change.
+class DirectoryGuard {
+ public:
+  DirectoryGuard(std::mutex& mutex, int fd) : lock_(mutex), fd_(fd) {
+    while (fd_ >= 0 && ::flock(fd_, LOCK_EX) != 0 && errno == EINTR) {
+    }
+  }
+  ~DirectoryGuard() {
+    if (fd_ >= 0) ::flock(fd_, LOCK_UN);
+  }
+  DirectoryGuard(const DirectoryGuard&) = delete;
+  DirectoryGuard& operator=(const DirectoryGuard&) = delete;
+
+ private:
+  std::lock_guard<std::mutex> lock_;
+  int fd_;
+};
+
+/// The OS error of a state write: ResourceExhausted when a resource ran out (the server then
+/// refuses edits until there is room), Unavailable otherwise; the message names the call.
+Status write_error(const std::string& what, const std::string& path, int error) {
+  const bool exhausted = error == ENOSPC || error == EDQUOT || error == EFBIG ||
+                         error == EMFILE || error == ENFILE || error == ENOMEM;
+  return Error(exhausted ? ErrorCode::ResourceExhausted : ErrorCode::Unavailable,
+               "state directory: cannot " + what + " " + path + ": " + std::strerror(error) +
+                   "; the edit is not applied");
+}
+
+FileStamp stamp_of(const struct stat& info) {
+  return FileStamp{static_cast<std::uint64_t>(info.st_dev), static_cast<std::uint64_t>(info.st_ino),
+                   static_cast<std::uint64_t>(info.st_size),
+                   static_cast<std::int64_t>(info.st_mtim.tv_sec) * 1'000'000'000 +
+                       info.st_mtim.tv_nsec};
+}
+
+/// What a directory entry that is not a regular file is, for the messages.
+std::string kind_of(mode_t mode) {
+  if (S_ISFIFO(mode)) return "a FIFO";
+  if (S_ISLNK(mode)) return "a symbolic link (not followed)";
+  if (S_ISDIR(mode)) return "a directory";
+  if (S_ISCHR(mode) || S_ISBLK(mode)) return "a device";
+  if (S_ISSOCK(mode)) return "a socket";
+  return "not a regular file";
+}
+
+}  // namespace
+
+StagedWrite& StagedWrite::operator=(StagedWrite&& other) noexcept {
+  if (this != &other) {
+    if (!temp_path_.empty()) ::unlink(temp_path_.c_str());
+    id_ = std::move(other.id_);
+    temp_path_ = std::exchange(other.temp_path_, std::string());
+    stamp_ = other.stamp_;
+  }
+  return *this;
+}
+
+StagedWrite::~StagedWrite() {
+  if (!temp_path_.empty()) ::unlink(temp_path_.c_str());
+}
+
+Result<StateDirectory> StateDirectory::open(std::string path, WriteFault fault,
+                                            std::uint64_t max_file_bytes) {
   if (path.empty()) return Error(ErrorCode::InvalidArgument, "empty state directory path");
   if (::mkdir(path.c_str(), 0700) != 0 && errno != EEXIST) return os_error("cannot create", path);
   struct stat info {};
@@ -191,96 +268,152 @@ Result<StateDirectory> StateDirectory::open(std::string path) {
     return Error(ErrorCode::Internal, "state directory " + path + " is not a directory");
   }
   if (::access(path.c_str(), W_OK | X_OK) != 0) return os_error("cannot write to", path);
-  return StateDirectory(std::move(path));
+  auto lock = std::make_shared<Lock>();
+  const std::string lock_path = path + "/.lock";
+  lock->fd = ::open(lock_path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC | O_NOFOLLOW, 0600);
+  if (lock->fd < 0) return os_error("cannot open", lock_path);
+  return StateDirectory(std::move(path), std::move(fault), max_file_bytes, std::move(lock));
+}
+
+int StateDirectory::injected(std::string_view call) const {
+  const int error = fault_ ? fault_(call) : 0;
+  if (error != 0) errno = error;
+  return error;
 }
 
 std::string StateDirectory::file_of(const SessionId& id) const {
   return path_ + "/" + id.value + ".state";
 }
 
-namespace {
-FileStamp stamp_of(const struct stat& info) {
-  return FileStamp{static_cast<std::uint64_t>(info.st_dev), static_cast<std::uint64_t>(info.st_ino),
-                   static_cast<std::uint64_t>(info.st_size),
-                   static_cast<std::int64_t>(info.st_mtim.tv_sec) * 1'000'000'000 +
-                       info.st_mtim.tv_nsec};
-}
-}  // namespace
-
-Result<FileStamp> StateDirectory::write(const PersistedSession& state) const {
+Result<StagedWrite> StateDirectory::stage(const PersistedSession& state) const {
   if (!is_valid_session_id(state.id.value)) {
     return Error(ErrorCode::InvalidArgument, "not a session id this server issues");
   }
   const std::string bytes = encode_session(state);
-  const std::string final_path = file_of(state.id);
   // A temporary name of this process and write alone (replicas may share the directory).
   static std::atomic<std::uint64_t> serial{0};
-  const std::string temp_path = final_path + ".tmp." + std::to_string(::getpid()) + "." +
+  StagedWrite staged;
+  staged.id_ = state.id;
+  const std::string temp_path = file_of(state.id) + ".tmp." + std::to_string(::getpid()) + "." +
                                 std::to_string(serial.fetch_add(1));
-  const int fd = ::open(temp_path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
-  if (fd < 0) return os_error("cannot create", temp_path);
+  const int fd = injected("open") != 0
+                     ? -1
+                     : ::open(temp_path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+  if (fd < 0) return write_error("create", temp_path, errno);
+  staged.temp_path_ = temp_path;  // removed by ~StagedWrite unless published
   std::size_t written = 0;
   while (written < bytes.size()) {
-    const ssize_t n = ::write(fd, bytes.data() + written, bytes.size() - written);
+    const ssize_t n = injected("write") != 0
+                          ? -1
+                          : ::write(fd, bytes.data() + written, bytes.size() - written);
     if (n < 0 && errno == EINTR) continue;
     if (n <= 0) {
-      const Status error = os_error("cannot write", temp_path);
+      const int error = n < 0 ? errno : ENOSPC;  // a write of 0 bytes: no room
       ::close(fd);
-      ::unlink(temp_path.c_str());
-      return error;
+      return write_error("write", temp_path, error);
     }
     written += static_cast<std::size_t>(n);
   }
   // Data durable before the rename makes it visible; the directory entry durable after.
   struct stat info {};
-  if (::fsync(fd) != 0 || ::fstat(fd, &info) != 0) {
-    const Status error = os_error("cannot fsync", temp_path);
+  if (injected("fsync") != 0 || ::fsync(fd) != 0 || ::fstat(fd, &info) != 0) {
+    const int error = errno;
     ::close(fd);
-    ::unlink(temp_path.c_str());
-    return error;
+    return write_error("fsync", temp_path, error);
   }
   ::close(fd);
-  if (::rename(temp_path.c_str(), final_path.c_str()) != 0) {
-    const Status error = os_error("cannot rename onto", final_path);
-    ::unlink(temp_path.c_str());
-    return error;
+  staged.stamp_ = stamp_of(info);  // rename keeps the inode, size and mtime of the file written
+  return staged;
+}
+
+Status StateDirectory::publish(StagedWrite staged, const std::optional<FileStamp>& expected,
+                               std::optional<FileStamp>& stamp) const {
+  const std::string final_path = file_of(staged.id_);
+  {
+    const DirectoryGuard guard(lock_->mutex, lock_->fd);
+    struct stat info {};
+    const bool exists = ::lstat(final_path.c_str(), &info) == 0;
+    if (expected) {
+      if (!exists) {
+        return Error(ErrorCode::NotFound, "session " + staged.id_.value.substr(0, 8) +
+                                              "... was closed or expired (its state file is gone)");
+      }
+      if (!S_ISREG(info.st_mode) || stamp_of(info) != *expected) {
+        return Error(ErrorCode::Aborted, "session " + staged.id_.value.substr(0, 8) +
+                                             "... was changed by another replica; retry the call");
+      }
+    } else if (exists) {
+      return Error(ErrorCode::Aborted,
+                   "session " + staged.id_.value.substr(0, 8) + "... already has a state file");
+    }
+    if (injected("rename") != 0 || ::rename(staged.temp_path_.c_str(), final_path.c_str()) != 0) {
+      return write_error("rename onto", final_path, errno);
+    }
+    staged.temp_path_.clear();  // it is the session's file now
+    stamp = staged.stamp_;
   }
   const int dir = ::open(path_.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dir >= 0) {
-    ::fsync(dir);
-    ::close(dir);
-  }
-  return stamp_of(info);  // rename keeps the inode, size and mtime of the file written
+  if (dir < 0) return write_error("open", path_, errno);
+  const bool synced = injected("fsync_dir") == 0 && ::fsync(dir) == 0;
+  const int error = errno;
+  ::close(dir);
+  if (!synced) return write_error("fsync", path_, error);
+  return Status::success();
 }
 
 std::optional<FileStamp> StateDirectory::stamp(const SessionId& id) const {
   if (!is_valid_session_id(id.value)) return std::nullopt;
   struct stat info {};
-  if (::stat(file_of(id).c_str(), &info) != 0) return std::nullopt;
+  if (::lstat(file_of(id).c_str(), &info) != 0) return std::nullopt;
   return stamp_of(info);
 }
 
 Result<PersistedSession> StateDirectory::read(const SessionId& id, FileStamp* stamp) const {
   if (!is_valid_session_id(id.value)) return Error(ErrorCode::NotFound, "no such session file");
   const std::string path = file_of(id);
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  // Never follow a link, never block on a FIFO (O_NONBLOCK), read only a regular file.
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK);
   if (fd < 0) {
     if (errno == ENOENT) return Error(ErrorCode::NotFound, "no such session file");
-    return os_error("cannot open", path);
+    if (errno == ELOOP) {
+      return Error(ErrorCode::InvalidArgument,
+                   "state file " + path + " is a symbolic link (not followed)");
+    }
+    return Error(ErrorCode::Unavailable,
+                 "state directory: cannot open " + path + ": " + std::strerror(errno));
   }
-  if (stamp != nullptr) {
-    struct stat info {};
-    if (::fstat(fd, &info) == 0) *stamp = stamp_of(info);
+  struct stat info {};
+  if (::fstat(fd, &info) != 0) {
+    const int error = errno;
+    ::close(fd);
+    return Error(ErrorCode::Unavailable,
+                 "state directory: cannot stat " + path + ": " + std::strerror(error));
   }
+  if (!S_ISREG(info.st_mode)) {
+    ::close(fd);
+    return Error(ErrorCode::InvalidArgument,
+                 "state file " + path + " is " + kind_of(info.st_mode) + ", not read");
+  }
+  if (static_cast<std::uint64_t>(info.st_size) > max_file_bytes_) {
+    ::close(fd);
+    return Error(ErrorCode::InvalidArgument,
+                 "state file " + path + " has " + std::to_string(info.st_size) +
+                     " bytes, more than the " + std::to_string(max_file_bytes_) + " allowed");
+  }
+  if (stamp != nullptr) *stamp = stamp_of(info);
+  // At most the size seen (plus one byte, to notice a file that grew meanwhile).
   std::string bytes;
-  char buffer[1 << 16];
-  while (true) {
-    const ssize_t n = ::read(fd, buffer, sizeof buffer);
+  const std::size_t want = static_cast<std::size_t>(info.st_size) + 1;
+  bytes.resize(want);
+  std::size_t got = 0;
+  while (got < want) {
+    const ssize_t n = ::read(fd, bytes.data() + got, want - got);
     if (n < 0 && errno == EINTR) continue;
     if (n <= 0) break;
-    bytes.append(buffer, static_cast<std::size_t>(n));
+    got += static_cast<std::size_t>(n);
   }
   ::close(fd);
+  bytes.resize(got);
   Result<PersistedSession> state = decode_session(bytes);
   if (state.ok() && state->id.value != id.value) {
     return Error(ErrorCode::InvalidArgument, "state file " + path + " holds another session");
@@ -291,7 +424,7 @@ Result<PersistedSession> StateDirectory::read(const SessionId& id, FileStamp* st
 std::optional<double> StateDirectory::age_seconds(const SessionId& id) const {
   if (!is_valid_session_id(id.value)) return std::nullopt;
   struct stat info {};
-  if (::stat(file_of(id).c_str(), &info) != 0) return std::nullopt;
+  if (::lstat(file_of(id).c_str(), &info) != 0) return std::nullopt;
   timespec now{};
   clock_gettime(CLOCK_REALTIME, &now);
   return static_cast<double>(now.tv_sec - info.st_mtim.tv_sec) +
@@ -299,23 +432,48 @@ std::optional<double> StateDirectory::age_seconds(const SessionId& id) const {
 }
 
 void StateDirectory::remove(const SessionId& id) const {
-  if (is_valid_session_id(id.value)) ::unlink(file_of(id).c_str());
+  if (!is_valid_session_id(id.value)) return;
+  const DirectoryGuard guard(lock_->mutex, lock_->fd);
+  ::unlink(file_of(id).c_str());
 }
 
-std::vector<SessionId> StateDirectory::list() const {
+bool StateDirectory::remove_if(const SessionId& id, const FileStamp& expected) const {
+  if (!is_valid_session_id(id.value)) return false;
+  const DirectoryGuard guard(lock_->mutex, lock_->fd);
+  struct stat info {};
+  if (::lstat(file_of(id).c_str(), &info) != 0 || stamp_of(info) != expected) return false;
+  return ::unlink(file_of(id).c_str()) == 0;
+}
+
+std::vector<SessionId> StateDirectory::scan(std::vector<SkippedStateFile>& skipped) const {
   std::vector<SessionId> ids;
   DIR* dir = ::opendir(path_.c_str());
   if (dir == nullptr) return ids;
   while (const dirent* entry = ::readdir(dir)) {
     const std::string_view name = entry->d_name;
     constexpr std::string_view kSuffix = ".state";
-    if (name.size() == 32 + kSuffix.size() && name.ends_with(kSuffix) &&
-        is_valid_session_id(name.substr(0, 32))) {
+    if (name.size() != 32 + kSuffix.size() || !name.ends_with(kSuffix) ||
+        !is_valid_session_id(name.substr(0, 32))) {
+      continue;
+    }
+    struct stat info {};
+    if (::fstatat(::dirfd(dir), entry->d_name, &info, AT_SYMLINK_NOFOLLOW) != 0) continue;
+    if (!S_ISREG(info.st_mode)) {
+      skipped.push_back({std::string(name), kind_of(info.st_mode)});
+    } else if (static_cast<std::uint64_t>(info.st_size) > max_file_bytes_) {
+      skipped.push_back({std::string(name), "larger than " + std::to_string(max_file_bytes_) +
+                                                " bytes (" + std::to_string(info.st_size) + ")"});
+    } else {
       ids.push_back(SessionId{std::string(name.substr(0, 32))});
     }
   }
   ::closedir(dir);
   return ids;
+}
+
+std::vector<SessionId> StateDirectory::list() const {
+  std::vector<SkippedStateFile> ignored;
+  return scan(ignored);
 }
 
 }  // namespace meshdeform::service

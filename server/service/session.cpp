@@ -9,7 +9,9 @@
 #include <thread>
 #include <unordered_map>
 
+#include "core/format_number.h"
 #include "core/ora.h"
+#include "server/service/call_stop.h"
 #include "core/validate.h"
 #include "server/service/edit_history.h"
 #include "server/service/log.h"
@@ -56,9 +58,11 @@ Status check_transform(const GroupMove& move, const std::string& where) {
     return Error(ErrorCode::InvalidArgument,
                  where + ".rotation is the zero quaternion (it has no rotation to normalise)");
   }
-  if (!std::isfinite(move.scale) || move.scale <= 0) {
+  if (!(move.scale >= 1.0 / kMaxMoveScale && move.scale <= kMaxMoveScale)) {
     return Error(ErrorCode::InvalidArgument,
-                 where + ".scale " + std::to_string(move.scale) + " is not finite and positive");
+                 where + ".scale " + core::format_number(move.scale, "%g") + " is outside [" +
+                     core::format_number(1.0 / kMaxMoveScale, "%g") + ", " +
+                     core::format_number(kMaxMoveScale, "%g") + "]");
   }
   if (move.pivot) MD_RETURN_IF_ERROR(check_finite(*move.pivot, where + ".pivot"));
   return Status::success();
@@ -80,7 +84,8 @@ Status check_budget(const MoveRequest& request) {
                  std::to_string(request.magnify.size()) + " magnify regions (at most " +
                      std::to_string(kMaxMagnifyRegions) + ")");
   }
-  return check_rigidity(request.rigidity);
+  if (!request.rigidity) return Status::success();
+  return core::check_rigidity(*request.rigidity, kMaxRigidity);
 }
 
 }  // namespace
@@ -139,6 +144,12 @@ Result<std::shared_ptr<Session>> Session::create(SessionId id, Token edit_token,
   session->counters_ = std::move(counters);
   session->reserve_ = std::move(reserve);
   session->vertex_group_.assign(static_cast<std::size_t>(session->rest_.V.rows()), -1);
+  {
+    const Positions& V = session->rest_.V;
+    const double diagonal = (V.colwise().maxCoeff() - V.colwise().minCoeff()).norm();
+    const double extent = std::max({diagonal, V.cwiseAbs().maxCoeff(), 1e-300});
+    session->reach_ = kMaxReach * extent;
+  }
 
   auto rest = std::make_shared<DeformResult>();
   rest->revision = 0;
@@ -217,18 +228,39 @@ PersistedSession Session::persisted_state(bool with_rest) const {
   return state;
 }
 
-void Session::persist() {
-  if (state_dir_ == nullptr) return;
-  const PersistedSession state = persisted_state();
-  const Result<FileStamp> written = state_dir_->write(state);
-  if (written.ok()) {
-    counters_->persisted_writes.fetch_add(1);
-    set_persisted_stamp(*written);
-    return;
+Status Session::persist() {
+  if (state_dir_ == nullptr) return Status::success();
+  return persist_state(persisted_state());
+}
+
+Status Session::persist_state(const PersistedSession& state) {
+  if (state_dir_ == nullptr) return Status::success();
+  auto failed = [this](const Status& status) {
+    // Losing to another replica or to a close is not a failure of the store; the OS's errors are.
+    if (status.code() != ErrorCode::Aborted && status.code() != ErrorCode::NotFound) {
+      counters_->persist_failures.fetch_add(1);
+    }
+    log_event(LogLevel::Error, "persist_failed",
+              LogFields().add("session", id_.value).add("message", status.message()));
+    return status;
+  };
+  // The slow part (encoding, writing, fsync) under no lock.
+  Result<StagedWrite> staged = state_dir_->stage(state);
+  if (!staged.ok()) return failed(staged.status());
+  Status published;
+  {
+    const std::lock_guard lock(stamp_mutex_);
+    if (closed_.load()) {
+      return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
+    }
+    std::optional<FileStamp> written;
+    published = state_dir_->publish(std::move(staged).value(), stamp_, written);
+    // The file is ours once renamed, even when the directory's fsync then failed.
+    if (written) stamp_ = written;
   }
-  counters_->persist_failures.fetch_add(1);
-  log_event(LogLevel::Error, "persist_failed",
-            LogFields().add("session", id_.value).add("message", written.status().message()));
+  if (!published.ok()) return failed(published);
+  counters_->persisted_writes.fetch_add(1);
+  return Status::success();
 }
 
 std::optional<FileStamp> Session::persisted_stamp() const {
@@ -243,9 +275,32 @@ void Session::set_persisted_stamp(const FileStamp& stamp) {
 
 bool Session::is_fresh() const {
   if (state_dir_ == nullptr) return true;
-  const std::optional<FileStamp> mine = persisted_stamp();
-  if (!mine) return true;
-  return state_dir_->stamp(id_) == mine;
+  // Under the lock a write of this copy holds from its rename to recording the new stamp.
+  const std::lock_guard lock(stamp_mutex_);
+  if (!stamp_) return true;
+  return state_dir_->stamp(id_) == stamp_;
+}
+
+void Session::hand_over_watchers(Session& fresh) {
+  std::vector<std::shared_ptr<Watcher>> watchers;
+  {
+    std::lock_guard lock(state_mutex_);
+    watchers.swap(watchers_);
+  }
+  {
+    std::lock_guard lock(fresh.state_mutex_);
+    for (const std::shared_ptr<Watcher>& watcher : watchers) {
+      watcher->set_owner(fresh.weak_from_this());
+      // Newer than what the watcher saw: a snapshot (an older or equal revision is ignored).
+      watcher->publish_snapshot(fresh.snapshot_locked());
+      if (fresh.closed_.load()) {
+        watcher->close();
+      } else {
+        fresh.watchers_.push_back(watcher);
+      }
+    }
+  }
+  close();
 }
 
 namespace {
@@ -294,6 +349,13 @@ Result<Eigen::VectorXd> Session::magnify_scales(const MoveRequest& request) cons
       return Error(ErrorCode::InvalidArgument, "magnify[" + std::to_string(r) +
                                                    "]: name the region by vertices, not faces");
     }
+    const double k = request.magnify[r].scale;
+    if (!(k >= 1.0 / kMaxMagnifyScale && k <= kMaxMagnifyScale)) {
+      return Error(ErrorCode::InvalidArgument,
+                   "magnify[" + std::to_string(r) + "].scale " + core::format_number(k, "%g") +
+                       " is outside [" + core::format_number(1.0 / kMaxMagnifyScale, "%g") +
+                       ", " + core::format_number(kMaxMagnifyScale, "%g") + "]");
+    }
   }
   return core::face_scales_from_regions(request.magnify, rest_.F,
                                         static_cast<int>(rest_.V.rows()));
@@ -331,22 +393,28 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
   }
   std::vector<int> group_of(static_cast<std::size_t>(nv), -1);
   std::vector<int> constrained;
+  // "fixed group 0", "handle group 1": the messages name each group's role.
+  auto group_name = [&request](std::size_t g) {
+    return std::string(request.groups[g].role == HandleRole::Fixed ? "fixed" : "handle") +
+           " group " + std::to_string(g);
+  };
   for (std::size_t g = 0; g < request.groups.size(); ++g) {
     const HandleGroup& group = request.groups[g];
     if (group.vertices.empty()) {
-      return Error(ErrorCode::InvalidArgument, "handle group " + std::to_string(g) + " is empty");
+      return Error(ErrorCode::InvalidArgument, group_name(g) + " is empty");
     }
     for (int v : group.vertices) {
       if (v < 0 || v >= nv) {
-        return Error(ErrorCode::InvalidArgument, "handle group " + std::to_string(g) +
-                                                     " references vertex " + std::to_string(v) +
-                                                     " (#V=" + std::to_string(nv) + ")");
+        return Error(ErrorCode::InvalidArgument, group_name(g) + " references vertex " +
+                                                     std::to_string(v) + " (#V=" +
+                                                     std::to_string(nv) + ")");
       }
       int& owner = group_of[static_cast<std::size_t>(v)];
       if (owner >= 0) {
         return Error(ErrorCode::InvalidArgument,
-                     "vertex " + std::to_string(v) + " is in handle group " +
-                         std::to_string(owner) + " and in handle group " + std::to_string(g));
+                     "vertex " + std::to_string(v) + " is in " +
+                         group_name(static_cast<std::size_t>(owner)) + " and in " +
+                         group_name(g));
       }
       owner = static_cast<int>(g);
       constrained.push_back(v);
@@ -354,25 +422,34 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
   }
   std::sort(constrained.begin(), constrained.end());
   MD_RETURN_IF_ERROR(check_pinnable(request.prepare, constrained));
+  // A close stops the precompute too.
+  const CallStop closed_or_stopped(stop, closed_stop_.get_token());
   MD_RETURN_IF_ERROR(
-      deformers_->get_or_build(request.prepare, constrained, stop, progress).status());
+      deformers_->get_or_build(request.prepare, constrained, closed_or_stopped.token(), progress)
+          .status());
 
   {
     std::unique_lock shared_lock(shared_mutex_, std::defer_lock);
-    if (shared_ != nullptr) {
-      // The anchors are the current positions: no replay may slip in between.
-      shared_lock.lock();
-      PersistedSession state = persisted_state(/*with_rest=*/false);
+    if (shared_ != nullptr) shared_lock.lock();  // the anchors are the current positions: no
+                                                 // replay may slip in between
+    // The new state, stored before it is applied here (the store or the state file first).
+    if (shared_ != nullptr || state_dir_ != nullptr) {
+      PersistedSession state = persisted_state(/*with_rest=*/shared_ == nullptr);
       state.groups = request.groups;
       state.anchors.resize(static_cast<Eigen::Index>(constrained.size()), 3);
       for (std::size_t j = 0; j < constrained.size(); ++j)
         state.anchors.row(static_cast<Eigen::Index>(j)) = state.positions.row(constrained[j]);
       state.targets = state.anchors;
       restart_history(state.edit);
-      MD_RETURN_IF_ERROR(shared_->commit(state, shared_version_, SharedLogEntry{}));
-      ++shared_version_;
+      if (shared_ != nullptr) {
+        MD_RETURN_IF_ERROR(shared_->commit(state, shared_version_, SharedLogEntry{}));
+        ++shared_version_;
+      } else {
+        MD_RETURN_IF_ERROR(persist_state(state));
+      }
     }
     std::lock_guard lock(state_mutex_);
+    if (closed_.load()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
     const Positions& current = *history_.back()->positions;
     Positions anchors(static_cast<Eigen::Index>(constrained.size()), 3);
     for (std::size_t j = 0; j < constrained.size(); ++j)
@@ -384,11 +461,21 @@ Result<SessionInfo> Session::set_handles(const SetHandlesRequest& request, std::
     vertex_group_ = std::move(group_of);
     restart_history(edit_);  // new anchors: older steps meant other targets
   }
-  persist();
   return info();
 }
 
-Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token stop) {
+Status Session::check_reach(const Eigen::RowVector3d& target, const std::string& field) const {
+  if (target.allFinite() && target.cwiseAbs().maxCoeff() <= reach_) return Status::success();
+  return Error(ErrorCode::InvalidArgument,
+               field + " puts a target at (" + core::format_number(target.x(), "%g") + ", " +
+                   core::format_number(target.y(), "%g") + ", " +
+                   core::format_number(target.z(), "%g") + "), beyond the " +
+                   core::format_number(reach_, "%g") + " a target may reach on this mesh (" +
+                   core::format_number(kMaxReach, "%g") + " times its size)");
+}
+
+Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token stop,
+                                   const core::ProgressCallback& between_iterations) {
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " is closed");
   if (!is_fresh()) return stale_copy(id_);  // never overwrite a newer revision of another replica
   if (shared_ != nullptr) {
@@ -497,7 +584,16 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     }
     const Positions moved = core::apply_similarity(transform, group_anchors);
     for (std::size_t i = 0; i < group.vertices.size(); ++i) {
-      targets.row(row_of(group.vertices[i])) = moved.row(static_cast<Eigen::Index>(i));
+      const Eigen::RowVector3d target = moved.row(static_cast<Eigen::Index>(i));
+      if (const Status reach = check_reach(target, where); !reach.ok()) {
+        // Name the field that sent it there.
+        const bool pivot_far = move.pivot && !check_reach(move.pivot->transpose(), "").ok();
+        const bool translation_far = !check_reach(move.translation.transpose(), "").ok();
+        return check_reach(target, where + (translation_far ? ".translation"
+                                            : pivot_far     ? ".pivot"
+                                                            : ""));
+      }
+      targets.row(row_of(group.vertices[i])) = target;
     }
   }
   const int nv = static_cast<int>(rest_.V.rows());
@@ -520,6 +616,8 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     }
     MD_RETURN_IF_ERROR(check_finite(target.position, "targets.positions of vertex " +
                                                          std::to_string(target.vertex)));
+    MD_RETURN_IF_ERROR(check_reach(target.position.transpose(),
+                                   "targets.positions of vertex " + std::to_string(target.vertex)));
     targets.row(row_of(target.vertex)) = target.position.transpose();
   }
   MD_RETURN_IF_ERROR(check_pinnable(request.method, constrained));
@@ -547,6 +645,10 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   };
   auto stopped_status = [&]() -> Status {
     counters_->moves_cancelled.fetch_add(1);
+    if (is_closed()) {
+      return Error(ErrorCode::NotFound,
+                   "session " + id_.value + " was closed; its running solve was stopped");
+    }
     if (deadline_passed()) {
       return Error(ErrorCode::DeadlineExceeded, "deadline exceeded; revision " +
                                                     std::to_string(base_revision) + " unchanged");
@@ -597,7 +699,10 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   // commit() measures E_theta / E_phi once; per-iteration tracking would measure the mesh three
   // more times per interactive move (rest, guess, each iteration).
   options.track_metrics = false;
-  Result<core::SolveReport> report = entry->deformer->solve(targets, options, {}, stop);
+  // The call's stop and the session's close, one token for the solver.
+  const CallStop closed_or_stopped(stop, closed_stop_.get_token());
+  Result<core::SolveReport> report =
+      entry->deformer->solve(targets, options, between_iterations, closed_or_stopped.token());
   if (!report.ok()) {
     if (report.status().code() == ErrorCode::Cancelled) return stopped_status();
     // The deformer may have moved; make sure it restarts cleanly next time.
@@ -643,6 +748,13 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
     result->changed_positions.row(static_cast<Eigen::Index>(j)) = V.row(result->changed[j]);
   const core::AngleErrors errors =
       core::angle_errors(rest_measures_, V, rest_.F, topology_, settings_.threads);
+  if (!V.allFinite() || !std::isfinite(errors.e_theta) || !std::isfinite(errors.e_phi)) {
+    // Inputs are checked to give finite results; never commit or send NaN if one does not.
+    entry->state_revision = ~std::uint64_t{0};
+    return Error(ErrorCode::NumericalFailure,
+                 "the solve gave non-finite positions; revision " + std::to_string(base_revision) +
+                     " unchanged");
+  }
   result->e_theta = errors.e_theta;
   result->e_phi = errors.e_phi;
   result->area_log_rms = errors.area_log_rms;
@@ -691,8 +803,25 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
     ++shared_version_;
     counters_->persisted_writes.fetch_add(1);
   }
+  if (state_dir_ != nullptr) {
+    // Durable before it is applied, acknowledged or published; refused, nothing changes here.
+    PersistedSession state = persisted_state();
+    state.revision = base_revision + 1;
+    state.positions = *result->positions;
+    state.targets = targets;
+    state.last_method = method;
+    if (edit != nullptr) state.edit = *edit;
+    if (const Status stored = persist_state(state); !stored.ok()) {
+      entry->state_revision = ~std::uint64_t{0};  // the deformer holds the refused result
+      return stored;
+    }
+  }
   {
     std::lock_guard lock(state_mutex_);
+    if (closed_.load()) {
+      entry->state_revision = ~std::uint64_t{0};
+      return Error(ErrorCode::NotFound, "session " + id_.value + " was closed");
+    }
     result->revision = ++revision_;
     push_history_locked(result);
     targets_ = targets;
@@ -701,7 +830,6 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
     watchers = watchers_;
   }
   entry->state_revision = result->revision;
-  persist();  // durable before anyone hears of the revision
   // Revisions are committed by one strand task at a time, so publishing outside the lock keeps
   // them in order; a watcher joining in between drops the older one (see Watcher::offer).
   for (const std::shared_ptr<Watcher>& watcher : watchers) watcher->publish(result);
@@ -749,7 +877,8 @@ bool Session::finish_background_build(const BackgroundBuild& build,
   return true;
 }
 
-Result<std::optional<DeformResult>> Session::refine(std::stop_source slice) {
+Result<std::optional<DeformResult>> Session::refine(
+    std::stop_source slice, const core::ProgressCallback& between_iterations) {
   if (!refine_ || is_closed() || !is_fresh()) {
     refine_.reset();
     return std::optional<DeformResult>{};
@@ -799,10 +928,12 @@ Result<std::optional<DeformResult>> Session::refine(std::stop_source slice) {
   options.track_metrics = false;  // as in move(): commit() measures once
   // A multiresolution deformer's moves ran on its coarse level: refinement is at full resolution.
   options.full_resolution = true;
+  const CallStop closed_or_stopped(slice.get_token(), closed_stop_.get_token());
   Result<core::SolveReport> report =
       slice.stop_requested()
           ? Result<core::SolveReport>(Error(ErrorCode::Cancelled, "refinement preempted"))
-          : entry->deformer->solve(targets, options, {}, slice.get_token());
+          : entry->deformer->solve(targets, options, between_iterations,
+                                   closed_or_stopped.token());
   {
     std::lock_guard lock(refine_mutex_);
     refine_stop_ = std::stop_source(std::nostopstate);
@@ -909,6 +1040,7 @@ void Session::push_history_locked(std::shared_ptr<const DeformResult> result) {
 
 std::shared_ptr<Watcher> Session::add_watcher() {
   auto watcher = std::make_shared<Watcher>();
+  watcher->set_owner(weak_from_this());
   std::lock_guard lock(state_mutex_);
   watcher->publish_snapshot(snapshot_locked());
   if (closed_.load()) {
@@ -929,24 +1061,29 @@ int Session::watcher_count() const {
   return static_cast<int>(watchers_.size());
 }
 
-void Session::close() {
+void Session::close(Status reason) {
+  {
+    // After this no write of this copy reaches the state directory (persist_state checks the
+    // flag under the same lock), and one in progress has finished.
+    const std::lock_guard lock(stamp_mutex_);
+    closed_.store(true);
+  }
   std::vector<std::shared_ptr<Watcher>> watchers;
   {
     std::lock_guard lock(state_mutex_);
-    closed_.store(true);
     watchers.swap(watchers_);
   }
-  background_stop_.request_stop();
-  for (const auto& watcher : watchers) watcher->close();
+  closed_stop_.request_stop();  // a running solve, precompute or background build stops
+  for (const auto& watcher : watchers) watcher->close(reason);
 }
 
-void Session::close_watchers() {
+void Session::close_watchers(Status reason) {
   std::vector<std::shared_ptr<Watcher>> watchers;
   {
     std::lock_guard lock(state_mutex_);
     watchers.swap(watchers_);
   }
-  for (const auto& watcher : watchers) watcher->close();
+  for (const auto& watcher : watchers) watcher->close(reason);
 }
 
 std::chrono::steady_clock::time_point Session::last_used() const {

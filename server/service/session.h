@@ -39,6 +39,7 @@ struct ServiceCounters {
   std::atomic<std::uint64_t> outer_iterations{0};
   std::atomic<std::uint64_t> persist_failures{0};
   std::atomic<std::uint64_t> persisted_writes{0};
+  std::atomic<std::uint64_t> solves_running{0};  ///< moves and refinement slices in a solve now
   MetricsRegistry metrics;  ///< RPC and solve histograms (see metrics.h)
 };
 
@@ -63,12 +64,12 @@ class Session : public std::enable_shared_from_this<Session> {
   [[nodiscard]] static Result<std::shared_ptr<Session>> restore(
       PersistedSession state, const ServiceOptions& options,
       std::shared_ptr<ServiceCounters> counters, ReserveFn reserve);
-  /// Writes every committed revision and handle change to `dir` (before it is acknowledged or
-  /// published) from now on; nullptr stops. Call before the session is shared.
+  /// Writes every committed revision and handle change to `dir` before it is applied here,
+  /// acknowledged or published, from now on; nullptr stops. Call before the session is shared.
   void set_state_directory(const StateDirectory* dir) { state_dir_ = dir; }
-  /// Writes the current state now (creation). Errors are logged and counted, not returned:
-  /// the edit stands in memory either way.
-  void persist();
+  /// Writes the current state now (creation: there must be no file yet).
+  /// @return as persist_state().
+  [[nodiscard]] Status persist();
   /// The state as a state file or the shared store holds it; without `with_rest` the rest mesh
   /// is left empty (what a shared-store commit writes).
   PersistedSession persisted_state(bool with_rest = true) const;
@@ -94,8 +95,17 @@ class Session : public std::enable_shared_from_this<Session> {
   void set_persisted_stamp(const FileStamp& stamp);
   /// False when the session's state file is no longer the one this copy wrote or read: another
   /// replica sharing the directory changed (or removed) it, so this copy is stale. True without
-  /// a state directory or before the first write.
+  /// a state directory or before the first write. A write of this copy is never mistaken for
+  /// another's: the file's replacement and the copy's record of it happen under one lock.
   bool is_fresh() const;
+  /// Moves this (stale) copy's watchers to `fresh`, the state restored from the file, which
+  /// publishes its current revision to them as a snapshot; then closes this copy.
+  void hand_over_watchers(Session& fresh);
+  /// The client (as the front end names it) that created the session; empty when unknown (a
+  /// session restored from a state file or the shared store).
+  const std::string& owner() const { return owner_; }
+  /// Call before the session is shared.
+  void set_owner(std::string owner) { owner_ = std::move(owner); }
 
   const SessionId& id() const { return id_; }
   const MeshData& rest() const { return rest_; }
@@ -106,7 +116,7 @@ class Session : public std::enable_shared_from_this<Session> {
   /// The view token (handed to editors, who may share it; never logged).
   const Token& view_token() const { return view_token_; }
   /// The scale control (core::SolveOptions::rigidity) of scale-aware moves that do not set one.
-  /// Call before the session is shared. @pre is_valid_rigidity(rigidity).
+  /// Call before the session is shared. @pre core::check_rigidity(rigidity, kMaxRigidity) succeeds.
   void set_default_rigidity(double rigidity) { default_rigidity_ = rigidity; }
 
   /// Sets the handle groups, anchors them at the current positions (targets = anchors) and builds
@@ -138,7 +148,10 @@ class Session : public std::enable_shared_from_this<Session> {
   /// @param stop  the call's one stop: the caller requests it on cancellation and at
   ///              request.deadline (DeformationService does, through CallStop); the session
   ///              polls nothing else.
-  [[nodiscard]] Result<DeformResult> move(const MoveRequest& request, std::stop_token stop);
+  /// @param between_iterations  called after each outer iteration of the solve, on this
+  ///              thread (the service runs other sessions' waiting moves there: fairness).
+  [[nodiscard]] Result<DeformResult> move(const MoveRequest& request, std::stop_token stop,
+                                          const core::ProgressCallback& between_iterations = {});
 
   /// Background refinement (ServiceOptions::refine_budget > 0). A committed move that did not
   /// converge leaves the session wanting refinement: more outer iterations of the same method on
@@ -151,7 +164,8 @@ class Session : public std::enable_shared_from_this<Session> {
   /// @return the committed revision; nullopt when there was nothing to refine (or the state
   ///         changed since); Cancelled when preempted or stopped (nothing committed); the
   ///         solver's error otherwise (refinement then ends).
-  [[nodiscard]] Result<std::optional<DeformResult>> refine(std::stop_source slice);
+  [[nodiscard]] Result<std::optional<DeformResult>> refine(
+      std::stop_source slice, const core::ProgressCallback& between_iterations = {});
   /// True while refinement should continue. Edit (strand) only.
   bool wants_refinement() const { return refine_.has_value() && !is_closed(); }
   /// Stops a running refinement slice (any thread). Called when a new edit is queued.
@@ -179,7 +193,7 @@ class Session : public std::enable_shared_from_this<Session> {
   bool finish_background_build(const BackgroundBuild& build,
                                Result<core::Deformer::Installer> installer);
   /// Stops a running build: requested by close() (any thread).
-  std::stop_token background_build_stop() const { return background_stop_.get_token(); }
+  std::stop_token background_build_stop() const { return closed_stop_.get_token(); }
 
   SessionInfo info() const;
   /// Positions at `revision` (default: the current one). Revision 0, the rest mesh, is always
@@ -195,10 +209,12 @@ class Session : public std::enable_shared_from_this<Session> {
   void remove_watcher(const Watcher* watcher);
   int watcher_count() const;
 
-  /// Closes the session: later edits fail with NotFound and watchers are closed.
-  void close();
-  /// Ends every watch (their streams finish OK) without closing the session: server shutdown.
-  void close_watchers();
+  /// Closes the session: a running solve or precompute stops, later edits fail with NotFound,
+  /// nothing is written to the state directory after it returns, and watchers are closed with
+  /// `reason` (success: the session was closed; their streams end OK).
+  void close(Status reason = Status::success());
+  /// Ends every watch with `reason` without closing the session (server shutdown: Unavailable).
+  void close_watchers(Status reason);
   bool is_closed() const { return closed_.load(); }
 
   /// What the memory budget charges: the mesh, its revisions and the cached deformers.
@@ -227,6 +243,9 @@ class Session : public std::enable_shared_from_this<Session> {
   struct StrandStep {
     TaskClass task_class = TaskClass::Normal;
     std::string client;  ///< who asked (fairness of heavy work)
+    /// A short normal step (a move of at most kShortMoveIterations): it may also run at a long
+    /// solve's yield point (WorkerPool::submit_short).
+    bool is_short = false;
   };
   /// Strand: the service queues edits here, each with its cost class and client; `run_next`
   /// pops one.
@@ -245,6 +264,17 @@ class Session : public std::enable_shared_from_this<Session> {
   Result<Eigen::VectorXd> magnify_scales(const MoveRequest& request) const;
   /// Sets up deformers_ and base_bytes_ for the mesh and options (create only).
   void init_deformer_cache();
+  /// Makes `state`, this session's next state, durable before anything else sees it: staged,
+  /// then published over the file this copy holds (a compare-and-set, see StateDirectory).
+  /// Failures are counted (persist_failures) and logged.
+  /// @return success (also without a state directory); NotFound once closed (or closed
+  ///         elsewhere); Aborted when another replica changed the file; ResourceExhausted
+  ///         (disk or descriptors ran out) or Unavailable from the OS.
+  Status persist_state(const PersistedSession& state);
+  /// The one check of a move's targets: finite and within reach of the solver (a limit relative
+  /// to the mesh's size and position: squares of coordinates must not overflow).
+  /// @return InvalidArgument naming `field` and the limit.
+  Status check_reach(const Eigen::RowVector3d& target, const std::string& field) const;
   /// Turns a solver report into the next revision, publishes it and updates the deformer entry.
   /// Strand only.
   /// @return the revision; with a shared store, the store's refusal (Aborted naming the current
@@ -297,7 +327,9 @@ class Session : public std::enable_shared_from_this<Session> {
   DeformerCache::Entry* cached_deformer(core::Method method);
   std::optional<RefineState> refine_;
   bool background_build_running_ = false;
-  std::stop_source background_stop_;  ///< requested by close()
+  std::stop_source closed_stop_;  ///< requested by close(): stops solves, precomputes, builds
+  std::string owner_;
+  double reach_ = 0;  ///< largest coordinate a target may have (check_reach); set by create()
 
   // Guarded by state_mutex_.
   mutable std::mutex state_mutex_;
@@ -319,6 +351,9 @@ class Session : public std::enable_shared_from_this<Session> {
   std::mutex shared_mutex_;
   std::uint64_t shared_version_ = 0;  ///< the stored version this copy holds; shared_mutex_
   std::atomic<std::chrono::steady_clock::rep> last_move_ticks_{0};
+  /// Held while this copy replaces its state file and records the new stamp, while is_fresh()
+  /// compares them, and while close() marks the session closed: a write is either done before
+  /// the close returns or refused.
   mutable std::mutex stamp_mutex_;
   std::optional<FileStamp> stamp_;  ///< guarded by stamp_mutex_
 

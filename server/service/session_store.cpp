@@ -1,6 +1,7 @@
 #include "server/service/session_store.h"
 
 #include <algorithm>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -37,27 +38,88 @@ std::size_t SessionStore::evict_expired_locked(std::chrono::steady_clock::time_p
   return removed;
 }
 
-bool SessionStore::make_room_locked(std::size_t bytes, const Session* keep) {
-  std::size_t total = total_bytes_locked();
-  if (total + bytes <= options_.memory_budget_bytes) return true;
-  std::vector<std::shared_ptr<Session>> idle;
+std::size_t SessionStore::bytes_of_locked(const std::string& owner) const {
+  std::size_t total = 0;
   for (const auto& [id, session] : sessions_) {
-    if (session.get() != keep && session->inflight_count() == 0) idle.push_back(session);
+    if (session->owner() == owner) total += session->estimated_bytes();
   }
-  std::sort(idle.begin(), idle.end(),
-            [](const auto& a, const auto& b) { return a->last_used() < b->last_used(); });
-  // Only evict if that is enough: refusing must not cost other clients their sessions.
-  std::size_t reclaimable = 0;
-  for (const auto& session : idle) reclaimable += session->estimated_bytes();
-  if (total - std::min(total, reclaimable) + bytes > options_.memory_budget_bytes) return false;
-  for (const auto& session : idle) {
-    if (total + bytes <= options_.memory_budget_bytes) break;
-    total -= std::min(total, session->estimated_bytes());
+  return total;
+}
+
+std::size_t SessionStore::per_client_bytes() const {
+  return options_.memory_budget_per_client_bytes > 0 ? options_.memory_budget_per_client_bytes
+                                                     : options_.memory_budget_bytes / 2;
+}
+
+Status SessionStore::make_room_locked(std::size_t bytes, const Session* keep,
+                                      const std::string& owner) {
+  const std::size_t budget = options_.memory_budget_bytes;
+  const std::size_t quota = per_client_bytes();
+  std::size_t total = total_bytes_locked();
+  // The owner's own quota (the empty owner, an in-process caller, has none).
+  const bool limited = !owner.empty();
+  std::size_t owned = limited ? bytes_of_locked(owner) : 0;
+  if (total + bytes <= budget && (!limited || owned + bytes <= quota)) return Status::success();
+
+  // Candidates by tier: 0 the owner's own, 1 clients over their quota, 2 anyone (lossless only).
+  std::map<std::string, std::size_t> bytes_by_owner;
+  for (const auto& [id, session] : sessions_) bytes_by_owner[session->owner()] += session->estimated_bytes();
+  struct Candidate {
+    int tier;
+    std::shared_ptr<Session> session;
+  };
+  std::vector<Candidate> candidates;
+  for (const auto& [id, session] : sessions_) {
+    if (session.get() == keep || session->inflight_count() != 0 || session->watcher_count() != 0) {
+      continue;  // busy or watched: never evicted
+    }
+    const std::string& whose = session->owner();
+    int tier = -1;
+    if (whose == owner) {
+      tier = 0;
+    } else if (!whose.empty() && bytes_by_owner[whose] > quota) {
+      tier = 1;
+    } else if (lossless_) {
+      tier = 2;
+    }
+    if (tier >= 0) candidates.push_back({tier, session});
+  }
+  std::sort(candidates.begin(), candidates.end(), [](const Candidate& a, const Candidate& b) {
+    return a.tier != b.tier ? a.tier < b.tier : a.session->last_used() < b.session->last_used();
+  });
+  // Plan first: evict only if that is enough (refusing must not cost anyone a session).
+  std::size_t planned_total = total, planned_owned = owned;
+  std::size_t count = 0;
+  auto fits = [&] {
+    return planned_total + bytes <= budget && (!limited || planned_owned + bytes <= quota);
+  };
+  while (!fits() && count < candidates.size()) {
+    const Candidate& c = candidates[count++];
+    const std::size_t b = c.session->estimated_bytes();
+    planned_total -= std::min(planned_total, b);
+    if (c.tier == 0) planned_owned -= std::min(planned_owned, b);
+  }
+  if (!fits()) {
+    if (limited && owned + bytes > quota && planned_owned + bytes > quota) {
+      return Error(ErrorCode::ResourceExhausted,
+                   "memory quota per client exceeded: this client's sessions hold about " +
+                       std::to_string(owned) + " bytes and need " + std::to_string(bytes) +
+                       " more, the quota is " + std::to_string(quota) +
+                       " (the server's --memory-budget-per-client-mib)");
+    }
+    return Error(ErrorCode::ResourceExhausted,
+                 "memory budget exceeded: about " + std::to_string(bytes) + " bytes more are " +
+                     "needed, " + std::to_string(total) + " of " + std::to_string(budget) +
+                     " are held by sessions that are busy, watched or other clients' (the "
+                     "budget is the server's --memory-budget-mib)");
+  }
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::shared_ptr<Session>& session = candidates[i].session;
     session->close();
     sessions_.erase(session->id());
     ++evicted_lru_;
   }
-  return true;
+  return Status::success();
 }
 
 Status SessionStore::insert(std::shared_ptr<Session> session) {
@@ -69,15 +131,22 @@ Status SessionStore::insert(std::shared_ptr<Session> session) {
                  "too many sessions: " + std::to_string(sessions_.size()) + " open, the limit is " +
                      std::to_string(options_.max_sessions));
   }
-  const std::size_t bytes = session->estimated_bytes();
-  if (!make_room_locked(bytes, nullptr)) {
-    return Error(ErrorCode::ResourceExhausted,
-                 "memory budget exceeded: the session needs about " + std::to_string(bytes) +
-                     " bytes, " + std::to_string(total_bytes_locked()) + " of " +
-                     std::to_string(options_.memory_budget_bytes) +
-                     " are used by sessions that are busy (the budget is the server's "
-                     "--memory-budget-mib)");
+  const std::string& owner = session->owner();
+  if (!owner.empty()) {
+    const int per_client = options_.max_sessions_per_client > 0
+                               ? options_.max_sessions_per_client
+                               : std::max(1, options_.max_sessions / 4);
+    const auto open = std::count_if(sessions_.begin(), sessions_.end(), [&owner](const auto& e) {
+      return e.second->owner() == owner;
+    });
+    if (open >= per_client) {
+      return Error(ErrorCode::ResourceExhausted,
+                   "too many sessions per client: this client has " + std::to_string(open) +
+                       " open, the limit is " + std::to_string(per_client) +
+                       " (the server's --max-sessions-per-client); close one first");
+    }
   }
+  MD_RETURN_IF_ERROR(make_room_locked(session->estimated_bytes(), nullptr, owner));
   session->touch(now);
   sessions_.emplace(session->id(), std::move(session));
   return Status::success();
@@ -116,16 +185,20 @@ bool SessionStore::erase(const SessionId& id) {
   return true;
 }
 
+std::shared_ptr<Session> SessionStore::erase_without_closing(const SessionId& id) {
+  std::lock_guard lock(mutex_);
+  auto it = sessions_.find(id);
+  if (it == sessions_.end()) return nullptr;
+  std::shared_ptr<Session> session = std::move(it->second);
+  sessions_.erase(it);
+  return session;
+}
+
 Status SessionStore::reserve(std::size_t bytes, const Session& requester) {
   std::lock_guard lock(mutex_);
-  if (!make_room_locked(bytes, &requester)) {
-    return Error(ErrorCode::ResourceExhausted,
-                 "memory budget exceeded: a new factorization needs about " +
-                     std::to_string(bytes) + " bytes, " + std::to_string(total_bytes_locked()) +
-                     " of " + std::to_string(options_.memory_budget_bytes) +
-                     " are in use (the budget is the server's --memory-budget-mib)");
-  }
-  return Status::success();
+  const Status room = make_room_locked(bytes, &requester, requester.owner());
+  if (room.ok()) return room;
+  return Error(ErrorCode::ResourceExhausted, "a new factorization does not fit: " + room.message());
 }
 
 std::size_t SessionStore::evict_expired(std::chrono::steady_clock::time_point now) {
@@ -162,13 +235,13 @@ void SessionStore::clear() {
   for (auto& [id, session] : sessions) session->close();
 }
 
-void SessionStore::close_all_watchers() {
+void SessionStore::close_all_watchers(const Status& reason) {
   std::vector<std::shared_ptr<Session>> sessions;
   {
     std::lock_guard lock(mutex_);
     for (const auto& [id, session] : sessions_) sessions.push_back(session);
   }
-  for (const auto& session : sessions) session->close_watchers();
+  for (const auto& session : sessions) session->close_watchers(reason);
 }
 
 std::vector<std::shared_ptr<Session>> SessionStore::watched() const {

@@ -11,12 +11,15 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
 #include "core/deformer.h"
+#include "core/edit_types.h"
+#include "core/format_number.h"
 #include "core/io/mesh_io.h"
 #include "core/mesh_data.h"
 #include "core/ora.h"
@@ -39,17 +42,12 @@ struct Token {
 /// The clock used for idle-TTL bookkeeping; injectable for tests.
 using Clock = std::function<std::chrono::steady_clock::time_point()>;
 
-/// Role of a handle group.
-enum class HandleRole {
-  Fixed,   ///< stays where it was when the handles were set; cannot be moved
-  Handle,  ///< moved by GroupMove / VertexTarget
-};
-
-/// A set of constrained vertices with one role.
-struct HandleGroup {
-  HandleRole role = HandleRole::Handle;
-  std::vector<int> vertices;  ///< indices into the session's (cleaned) mesh, distinct
-};
+// The edit vocabulary (one definition, shared with the client and the wire mapping).
+using core::GroupMove;
+using core::HandleGroup;
+using core::HandleRole;
+using core::HistoryAction;
+using core::VertexTarget;
 
 /// Everything SetHandles takes.
 struct SetHandlesRequest {
@@ -59,32 +57,6 @@ struct SetHandlesRequest {
   /// The front end's name for the caller (as for rate limits): heavy work is admitted per client.
   /// Empty by default (`{}`: aggregate initialisations that leave it out stay warning-free).
   std::string client{};
-};
-
-/// A similarity transform of one handle group, relative to the group's anchor positions (its
-/// positions when set_handles was called: the rest pose on an undeformed session). Transforms are
-/// absolute, not incremental: sending the same move twice gives the same targets.
-/// target = pivot + scale * rotation * (anchor - pivot) + translation.
-struct GroupMove {
-  int group = 0;  ///< index into the groups given to set_handles; must be a Handle group
-  Eigen::Vector3d translation = Eigen::Vector3d::Zero();
-  Eigen::Quaterniond rotation = Eigen::Quaterniond::Identity();  ///< normalised by the service
-  double scale = 1.0;                                             ///< > 0
-  std::optional<Eigen::Vector3d> pivot;  ///< default: the centroid of the group's anchors
-};
-
-/// An explicit target for one constrained vertex of a Handle group (applied after the moves).
-struct VertexTarget {
-  int vertex = 0;
-  Eigen::Vector3d position = Eigen::Vector3d::Zero();
-};
-
-
-/// How a move changes the session's undo history (edit_history.h).
-enum class HistoryAction {
-  Record,  ///< the move's state becomes the newest step (or replaces it: same gesture)
-  Undo,    ///< apply the previous step instead of the request's moves and targets
-  Redo,    ///< apply the next step likewise
 };
 
 /// What a move solved with: kept with the session so that any client opening it later (a
@@ -280,26 +252,43 @@ struct CreatedSession {
 
 /// The largest outer-iteration budget of one move (MoveRequest::max_iterations).
 inline constexpr int kMaxMoveIterations = 1000;
+/// Moves of at most this many iterations are short: while every worker runs a long solve,
+/// those solves run waiting short moves of other sessions between two of their iterations, so
+/// a drag is never queued behind another client's 1000-iteration solve (solver time is shared;
+/// a long solve is paused, not slowed, by what it runs).
+inline constexpr int kShortMoveIterations = 15;
 
 /// At most this many magnify regions per move (each is resolved over every face).
 inline constexpr int kMaxMagnifyRegions = 64;
 
 /// The largest scale control a request may ask for (core::SolveOptions::rigidity): far past
-/// ARAP-like behaviour, and the solve stays well conditioned.
+/// ARAP-like behaviour, and the solve stays well conditioned. Requests are checked with
+/// core::check_rigidity(value, kMaxRigidity).
 inline constexpr double kMaxRigidity = 1e4;
 
-/// Whether `rigidity` is a valid scale control: finite, in [0, kMaxRigidity].
-inline bool is_valid_rigidity(double rigidity) {
-  return rigidity >= 0.0 && rigidity <= kMaxRigidity;  // false for NaN
-}
+/// A group move's scale lies in [1 / kMaxMoveScale, kMaxMoveScale]: beyond, the handles' targets
+/// leave the range the solver represents (or collapse to a point).
+inline constexpr double kMaxMoveScale = 1e6;
+/// A magnify region's scale lies in [1 / kMaxMagnifyScale, kMaxMagnifyScale] (areas change by
+/// its square).
+inline constexpr double kMaxMagnifyScale = 1e3;
+/// A move's targets lie within kMaxReach times the mesh's extent (the larger of its bounding
+/// box's diagonal and its largest coordinate) of the origin: squares of coordinates, which the
+/// solver forms, then stay far from overflow.
+inline constexpr double kMaxReach = 1e6;
+/// The handle weight lambda (CreateSession) lies in [kMinLambda, kMaxLambda]: the default is
+/// 100; beyond these the Eq. 12 system is too ill-conditioned to solve.
+inline constexpr double kMinLambda = 1e-6;
+inline constexpr double kMaxLambda = 1e8;
 
-/// The one range check of a requested scale control (CreateSession and MoveHandles).
-/// @return success when unset or valid; InvalidArgument naming the value and the range.
-inline Status check_rigidity(const std::optional<double>& rigidity) {
-  if (!rigidity || is_valid_rigidity(*rigidity)) return Status::success();
-  return Error(ErrorCode::InvalidArgument, "rigidity " + std::to_string(*rigidity) +
-                                               " is outside [0, " + std::to_string(kMaxRigidity) +
-                                               "]");
+/// The one range check of a session's lambda. @return InvalidArgument naming the value and the
+///         range (NaN included).
+inline Status check_lambda(double lambda) {
+  if (lambda >= kMinLambda && lambda <= kMaxLambda) return Status::success();
+  return Error(ErrorCode::InvalidArgument, "lambda " + core::format_number(lambda, "%g") +
+                                               " is outside [" +
+                                               core::format_number(kMinLambda, "%g") + ", " +
+                                               core::format_number(kMaxLambda, "%g") + "]");
 }
 
 /// The calls limited per client (DeformationService::admit).
@@ -356,6 +345,20 @@ struct ServiceOptions {
   HeavyWorkLimits heavy_work;
   /// Workers that may run heavy work; 0 = workers - 1 (at least 1): the rest keep serving moves.
   int heavy_lanes = 0;
+  /// Sessions one client may hold open at once; 0 = a quarter of max_sessions (at least 1), so
+  /// that one client cannot take every slot. Clients are what the front end names them (their
+  /// network address); the empty name (in-process callers) is not limited.
+  int max_sessions_per_client = 0;
+  /// Estimated memory (as memory_budget_bytes counts it) one client's sessions may hold; 0 =
+  /// half of memory_budget_bytes. Room for a client is made by evicting, in this order, its own
+  /// idle sessions, then idle sessions of clients over this quota, then (only where sessions
+  /// persist: a state directory or a shared store, so eviction loses nothing) any idle session;
+  /// in memory only, another client's session within its quota is never evicted.
+  std::size_t memory_budget_per_client_bytes = 0;
+  /// Test seam of the state directory (persistence.h): consulted before each system call that
+  /// writes a state file, with the call's name; a non-zero errno fails that call as the OS would
+  /// (ENOSPC: a full disk, EMFILE: no descriptors). Empty in production.
+  std::function<int(std::string_view call)> state_write_fault;
   Clock clock;                     ///< default: std::chrono::steady_clock::now
 };
 
@@ -383,6 +386,9 @@ struct ServiceStats {
   std::uint64_t heavy_rejected = 0;          ///< uploads/precomputes refused by admission control
   std::uint64_t uploads_cancelled = 0;       ///< CreateSession parses stopped by deadline/cancel
   std::uint64_t precomputes_cancelled = 0;   ///< SetHandles precomputes stopped by deadline/cancel
+  /// Moves of other sessions run by a long solve between two of its iterations (fairness).
+  std::uint64_t yielded_tasks = 0;
+  std::size_t solves_running = 0;            ///< moves and refinement slices solving now
   int heavy_admitted = 0;                    ///< heavy tasks admitted now (queued or running)
   int heavy_running = 0;                     ///< heavy tasks running now
   std::size_t queued_normal = 0;             ///< worker-pool tasks waiting, by class

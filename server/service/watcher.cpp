@@ -25,6 +25,21 @@ bool Watcher::closed() const {
   return closed_;
 }
 
+Status Watcher::close_status() const {
+  std::lock_guard lock(mutex_);
+  return close_status_;
+}
+
+void Watcher::set_owner(std::weak_ptr<Session> owner) {
+  std::lock_guard lock(mutex_);
+  owner_ = std::move(owner);
+}
+
+std::shared_ptr<Session> Watcher::owner() const {
+  std::lock_guard lock(mutex_);
+  return owner_.lock();
+}
+
 void Watcher::set_notify(std::function<void()> notify) {
   bool call_now = false;
   {
@@ -67,25 +82,24 @@ void Watcher::offer(std::shared_ptr<const DeformResult> result, bool snapshot) {
   if (notify) notify();
 }
 
-void Watcher::close() {
+void Watcher::close(Status reason) {
   std::function<void()> notify;
   {
     std::lock_guard lock(mutex_);
     if (closed_) return;
     closed_ = true;
+    close_status_ = std::move(reason);
     notify = notify_;
   }
   cv_.notify_all();
   if (notify) notify();
 }
 
-Subscription::Subscription(std::weak_ptr<Session> session, std::shared_ptr<Watcher> watcher)
-    : session_(std::move(session)), watcher_(std::move(watcher)) {}
+Subscription::Subscription(std::shared_ptr<Watcher> watcher) : watcher_(std::move(watcher)) {}
 
 Subscription& Subscription::operator=(Subscription&& other) noexcept {
   if (this != &other) {
     reset();
-    session_ = std::move(other.session_);
     watcher_ = std::move(other.watcher_);
   }
   return *this;
@@ -95,10 +109,11 @@ Subscription::~Subscription() { reset(); }
 
 void Subscription::reset() {
   if (watcher_) {
-    if (std::shared_ptr<Session> session = session_.lock()) session->remove_watcher(watcher_.get());
+    if (std::shared_ptr<Session> session = watcher_->owner()) {
+      session->remove_watcher(watcher_.get());
+    }
     watcher_->close();
   }
-  session_.reset();
   watcher_.reset();
 }
 

@@ -11,6 +11,7 @@
 #include <optional>
 #include <stop_token>
 
+#include "core/status.h"
 #include "server/service/types.h"
 
 namespace meshdeform::service {
@@ -28,6 +29,9 @@ class Watcher {
   std::optional<DeformUpdate> wait_take(std::chrono::milliseconds timeout, std::stop_token stop = {});
   /// True once the session was closed or evicted (no further updates).
   bool closed() const;
+  /// Why the watch ended once closed(): success when its session was closed (the stream ends
+  /// OK), otherwise what ended it (e.g. Unavailable: the server shuts down).
+  Status close_status() const;
   /// Called when an update becomes pending while none was (and on close), on the committing
   /// thread (a worker): it must be quick and must not block, e.g. start an async write that
   /// calls try_take(). Setting it when an update is already pending calls it once at once.
@@ -37,8 +41,12 @@ class Watcher {
   void publish(std::shared_ptr<const DeformResult> result);
   /// Service side: offers the join snapshot.
   void publish_snapshot(std::shared_ptr<const DeformResult> result);
-  /// Service side: no more updates.
-  void close();
+  /// Service side: no more updates; `reason` as close_status() (success: the session closed).
+  void close(Status reason = Status::success());
+  /// Service side: the session copy that publishes to this watcher (a stale copy hands its
+  /// watchers over to the fresh one); Subscription unsubscribes from it.
+  void set_owner(std::weak_ptr<Session> owner);
+  std::shared_ptr<Session> owner() const;
 
  private:
   void offer(std::shared_ptr<const DeformResult> result, bool snapshot);
@@ -49,14 +57,17 @@ class Watcher {
   std::uint64_t newest_revision_ = 0;
   bool has_any_ = false;
   bool closed_ = false;
+  Status close_status_;
   std::function<void()> notify_;
+  std::weak_ptr<Session> owner_;
 };
 
 /// Owns a watch; unsubscribes when destroyed. Move-only.
 class Subscription {
  public:
   Subscription() = default;
-  Subscription(std::weak_ptr<Session> session, std::shared_ptr<Watcher> watcher);
+  /// @param[in] watcher  a watcher whose owner() is the session it watches.
+  explicit Subscription(std::shared_ptr<Watcher> watcher);
   Subscription(Subscription&&) noexcept = default;
   Subscription& operator=(Subscription&& other) noexcept;
   Subscription(const Subscription&) = delete;
@@ -69,7 +80,6 @@ class Subscription {
   void reset();
 
  private:
-  std::weak_ptr<Session> session_;
   std::shared_ptr<Watcher> watcher_;
 };
 

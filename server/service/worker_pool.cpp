@@ -5,6 +5,12 @@
 #include "server/service/guard.h"
 
 namespace meshdeform::service {
+namespace {
+/// The pool whose worker this thread is (null elsewhere), and whether it is running a task at
+/// a yield point (which does not yield again).
+thread_local const WorkerPool* tl_pool = nullptr;
+thread_local bool tl_in_yield = false;
+}  // namespace
 
 WorkerPool::WorkerPool(int size, int heavy_lanes) {
   if (size < 1) size = std::max(2, static_cast<int>(std::thread::hardware_concurrency()));
@@ -29,7 +35,7 @@ void WorkerPool::submit(std::function<void()> task, TaskClass task_class, std::s
     std::lock_guard lock(mutex_);
     switch (task_class) {
       case TaskClass::Normal:
-        queue_.push_back(std::move(task));
+        queue_.push_back({std::move(task), false});
         break;
       case TaskClass::Heavy:
         heavy_.push_back({std::move(client), std::move(task)});
@@ -43,6 +49,35 @@ void WorkerPool::submit(std::function<void()> task, TaskClass task_class, std::s
   cv_.notify_all();
 }
 
+void WorkerPool::submit_short(std::function<void()> task) {
+  {
+    std::lock_guard lock(mutex_);
+    queue_.push_back({std::move(task), true});
+  }
+  cv_.notify_all();
+}
+
+bool WorkerPool::run_short_here() {
+  if (tl_pool != this || tl_in_yield) return false;
+  std::function<void()> task;
+  {
+    std::lock_guard lock(mutex_);
+    const auto it = std::find_if(queue_.begin(), queue_.end(),
+                                 [](const NormalTask& t) { return t.is_short; });
+    if (it == queue_.end()) return false;
+    task = std::move(it->task);
+    queue_.erase(it);
+  }
+  ran_at_yield_.fetch_add(1);
+  tl_in_yield = true;
+  (void)run_guarded("worker task", [&task] {
+    task();
+    return Status::success();
+  });
+  tl_in_yield = false;
+  return true;
+}
+
 QueueDepths WorkerPool::depths() const {
   std::lock_guard lock(mutex_);
   return {queue_.size(), heavy_.size(), background_.size(), heavy_running_};
@@ -51,6 +86,7 @@ QueueDepths WorkerPool::depths() const {
 void WorkerPool::run(std::stop_token stop, bool heavy_lane) {
   // A single worker must run heavy tasks too, but after the light ones.
   const bool only_worker = size_ == 1;
+  tl_pool = this;
   while (true) {
     std::function<void()> task;
     bool is_heavy = false;
@@ -79,7 +115,7 @@ void WorkerPool::run(std::stop_token stop, bool heavy_lane) {
         is_heavy = true;
         ++heavy_running_;
       } else if (!queue_.empty()) {
-        task = std::move(queue_.front());
+        task = std::move(queue_.front().task);
         queue_.pop_front();
       } else if (stop.stop_requested()) {
         background_.clear();

@@ -2,6 +2,7 @@
 /// @file worker_pool.h
 /// A fixed pool of std::jthread workers: solves run here, never on transport threads.
 
+#include <atomic>
 #include <condition_variable>
 #include <cstddef>
 #include <deque>
@@ -58,6 +59,16 @@ class WorkerPool {
   void submit_background(std::function<void()> task) {
     submit(std::move(task), TaskClass::Background);
   }
+  /// Queues a normal task that is short (a drag's move of a few iterations): besides running on
+  /// a free worker like any normal task, it may run on a busy worker at a long task's yield
+  /// point (run_short_here), so that long solves do not hold it up.
+  void submit_short(std::function<void()> task);
+  /// A yield point of a long task: runs the oldest waiting short task on this thread, now.
+  /// Only on this pool's workers and not from inside a task run here (no nesting).
+  /// @return whether a task ran.
+  bool run_short_here();
+  /// Tasks run by run_short_here since start (counted before each runs).
+  std::uint64_t ran_at_yield_points() const { return ran_at_yield_.load(); }
   int size() const { return size_; }
   int heavy_lanes() const { return heavy_lanes_; }
   QueueDepths depths() const;
@@ -67,7 +78,11 @@ class WorkerPool {
 
   mutable std::mutex mutex_;
   std::condition_variable_any cv_;
-  std::deque<std::function<void()>> queue_;
+  struct NormalTask {
+    std::function<void()> task;
+    bool is_short = false;
+  };
+  std::deque<NormalTask> queue_;
   struct HeavyTask {
     std::string client;
     std::function<void()> task;
@@ -79,6 +94,7 @@ class WorkerPool {
   int size_ = 1;
   int heavy_lanes_ = 1;
   int heavy_running_ = 0;
+  std::atomic<std::uint64_t> ran_at_yield_{0};
   std::vector<std::jthread> threads_;
 };
 

@@ -10,10 +10,13 @@
 #include <string_view>
 #include <utility>
 
+#include "codec/update_codec.h"
+#include "proto/wire/delta_mapping.h"
 #include "proto/wire/wire_mapping.h"
 #include "server/service/guard.h"
 #include "server/service/log.h"
 #include "server/transport/proto_convert.h"
+#include "server/transport/serial_executor.h"
 #include "server/transport/status_mapping.h"
 
 namespace meshdeform::transport {
@@ -132,14 +135,25 @@ std::string sanitize_client(std::string_view text) {
   return out;
 }
 
+/// How long a link-sized stream waits after its last new revision before it sends the rest of
+/// a budget-limited one (continuations): the server's default refinement delay, the pause that
+/// ends a drag.
+constexpr std::chrono::milliseconds kContinuationDelay{150};
+
 /// Streams a subscription. Owned by itself (self_) until OnDone; the watcher's notify holds only a
 /// weak_ptr, so a notify racing with OnDone keeps the object alive but does nothing.
 class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
  public:
+  /// @param[in] deltas    link-sized updates (UpdateOptions), encoded on `executor`; nullopt:
+  ///                      positions as `encoding` says, encoded where the update is taken.
   static WatchReactor* start(service::Subscription subscription, v1::PositionEncoding encoding,
-                             CallRecord call) {
+                             CallRecord call,
+                             std::optional<codec::StreamSettings> deltas = std::nullopt,
+                             SerialExecutor* executor = nullptr) {
     auto reactor = std::shared_ptr<WatchReactor>(
         new WatchReactor(std::move(subscription), encoding, std::move(call)));
+    reactor->deltas_ = std::move(deltas);
+    reactor->executor_ = executor;
     reactor->self_ = reactor;
     std::weak_ptr<WatchReactor> weak = reactor;
     // The join snapshot is already pending, so this starts the first write at once (allowed
@@ -187,20 +201,61 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
   /// Starts the next write or the finish, if neither a write is in flight nor we are finished.
   /// gRPC operations are started outside the lock.
   void pump() {
-    enum class Next { Nothing, Write, FinishOk, FinishCancelled } next = Next::Nothing;
+    enum class Next { Nothing, Write, Encode, FinishClosed, FinishCancelled } next = Next::Nothing;
+    std::optional<service::DeformUpdate> to_encode;
+    std::optional<std::chrono::steady_clock::time_point> continuation_at;
     {
       const std::lock_guard lock(mutex_);
-      if (is_finished_ || is_writing_) return;
+      if (is_finished_ || is_writing_ || is_encoding_) return;
       if (is_cancelled_) {
         next = Next::FinishCancelled;
+      } else if (deltas_) {
+        // Link-sized updates: the newest revision if one came, else the next step toward the
+        // last one while a byte budget left vertices pending; encoded off this thread.
+        to_encode = subscription_->try_take();
+        if (to_encode) {
+          next = Next::Encode;
+          is_encoding_ = true;
+        } else if (encoder_ && encoder_->pending()) {
+          // The rest of a budget-limited revision waits until revisions stop coming for
+          // kContinuationDelay: during a drag the line carries new revisions, not the remainder
+          // of ones about to be replaced.
+          const auto due = last_revision_at_ + kContinuationDelay;
+          if (std::chrono::steady_clock::now() >= due) {
+            next = Next::Encode;
+            is_encoding_ = true;
+          } else if (!is_continuation_scheduled_) {
+            is_continuation_scheduled_ = true;
+            continuation_at = due;
+          }
+        } else if (subscription_->closed()) {
+          next = Next::FinishClosed;
+        }
       } else if (std::optional<service::DeformUpdate> update = subscription_->try_take()) {
         update_to_proto(*update, encoding_, &message_);
         next = Next::Write;
       } else if (subscription_->closed()) {
-        next = Next::FinishOk;  // the session was closed or evicted
+        // OK when the session was closed; otherwise what ended the watch (shutdown: UNAVAILABLE).
+        next = Next::FinishClosed;
       }
       if (next == Next::Write) is_writing_ = true;
-      if (next == Next::FinishOk || next == Next::FinishCancelled) is_finished_ = true;
+      if (next == Next::FinishClosed || next == Next::FinishCancelled) is_finished_ = true;
+    }
+    if (continuation_at) {
+      std::weak_ptr<WatchReactor> weak;
+      {
+        const std::lock_guard lock(mutex_);
+        weak = self_;
+      }
+      executor_->post_at(*continuation_at, [weak] {
+        if (std::shared_ptr<WatchReactor> strong = weak.lock()) {
+          {
+            const std::lock_guard lock(strong->mutex_);
+            strong->is_continuation_scheduled_ = false;
+          }
+          strong->pump();
+        }
+      });
     }
     switch (next) {
       case Next::Nothing:
@@ -208,8 +263,24 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
       case Next::Write:
         StartWrite(&message_);
         break;
-      case Next::FinishOk:
-        Finish(call_.finish(Status::success()));
+      case Next::Encode: {
+        std::shared_ptr<WatchReactor> self;
+        {
+          const std::lock_guard lock(mutex_);
+          self = self_;
+        }
+        if (!self) {  // OnDone ran: nothing more to write
+          const std::lock_guard lock(mutex_);
+          is_encoding_ = false;
+          break;
+        }
+        executor_->post([self, update = std::move(to_encode)]() mutable {
+          self->encode_and_write(std::move(update));
+        });
+        break;
+      }
+      case Next::FinishClosed:
+        Finish(call_.finish(subscription_->close_status()));
         break;
       case Next::FinishCancelled:
         Finish(call_.finish(Error(ErrorCode::Cancelled, "watch cancelled")));
@@ -217,10 +288,77 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
     }
   }
 
+  /// On the executor: encodes the next delta into message_ (only this runs while is_encoding_,
+  /// so the encoder and the message need no lock), then writes it, or finishes on an error.
+  void encode_and_write(std::optional<service::DeformUpdate> update) {
+    const Status encoded = service::run_guarded("Watch", [&]() -> Status {
+      message_.Clear();
+      if (update) {
+        if (!update->result || !update->result->positions) {
+          return Error(ErrorCode::Internal, "watch update without positions");
+        }
+        const Positions& positions = *update->result->positions;
+        if (!encoder_) {
+          MD_ASSIGN_OR_RETURN(codec::StreamEncoder created,
+                              codec::StreamEncoder::create(*deltas_,
+                                                           static_cast<int>(positions.rows())));
+          encoder_.emplace(std::move(created));
+        }
+        MD_ASSIGN_OR_RETURN(codec::EncodedUpdate delta,
+                            encoder_->encode(positions, update->result->revision));
+        last_result_ = update->result;
+        last_revision_at_ = std::chrono::steady_clock::now();
+        message_.set_skipped_revisions(update->skipped_revisions);
+        wire::delta_to_proto(delta, message_.mutable_delta());
+      } else {
+        MD_ASSIGN_OR_RETURN(codec::EncodedUpdate delta, encoder_->encode_pending());
+        message_.set_continuation(true);
+        wire::delta_to_proto(delta, message_.mutable_delta());
+      }
+      result_figures_to_proto(*last_result_, message_.mutable_result());
+      message_.set_is_snapshot(is_first_);
+      is_first_ = false;
+      return Status::success();
+    });
+    bool write = false;
+    bool finish_error = false;
+    {
+      const std::lock_guard lock(mutex_);
+      is_encoding_ = false;
+      if (!is_finished_ && !is_cancelled_) {
+        if (encoded.ok()) {
+          is_writing_ = true;
+          write = true;
+        } else {
+          is_finished_ = true;
+          finish_error = true;
+        }
+      }
+    }
+    if (write) {
+      StartWrite(&message_);
+    } else if (finish_error) {
+      Finish(call_.finish(encoded));
+    } else {
+      pump();  // cancelled meanwhile: finish
+    }
+  }
+
   std::mutex mutex_;
   service::Subscription subscription_;
   const v1::PositionEncoding encoding_;
-  v1::DeformUpdate message_;  // owned by gRPC while is_writing_
+  v1::DeformUpdate message_;  // owned by gRPC while is_writing_, by the executor while encoding
+  // Link-sized updates (UpdateOptions): the stream's settings, its encoder (created with the
+  // first update, when the vertex count is known), the revision continuations carry.
+  std::optional<codec::StreamSettings> deltas_;
+  std::optional<codec::StreamEncoder> encoder_;
+  std::shared_ptr<const service::DeformResult> last_result_;
+  SerialExecutor* executor_ = nullptr;
+  // When the last new revision was encoded: written while encoding, read by pump() after.
+  std::chrono::steady_clock::time_point last_revision_at_{};
+  bool is_continuation_scheduled_ = false;
+  bool is_first_ = true;
+  bool is_encoding_ = false;
   bool is_writing_ = false;
   bool is_cancelled_ = false;
   bool is_finished_ = false;
@@ -400,6 +538,12 @@ std::string client_identity(const grpc::CallbackServerContext& context,
     forwarded = forwarded.substr(0, forwarded.find(','));
     if (std::string name = sanitize_client(forwarded); !name.empty()) return "fwd:" + name;
   }
+  if (options.resolve_peer) {
+    // Relayed by the front door: the client's own address, not the relay's loopback one.
+    if (std::optional<std::string> client = options.resolve_peer(peer)) {
+      return sanitize_client(*client);
+    }
+  }
   if (peer.rfind("ipv4:", 0) != 0 && peer.rfind("ipv6:", 0) != 0 && peer.rfind("unix:", 0) != 0) {
     // In-process: the gateway forwarding a browser's call names the browser.
     if (std::string browser = metadata_value(context, "x-meshdeform-peer"); !browser.empty()) {
@@ -530,12 +674,18 @@ grpc::ServerUnaryReactor* DeformServiceImpl::MoveHandles(grpc::CallbackServerCon
     converted.deadline = steady_deadline(*context);
     MD_ASSIGN_OR_RETURN(v1::PositionEncoding encoding, encoding_from_proto(request->encoding()));
     const bool full_positions = request->full_positions();
+    const bool omit_positions = request->omit_positions();
     service_.move_handles_async(
         service::SessionId{request->session_id()}, service::Token{request->token()},
         std::move(converted), reactor->stop_token(),
         finish_with<service::DeformResult>(
-            reactor, call, [response, full_positions, encoding](service::DeformResult result) {
-              result_to_proto(result, full_positions, encoding, response->mutable_result());
+            reactor, call,
+            [response, full_positions, omit_positions, encoding](service::DeformResult result) {
+              if (omit_positions) {
+                result_figures_to_proto(result, response->mutable_result());
+              } else {
+                result_to_proto(result, full_positions, encoding, response->mutable_result());
+              }
             }));
     return Status::success();
   });
@@ -556,8 +706,34 @@ grpc::ServerWriteReactor<v1::DeformUpdate>* DeformServiceImpl::Watch(
   if (!subscription.ok()) {
     return new FailedWriteReactor<v1::DeformUpdate>(call.finish(subscription.status()));
   }
-  return WatchReactor::start(std::move(subscription).value(), *encoding, std::move(call));
+  std::optional<codec::StreamSettings> deltas;
+  if (request->has_updates() && request->updates().mode() != v1::DELTA_MODE_UNSPECIFIED) {
+    // The grid is the rest mesh's bounding box (its corner, and the diagonal a relative
+    // tolerance is taken of).
+    const Result<std::optional<codec::StreamSettings>> settings =
+        service::run_guarded("Watch", [&]() -> Result<std::optional<codec::StreamSettings>> {
+          MD_ASSIGN_OR_RETURN(service::SessionInfo info,
+                              service_.session_info(service::SessionId{request->session_id()},
+                                                    service::Token{request->token()}));
+          return wire::stream_settings_from_proto(request->updates(), info.bbox_min,
+                                                  info.bbox_max);
+        });
+    if (!settings.ok()) {
+      return new FailedWriteReactor<v1::DeformUpdate>(call.finish(settings.status()));
+    }
+    deltas = *settings;
+  }
+  return WatchReactor::start(std::move(subscription).value(), *encoding, std::move(call),
+                             std::move(deltas), deltas ? &encode_executor() : nullptr);
 }
+
+SerialExecutor& DeformServiceImpl::encode_executor() {
+  const std::lock_guard lock(executor_mutex_);
+  if (!encode_executor_) encode_executor_ = std::make_unique<SerialExecutor>();
+  return *encode_executor_;
+}
+
+DeformServiceImpl::~DeformServiceImpl() = default;
 
 grpc::ServerUnaryReactor* DeformServiceImpl::GetMesh(grpc::CallbackServerContext* context,
                                                      const v1::GetMeshRequest* request,

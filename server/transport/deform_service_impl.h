@@ -9,10 +9,16 @@
 /// timed in the service's MetricsRegistry and logged as one JSON line (never with its token).
 
 #include <chrono>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
 #include <string>
+#include <string_view>
 
 #include "meshdeform/v1/deformation.grpc.pb.h"
 #include "server/service/deformation_service.h"
+#include "server/transport/serial_executor.h"
 
 namespace meshdeform::transport {
 
@@ -22,6 +28,9 @@ struct ClientIdentityOptions {
   /// server reachable solely through a proxy that sets that header itself (nginx:
   /// `grpc_set_header X-Forwarded-For $remote_addr;`): anyone else could pick their own name.
   bool trust_forwarded_for = false;
+  /// The client address of a connection the gRPC front door relays (GrpcFrontDoor::client_of),
+  /// given the peer gRPC reports; empty, or nullopt from it, keeps the reported peer.
+  std::function<std::optional<std::string>(std::string_view grpc_peer)> resolve_peer;
 };
 
 /// The rate-limit name of a call's client: with trust_forwarded_for, the first `x-forwarded-for`
@@ -38,6 +47,7 @@ class DeformServiceImpl final : public v1::DeformationService::CallbackService {
   explicit DeformServiceImpl(service::DeformationService& service,
                              ClientIdentityOptions identity = {})
       : service_(service), identity_(identity) {}
+  ~DeformServiceImpl() override;
 
   grpc::ServerUnaryReactor* CreateSession(grpc::CallbackServerContext* context,
                                           const v1::CreateSessionRequest* request,
@@ -70,10 +80,14 @@ class DeformServiceImpl final : public v1::DeformationService::CallbackService {
 
  private:
   double uptime_seconds() const;
+  /// The thread that encodes link-sized Watch updates (started with the first such stream).
+  SerialExecutor& encode_executor();
 
   service::DeformationService& service_;
   ClientIdentityOptions identity_;
   std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
+  std::mutex executor_mutex_;
+  std::unique_ptr<SerialExecutor> encode_executor_;
 };
 
 }  // namespace meshdeform::transport

@@ -1,4 +1,5 @@
 #include "server/transport/http_server.h"
+#include "server/transport/tcp_address.h"
 
 #include "server/service/guard.h"
 #include "server/service/log.h"
@@ -37,39 +38,6 @@ namespace asio = boost::asio;
 namespace beast = boost::beast;
 namespace http = beast::http;
 using tcp = asio::ip::tcp;
-
-/// "host:port" or "[v6]:port".
-Result<tcp::endpoint> parse_endpoint(const std::string& address) {
-  std::string host, port_text;
-  if (!address.empty() && address.front() == '[') {
-    const std::size_t close = address.find(']');
-    if (close == std::string::npos || close + 1 >= address.size() || address[close + 1] != ':') {
-      return Error(ErrorCode::InvalidArgument, "bad address '" + address + "' (want [v6]:port)");
-    }
-    host = address.substr(1, close - 1);
-    port_text = address.substr(close + 2);
-  } else {
-    const std::size_t colon = address.rfind(':');
-    if (colon == std::string::npos) {
-      return Error(ErrorCode::InvalidArgument, "bad address '" + address + "' (want host:port)");
-    }
-    host = address.substr(0, colon);
-    port_text = address.substr(colon + 1);
-  }
-  int port = -1;
-  const auto [end, ec] = std::from_chars(port_text.data(), port_text.data() + port_text.size(), port);
-  if (ec != std::errc() || end != port_text.data() + port_text.size() || port < 0 || port > 65535) {
-    return Error(ErrorCode::InvalidArgument, "bad port in address '" + address + "'");
-  }
-  if (host == "localhost") host = "127.0.0.1";
-  boost::system::error_code error;
-  const asio::ip::address ip = asio::ip::make_address(host, error);
-  if (error) {
-    return Error(ErrorCode::InvalidArgument,
-                 "bad host '" + host + "' in address '" + address + "' (want a numeric IP)");
-  }
-  return tcp::endpoint(ip, static_cast<unsigned short>(port));
-}
 
 std::string_view to_std(beast::string_view text) { return {text.data(), text.size()}; }
 
@@ -152,6 +120,7 @@ struct HttpServer::Impl {
   std::set<std::shared_ptr<ConnectionBase>> connections;
   bool stopped = false;
   std::shared_ptr<Lifeline> lifeline = std::make_shared<Lifeline>();
+  std::shared_ptr<ConnectionGate> gate;
 
   void accept();
 };
@@ -176,18 +145,11 @@ class ConnectionBase : public std::enable_shared_from_this<ConnectionBase> {
   virtual void do_on_close(std::uint64_t seq, std::function<void()> callback) = 0;
 };
 
-/// The remote address in gRPC's peer() form without the port ("ipv4:1.2.3.4", "ipv6:[::1]"), so
-/// that per-client policies can key HTTP and gRPC clients alike; empty when unknown.
+/// The remote address in gRPC's peer() form without the port; empty when unknown.
 std::string peer_of(const tcp::socket& socket) {
   beast::error_code error;
   const tcp::endpoint remote = socket.remote_endpoint(error);
-  if (error) return {};
-  asio::ip::address address = remote.address();
-  // A dual-stack listener sees IPv4 clients as ::ffff:a.b.c.d; gRPC reports those as IPv4 too.
-  if (address.is_v6() && address.to_v6().is_v4_mapped()) {
-    address = asio::ip::make_address_v4(asio::ip::v4_mapped, address.to_v6());
-  }
-  return address.is_v4() ? "ipv4:" + address.to_string() : "ipv6:[" + address.to_string() + "]";
+  return error ? std::string() : client_address(remote);
 }
 
 /// One keep-alive connection; everything runs on its strand. Per request: read the header (with
@@ -205,11 +167,13 @@ class Connection final : public ConnectionBase {
 
   /// @param[in] stream_args  what constructs `Stream`: the accepted socket (and the SSL context).
   template <typename... StreamArgs>
-  Connection(HttpServer::Impl& server, std::string peer, StreamArgs&&... stream_args)
+  Connection(HttpServer::Impl& server, std::string peer, ConnectionGate::Ticket ticket,
+             StreamArgs&&... stream_args)
       : stream_(std::forward<StreamArgs>(stream_args)...),
         linger_timer_(stream_.get_executor()),
         server_(server),
-        peer_(std::move(peer)) {}
+        peer_(std::move(peer)),
+        ticket_(std::move(ticket)) {}
 
   void start() override {
     if constexpr (kIsTls) {
@@ -316,13 +280,14 @@ class Connection final : public ConnectionBase {
   /// plaintext, distrusts our certificate, lacks a required client certificate) gets no answer:
   /// there is no channel to send one on. Debug level: port scanners and health probes do this.
   void handshake() {
-    tcp().expires_after(std::chrono::seconds(server_.options.read_timeout_seconds));
+    tcp().expires_after(std::chrono::seconds(server_.options.header_timeout_seconds));
     stream_.async_handshake(asio::ssl::stream_base::server,
                             beast::bind_front_handler(&Connection::on_handshake, self()));
   }
 
   void on_handshake(beast::error_code error) {
     if (error) {
+      if (error == beast::error::timeout) server_.gate->note_header_timeout();
       service::log_event(service::LogLevel::Debug, "tls_handshake_failed",
                          service::LogFields().add("peer", peer_).add("message", error.message()));
       drop();
@@ -344,16 +309,18 @@ class Connection final : public ConnectionBase {
     // Checked per route once the request line is known. (Not boost::none: Beast 1.74 compares
     // Content-Length against the optional, and anything is greater than none.)
     parser_->body_limit(std::numeric_limits<std::uint64_t>::max());
-    tcp().expires_after(std::chrono::seconds(server_.options.read_timeout_seconds));
+    tcp().expires_after(std::chrono::seconds(server_.options.header_timeout_seconds));
     http::async_read_header(stream_, buffer_, *parser_,
                             beast::bind_front_handler(&Connection::on_header, self()));
   }
 
   void on_header(beast::error_code error, std::size_t) {
     if (error) {
+      if (error == beast::error::timeout) server_.gate->note_header_timeout();
       drop();
       return;
     }
+    tcp().expires_after(std::chrono::seconds(server_.options.read_timeout_seconds));  // the body
     const auto& header = parser_->get();
     const std::size_t limit =
         server_.options.body_limit
@@ -547,6 +514,7 @@ class Connection final : public ConnectionBase {
     linger_timer_.cancel();
     tcp().socket().shutdown(tcp::socket::shutdown_both, ignored);
     tcp().close();
+    ticket_.release();
     const std::lock_guard lock(server_.mutex);
     server_.connections.erase(shared_from_this());
   }
@@ -562,6 +530,7 @@ class Connection final : public ConnectionBase {
   std::optional<http::request_parser<http::string_body>> parser_;
   HttpServer::Impl& server_;
   const std::string peer_;
+  ConnectionGate::Ticket ticket_;  ///< this connection's place under the gate's caps
   std::size_t limit_ = 0;
   std::uint64_t seq_ = 0;          // the current request's number
   unsigned version_ = 11;
@@ -681,22 +650,22 @@ void HttpServer::Impl::accept() {
       beast::error_code ignored;
       socket.set_option(tcp::no_delay(true), ignored);
       std::string peer = peer_of(socket);
+      // Over a cap: closed at once (the socket's destructor), before any byte is read.
+      std::optional<ConnectionGate::Ticket> ticket = gate->admit(peer);
       std::shared_ptr<ConnectionBase> connection;
-      if (ssl) {
+      if (!ticket) {
+        socket.close(ignored);
+      } else if (ssl) {
         connection = std::make_shared<Connection<beast::ssl_stream<beast::tcp_stream>>>(
-            *this, std::move(peer), std::move(socket), *ssl);
+            *this, std::move(peer), std::move(*ticket), std::move(socket), *ssl);
       } else {
-        connection = std::make_shared<Connection<beast::tcp_stream>>(*this, std::move(peer),
-                                                                     std::move(socket));
+        connection = std::make_shared<Connection<beast::tcp_stream>>(
+            *this, std::move(peer), std::move(*ticket), std::move(socket));
       }
-      {
+      if (connection) {
         const std::lock_guard lock(mutex);
         if (stopped) return;
-        if (connections.size() >= options.max_connections) {
-          connection.reset();  // closes the socket
-        } else {
-          connections.insert(connection);
-        }
+        connections.insert(connection);
       }
       if (connection) connection->start();
     }
@@ -724,6 +693,10 @@ Result<std::unique_ptr<HttpServer>> HttpServer::start_async(const std::string& a
   }
   impl->handler = std::move(handler);
   impl->options = std::move(options);
+  impl->gate = impl->options.gate
+                   ? impl->options.gate
+                   : std::make_shared<ConnectionGate>(ConnectionLimits{
+                         impl->options.max_connections_per_address, impl->options.max_connections});
   beast::error_code error;
   impl->acceptor.open(endpoint.protocol(), error);
   if (!error) impl->acceptor.set_option(asio::socket_base::reuse_address(true), error);

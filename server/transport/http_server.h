@@ -23,6 +23,7 @@
 #include <string_view>
 
 #include "core/status.h"
+#include "server/transport/connection_gate.h"
 #include "server/transport/http_message.h"
 #include "server/transport/tls_config.h"
 
@@ -36,10 +37,17 @@ struct HttpServerOptions {
   /// Larger declared bodies go to asynchronous handlers flagged is_body_over_limit (413 for
   /// synchronous ones); a chunked body that grows past the limit gets 413.
   std::function<std::size_t(std::string_view method, std::string_view target)> body_limit;
-  int read_timeout_seconds = 30;   ///< per request (header and body), also the keep-alive idle bound
+  /// A request's header (and a TLS handshake) must arrive within this; also the keep-alive idle
+  /// bound. Short, so that connections that say nothing (or dribble) do not hold places.
+  int header_timeout_seconds = 10;
+  int read_timeout_seconds = 30;   ///< per request body
   int write_timeout_seconds = 30;  ///< per write (a response, or one chunk); then the client is
                                    ///< dropped (a stalled reader cannot pin a stream forever)
-  std::size_t max_connections = 1024;          ///< more are closed on accept
+  std::size_t max_connections = 1024;          ///< more are closed on accept (0: no cap)
+  std::size_t max_connections_per_address = 64;  ///< from one client address (0: no cap)
+  /// The gate that enforces those two caps and counts refusals (for /metrics); empty: one is
+  /// made from them.
+  std::shared_ptr<ConnectionGate> gate;
   std::size_t max_pipelined_bytes = 64 * 1024;  ///< buffered while a response is pending
   /// Set: serve HTTPS (TLS 1.2+) with this identity instead of plaintext HTTP.
   std::optional<TlsConfig> tls;

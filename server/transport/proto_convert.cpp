@@ -94,7 +94,7 @@ Result<service::SetHandlesRequest> set_handles_from_proto(const v1::SetHandlesRe
     const std::string where = "groups[" + std::to_string(g) + "]";
     service::HandleGroup converted;
     const std::optional<service::HandleRole> role =
-        wire::role_from_proto<service::HandleRole>(group.role());
+        wire::role_from_proto(group.role());
     if (!role) {
       return invalid(where + ".role " + std::to_string(static_cast<int>(group.role())) +
                      " is not FIXED or HANDLE");
@@ -114,7 +114,7 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
     MD_RETURN_IF_ERROR(index_from_proto(move.group(), where + ".group").status());
     // Absent fields are the defaults (zero, identity, 1, none). The values (finite, a non-zero
     // quaternion, scale > 0) are the service's to check.
-    out.moves.push_back(wire::group_move_from_proto<service::GroupMove>(move));
+    out.moves.push_back(wire::group_move_from_proto(move));
   }
   const v1::VertexTargets& targets = request.targets();
   if (static_cast<std::size_t>(targets.positions_size()) !=
@@ -156,7 +156,7 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
     out.magnify.push_back(std::move(converted));
   }
   const std::optional<service::HistoryAction> history =
-      wire::history_from_proto<service::HistoryAction>(request.history());
+      wire::history_from_proto(request.history());
   if (!history) {
     return invalid("unknown history action " + std::to_string(static_cast<int>(request.history())));
   }
@@ -328,6 +328,10 @@ void positions_to_proto(const service::DeformResult& result, Rows rows,
   packed->append(*bytes);
 }
 }  // namespace
+
+void result_figures_to_proto(const service::DeformResult& result, v1::DeformResult* out) {
+  result_metrics_to_proto(result, out);
+}
 
 void result_to_proto(const service::DeformResult& result, bool full_positions,
                      v1::PositionEncoding encoding, v1::DeformResult* out) {

@@ -58,6 +58,9 @@ void progress_to_proto(const service::ProgressEvent& event, v1::Progress* out);
 ///                            response or watch update of that result.
 void result_to_proto(const service::DeformResult& result, bool full_positions,
                      v1::PositionEncoding encoding, v1::DeformResult* out);
+/// The result's figures only (revision, method, errors, iterations, ...): no positions, no
+/// changed lists (MoveHandlesRequest.omit_positions; the figures of a link-sized Watch update).
+void result_figures_to_proto(const service::DeformResult& result, v1::DeformResult* out);
 /// Snapshots carry all positions and no changed lists; deltas the changed lists only.
 void update_to_proto(const service::DeformUpdate& update, v1::PositionEncoding encoding,
                      v1::DeformUpdate* out);

@@ -6,6 +6,7 @@
 #include <limits>
 #include <string>
 
+#include "core/deform_types.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {
@@ -268,3 +269,22 @@ TEST(CleanMeshTest, NonFiniteVertexIsReportedNotWelded) {
 
 }  // namespace
 }  // namespace meshdeform::core
+
+// One check of a scale control serves the library (no upper bound), the CLI and the service
+// (its cap as the upper bound).
+TEST(CheckRigidity, AcceptsFiniteValuesInRangeAndRejectsTheRestNamingThem) {
+  const double inf = std::numeric_limits<double>::infinity();
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_TRUE(meshdeform::core::check_rigidity(0).ok());
+  EXPECT_TRUE(meshdeform::core::check_rigidity(1e12).ok());
+  EXPECT_TRUE(meshdeform::core::check_rigidity(1e4, 1e4).ok());
+  for (double bad : {-1e-9, nan, inf, -inf}) {
+    const meshdeform::Status status = meshdeform::core::check_rigidity(bad);
+    EXPECT_EQ(status.code(), meshdeform::ErrorCode::InvalidArgument) << bad;
+    EXPECT_NE(status.message().find("finite number >= 0"), std::string::npos) << status.message();
+  }
+  const meshdeform::Status capped = meshdeform::core::check_rigidity(2e4, 1e4);
+  EXPECT_EQ(capped.code(), meshdeform::ErrorCode::InvalidArgument);
+  EXPECT_EQ(capped.message(), "rigidity 20000 is outside [0, 10000]");
+  EXPECT_FALSE(meshdeform::core::check_rigidity(nan, 1e4).ok());
+}

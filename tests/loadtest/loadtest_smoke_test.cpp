@@ -210,6 +210,59 @@ TEST_F(LoadtestTest, CompactEncodingsShrinkResponsesAndUpdates) {
   }
 }
 
+TEST_F(LoadtestTest, ThroughAnEmulatedLinkWithLinkSizedUpdates) {
+  // --via-link and --updates: every move lands, the watchers apply every update, the reports
+  // name the link and what it carried, and the updates are far smaller than doubles.
+  const auto server = start_server();
+  ASSERT_NE(server, nullptr);
+  const fs::path json_path = dir_ / "link.json";
+  const fs::path markdown_path = dir_ / "link.md";
+  const ChildResult run = run_loadtest(
+      {"--server", server->address(), "--sessions", "2", "--moves", "4", "--rate", "0",
+       "--watchers", "1", "--sample", "cylinder_small", "--duration", "60", "--via-link",
+       "50mbit,20ms", "--fixed-receive-window", "--updates", "quantized", "--max-update-bytes",
+       "2048", "--json", json_path.string(), "--markdown", markdown_path.string()});
+  ASSERT_FALSE(run.is_timed_out) << run.out << run.err;
+  ASSERT_EQ(run.exit_code, kExitOk) << run.out << run.err;
+  const json report = json::parse(read_text(json_path));
+  EXPECT_EQ(report["moves"]["ok"], 8);
+  EXPECT_EQ(report["config"]["updates"], "quantized");
+  EXPECT_EQ(report["config"]["via_link"], "50mbit,20ms");
+  const json& link = report["link"];
+  EXPECT_DOUBLE_EQ(link["down_mbit"].get<double>(), 50.0);
+  EXPECT_DOUBLE_EQ(link["rtt_ms"].get<double>(), 20.0);
+  EXPECT_EQ(link["connections"], 2);  // one line per session's channel
+  EXPECT_GT(link["bytes_down"].get<double>(), 0.0);
+  EXPECT_GT(link["bytes_up"].get<double>(), 0.0);
+  const json& sized = report["watchers"]["link_sized"];
+  EXPECT_EQ(sized["decode_failures"], 0);
+  EXPECT_GE(sized["revision_updates"].get<int>(), 1);
+  EXPECT_LE(sized["update_bytes"]["max"].get<double>(), 2048.0 + 200.0);  // payload + header
+  // Moves ask for no positions: the responses carry the figures only.
+  EXPECT_LT(report["moves"]["mean_response_bytes"].get<double>(), 300.0);
+  // Every own move was followed by an update at or past it, applied at the watcher.
+  EXPECT_EQ(sized["applied_after_send_ms"]["count"], 8);
+  for (const json& session : report["sessions"]) {
+    EXPECT_EQ(session["watchers"][0]["end_status"], "OK") << session.dump();
+  }
+  const std::string markdown = read_text(markdown_path);
+  EXPECT_NE(markdown.find("link (--via-link 50mbit,20ms)"), std::string::npos) << markdown;
+  EXPECT_NE(markdown.find("link-sized: bytes per update"), std::string::npos) << markdown;
+}
+
+TEST_F(LoadtestTest, BadLinkOrUpdateFlagsAreUsageErrors) {
+  for (const std::vector<std::string>& args : std::vector<std::vector<std::string>>{
+           {"--server", "127.0.0.1:1", "--via-link", "20furlongs"},
+           {"--server", "127.0.0.1:1", "--updates", "lossy"},
+           {"--server", "127.0.0.1:1", "--updates", "quantized", "--max-update-bytes", "10"},
+           {"--server", "127.0.0.1:1", "--max-update-bytes", "4096"}}) {
+    const ChildResult run = run_loadtest(args, std::chrono::seconds(30));
+    ASSERT_FALSE(run.is_timed_out);
+    EXPECT_EQ(run.exit_code, kExitUsage) << args[2] << "\n" << run.err;
+    EXPECT_TRUE(run.out.empty()) << run.out;
+  }
+}
+
 TEST_F(LoadtestTest, RemoteTargetIsRefusedWithoutAllowRemote) {
   // Nothing listens there; a refusal must come before any connection attempt.
   const ChildResult run = run_loadtest(

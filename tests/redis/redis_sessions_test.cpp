@@ -23,7 +23,7 @@
 #include "core/io/mesh_io.h"
 #include "meshdeform/v1/deformation.grpc.pb.h"
 #include "server/service/deformation_service.h"
-#include "server/service/redis_store.h"
+#include "server/redis/redis_store.h"
 #include "tests/support/grpc_calls.h"
 #include "tests/redis/failed_start.h"
 #include "tests/support/child_process.h"
@@ -35,7 +35,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using service::DeformationService;
-using service::RedisStateStore;
+using redis::RedisStateStore;
 using std::chrono::milliseconds;
 using std::chrono::seconds;
 using test::bound;
@@ -56,7 +56,7 @@ std::unique_ptr<test::RedisProcess> start_redis(const test::RedisOptions& option
 
 std::shared_ptr<RedisStateStore> connect_store(const test::RedisProcess& redis,
                                                int log_length = 32) {
-  Result<service::RedisConfig> config = service::parse_redis_url(redis.url());
+  Result<redis::RedisConfig> config = redis::parse_redis_url(redis.url());
   EXPECT_TRUE(config.ok()) << config.status().to_string();
   if (!config.ok()) return nullptr;
   config->log_length = log_length;
@@ -108,30 +108,30 @@ service::CreatedSession create_with_handles(DeformationService& service) {
 // --- The store itself --------------------------------------------------------------------------
 
 TEST(RedisStoreTest, UrlParsingTakesTlsAndRefusesPasswords) {
-  Result<service::RedisConfig> plain = service::parse_redis_url("redis://db.internal:6380/3");
+  Result<redis::RedisConfig> plain = redis::parse_redis_url("redis://db.internal:6380/3");
   ASSERT_TRUE(plain.ok()) << plain.status().to_string();
   EXPECT_EQ(plain->host, "db.internal");
   EXPECT_EQ(plain->port, 6380);
   EXPECT_EQ(plain->database, 3);
-  Result<service::RedisConfig> user = service::parse_redis_url("redis://editor@10.0.0.5");
+  Result<redis::RedisConfig> user = redis::parse_redis_url("redis://editor@10.0.0.5");
   ASSERT_TRUE(user.ok());
   EXPECT_EQ(user->username, "editor");
   EXPECT_EQ(user->port, 6379);
   EXPECT_FALSE(plain->tls);
   // rediss://: TLS (redis_tls_test.cpp connects through it).
-  const Result<service::RedisConfig> tls = service::parse_redis_url("rediss://editor@db:6380/2");
+  const Result<redis::RedisConfig> tls = redis::parse_redis_url("rediss://editor@db:6380/2");
   ASSERT_TRUE(tls.ok()) << tls.status().to_string();
   EXPECT_TRUE(tls->tls);
   EXPECT_EQ(tls->host, "db");
   EXPECT_EQ(tls->port, 6380);
   EXPECT_EQ(tls->database, 2);
   EXPECT_EQ(tls->username, "editor");
-  EXPECT_FALSE(service::parse_redis_url("rediss://u:secret@db").ok());
-  const Result<service::RedisConfig> secret = service::parse_redis_url("redis://u:secret@db");
+  EXPECT_FALSE(redis::parse_redis_url("rediss://u:secret@db").ok());
+  const Result<redis::RedisConfig> secret = redis::parse_redis_url("redis://u:secret@db");
   ASSERT_FALSE(secret.ok());
   EXPECT_EQ(secret.status().message().find("secret"), std::string::npos);
-  EXPECT_FALSE(service::parse_redis_url("http://db").ok());
-  EXPECT_FALSE(service::parse_redis_url("redis://db:99999").ok());
+  EXPECT_FALSE(redis::parse_redis_url("http://db").ok());
+  EXPECT_FALSE(redis::parse_redis_url("redis://db:99999").ok());
 }
 
 TEST(RedisStoreTest, CommitIsACompareAndSetOnTheVersionFromTheLeaseHolder) {
@@ -193,7 +193,7 @@ TEST(RedisStoreTest, TheLeaseOfADeadReplicaRunsOutAndALiveOneIsRenewed) {
   MD_REQUIRE_REDIS();
   auto redis = start_redis();
   ASSERT_NE(redis, nullptr);
-  Result<service::RedisConfig> config = service::parse_redis_url(redis->url());
+  Result<redis::RedisConfig> config = redis::parse_redis_url(redis->url());
   ASSERT_TRUE(config.ok());
   config->lease = milliseconds(1000);
   const service::SessionId id{std::string(32, 'b')};

@@ -19,7 +19,7 @@
 
 #include "core/io/mesh_io.h"
 #include "server/service/deformation_service.h"
-#include "server/service/redis_store.h"
+#include "server/redis/redis_store.h"
 #include "tests/redis/failed_start.h"
 #include "tests/support/child_process.h"
 #include "tests/support/redis_process.h"
@@ -30,7 +30,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using service::DeformationService;
-using service::RedisStateStore;
+using redis::RedisStateStore;
 using std::chrono::milliseconds;
 
 /// A self-signed certificate (also its own CA) `<name>_cert.pem` / `<name>_key.pem` in `dir`,
@@ -87,7 +87,7 @@ class TlsRedisTest : public ::testing::Test {
   /// Connects a store to `url` trusting `ca`.
   static Result<std::unique_ptr<RedisStateStore>> connect(const std::string& url,
                                                           const std::string& ca) {
-    Result<service::RedisConfig> config = service::parse_redis_url(url);
+    Result<redis::RedisConfig> config = redis::parse_redis_url(url);
     if (!config.ok()) return config.status();
     config->tls_ca_file = ca;
     return RedisStateStore::connect(*config);

@@ -306,7 +306,7 @@ TEST(SessionTest, SetHandlesNamesWhatIsWrongWithTheGroups) {
   request.groups = column_groups(f.mesh);
   request.groups[1].vertices.push_back(request.groups[0].vertices[2]);
   expect_error(f.session->set_handles(request).status(), ErrorCode::InvalidArgument,
-               "is in handle group 0 and in handle group 1");
+               "is in fixed group 0 and in handle group 1");
 
   // Nothing was set by the refused calls.
   EXPECT_TRUE(f.session->info().groups.empty());
@@ -437,9 +437,9 @@ TEST(SessionTest, MoveNamesWhatIsWrongWithTheRequest) {
        [nan](MoveRequest& r) { r.moves[0].rotation = Eigen::Quaterniond(1, nan, 0, 0); },
        "moves[0].rotation has a non-finite component"},
       {"zero scale", [](MoveRequest& r) { r.moves[0].scale = 0; },
-       "moves[0].scale 0.000000 is not finite and positive"},
+       "moves[0].scale 0 is outside [1e-06, 1e+06]"},
       {"non-finite scale", [nan](MoveRequest& r) { r.moves[0].scale = nan; },
-       "moves[0].scale nan is not finite and positive"},
+       "moves[0].scale nan is outside [1e-06, 1e+06]"},
       {"zero quaternion",
        [](MoveRequest& r) { r.moves[0].rotation = Eigen::Quaterniond(0, 0, 0, 0); },
        "moves[0].rotation is the zero quaternion"},
@@ -481,7 +481,7 @@ TEST(SessionTest, MoveNamesWhatIsWrongWithTheRequest) {
          region.scale = 0;
          r.magnify.push_back(region);
        },
-       "scale must be positive and finite"},
+       "magnify[0].scale 0 is outside [0.001, 1000]"},
       {"magnify with ARAP",
        [](MoveRequest& r) {
          core::MagnifyRegion region;
@@ -758,7 +758,8 @@ TEST(SessionTest, CloseWatchersKeepsTheSessionOpen) {
   f.create();
   f.set_columns(core::Method::Arap);
   std::shared_ptr<Watcher> watcher = f.session->add_watcher();
-  f.session->close_watchers();
+  f.session->close_watchers(Error(ErrorCode::Unavailable, "shutting down"));
+  EXPECT_EQ(watcher->close_status().code(), ErrorCode::Unavailable);
   EXPECT_TRUE(watcher->closed());
   EXPECT_FALSE(f.session->is_closed());
   EXPECT_TRUE(f.move(lift(0.1)).ok());

@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/prctl.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -29,6 +30,7 @@ struct SpawnPlan {
   std::string stdout_path;
   std::string stderr_path;
   int stderr_fd = -1;
+  long max_open_files = -1;
 };
 
 pid_t fork_and_exec(const SpawnPlan& plan, std::string& error) {
@@ -71,6 +73,12 @@ pid_t fork_and_exec(const SpawnPlan& plan, std::string& error) {
     if (dup2(in_fd, STDIN_FILENO) < 0 || dup2(out_fd, STDOUT_FILENO) < 0 ||
         dup2(err_fd, STDERR_FILENO) < 0) {
       _exit(126);
+    }
+    if (plan.max_open_files >= 0) {
+      const struct rlimit limit {
+        static_cast<rlim_t>(plan.max_open_files), static_cast<rlim_t>(plan.max_open_files)
+      };
+      if (setrlimit(RLIMIT_NOFILE, &limit) != 0) _exit(126);
     }
     // Unblock the signals a test may have blocked (the child must honour SIGTERM).
     sigset_t none;
@@ -142,7 +150,8 @@ std::optional<ChildProcess> ChildProcess::spawn(const std::vector<std::string>& 
                  streams.unset_env,
                  streams.stdout_path,
                  streams.stderr_path,
-                 streams.stderr_fd};
+                 streams.stderr_fd,
+                 streams.max_open_files};
   const pid_t pid = Spawner::instance().spawn(std::move(plan), error);
   if (pid <= 0) return std::nullopt;
   return ChildProcess(pid);

@@ -22,6 +22,8 @@ struct ChildStreams {
   int stderr_fd = -1;       ///< the write end of a pipe, used instead of stderr_path when >= 0
   std::vector<std::string> env;  ///< "NAME=value" entries added to (or replacing in) environ
   std::vector<std::string> unset_env;  ///< names removed from the inherited environment
+  /// Set: the child's RLIMIT_NOFILE (soft and hard), e.g. to run a server short of descriptors.
+  long max_open_files = -1;
 };
 
 /// A running child, killed (SIGKILL) and reaped when destroyed unless already waited for.

@@ -14,7 +14,8 @@ namespace meshdeform::test {
 std::unique_ptr<ServerProcess> ServerProcess::start(const std::string& binary,
                                                     const std::vector<std::string>& extra_flags,
                                                     std::string& error,
-                                                    std::chrono::seconds startup) {
+                                                    std::chrono::seconds startup,
+                                                    long max_open_files) {
   int pipe_fds[2];
   if (pipe2(pipe_fds, O_CLOEXEC) != 0) {
     error = std::string("pipe: ") + std::strerror(errno);
@@ -26,6 +27,7 @@ std::unique_ptr<ServerProcess> ServerProcess::start(const std::string& binary,
   // ctest waiting on the pipe for minutes after a test crashed.
   ChildStreams streams;
   streams.stderr_fd = pipe_fds[1];
+  streams.max_open_files = max_open_files;
   std::string spawn_error;
   std::optional<ChildProcess> child = ChildProcess::spawn(args, streams, spawn_error);
   close(pipe_fds[1]);

@@ -24,10 +24,11 @@ namespace meshdeform::test {
 class ServerProcess {
  public:
   /// Starts `binary` and waits at most `startup` for its listening line.
+  /// @param[in] max_open_files  >= 0: the server's RLIMIT_NOFILE (ChildStreams::max_open_files).
   /// @return the running server, or nullptr with `error` set (the stderr seen so far included).
   static std::unique_ptr<ServerProcess> start(
       const std::string& binary, const std::vector<std::string>& extra_flags, std::string& error,
-      std::chrono::seconds startup = std::chrono::seconds(30));
+      std::chrono::seconds startup = std::chrono::seconds(30), long max_open_files = -1);
   ServerProcess(const ServerProcess&) = delete;
   ServerProcess& operator=(const ServerProcess&) = delete;
   /// Stops the server if it still runs (SIGTERM, then SIGKILL after 20 s).

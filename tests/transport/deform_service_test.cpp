@@ -1118,7 +1118,9 @@ TEST(ClientIdentityTest, BehindATrustedProxyClientsAreNamedByForwardedFor) {
   service::ServiceOptions options;
   options.create_rate = {0.001, 1.0};
   service::DeformationService service(options);
-  DeformServiceImpl impl(service, ClientIdentityOptions{/*trust_forwarded_for=*/true});
+  ClientIdentityOptions identity;
+  identity.trust_forwarded_for = true;
+  DeformServiceImpl impl(service, identity);
   int port = 0;
   std::unique_ptr<grpc::Server> server = serve_on_loopback(impl, &port);
   ASSERT_NE(server, nullptr);

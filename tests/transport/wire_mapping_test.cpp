@@ -125,22 +125,22 @@ TEST(WireMappingTest, EveryHistoryActionRoundTripsAndUnknownOnesAreRejected) {
   for (const service::HistoryAction action : {service::HistoryAction::Record,
                                               service::HistoryAction::Undo,
                                               service::HistoryAction::Redo}) {
-    EXPECT_EQ(history_from_proto<service::HistoryAction>(history_to_proto(action)), action);
+    EXPECT_EQ(history_from_proto(history_to_proto(action)), action);
   }
   EXPECT_EQ(history_to_proto(service::HistoryAction::Record), v1::HISTORY_ACTION_UNSPECIFIED);
-  EXPECT_EQ(history_from_proto<service::HistoryAction>(static_cast<v1::HistoryAction>(9)),
+  EXPECT_EQ(history_from_proto(static_cast<v1::HistoryAction>(9)),
             std::nullopt);
 }
 
 TEST(WireMappingTest, EveryHandleRoleRoundTripsAndUnknownRolesAreRejected) {
   using service::HandleRole;
   for (const HandleRole role : {HandleRole::Fixed, HandleRole::Handle}) {
-    EXPECT_EQ(role_from_proto<HandleRole>(role_to_proto(role)), std::optional<HandleRole>(role));
+    EXPECT_EQ(role_from_proto(role_to_proto(role)), std::optional<HandleRole>(role));
   }
   EXPECT_EQ(role_to_proto(HandleRole::Fixed), v1::HANDLE_ROLE_FIXED);
   EXPECT_EQ(role_to_proto(HandleRole::Handle), v1::HANDLE_ROLE_HANDLE);
-  EXPECT_EQ(role_from_proto<HandleRole>(v1::HANDLE_ROLE_UNSPECIFIED), std::nullopt);
-  EXPECT_EQ(role_from_proto<HandleRole>(static_cast<v1::HandleRole>(7)), std::nullopt);
+  EXPECT_EQ(role_from_proto(v1::HANDLE_ROLE_UNSPECIFIED), std::nullopt);
+  EXPECT_EQ(role_from_proto(static_cast<v1::HandleRole>(7)), std::nullopt);
 }
 
 TEST(WireMappingTest, VectorsAndQuaternionsRoundTripBitForBit) {
@@ -225,7 +225,7 @@ TEST(WireMappingTest, GroupMovesRoundTripAndAbsentFieldsAreDefaults) {
   EXPECT_EQ(on_wire.group(), 3u);
   EXPECT_TRUE(on_wire.has_scale());
   EXPECT_TRUE(on_wire.has_pivot());
-  const auto back = group_move_from_proto<service::GroupMove>(on_wire);
+  const auto back = group_move_from_proto(on_wire);
   EXPECT_EQ(back.group, 3);
   EXPECT_EQ(back.translation, move.translation);
   EXPECT_EQ(back.rotation.coeffs(), move.rotation.coeffs());
@@ -239,7 +239,7 @@ TEST(WireMappingTest, GroupMovesRoundTripAndAbsentFieldsAreDefaults) {
 
   v1::GroupMove bare;
   bare.set_group(1);
-  const auto defaults = group_move_from_proto<service::GroupMove>(bare);
+  const auto defaults = group_move_from_proto(bare);
   EXPECT_EQ(defaults.group, 1);
   EXPECT_EQ(defaults.translation, Eigen::Vector3d::Zero());
   EXPECT_EQ(defaults.rotation.coeffs(), Eigen::Quaterniond::Identity().coeffs());

@@ -5,6 +5,8 @@
 // page's pointer input never waits on a 187k-vertex update. This file: the messages, and the
 // gate that decides when a frame goes out (pure, tested).
 
+import type { LinkSizedChoice } from "./update_codec";
+
 export type HeatMetric = "angle" | "area";
 
 /** What the page needs to know of every update (rendered or dropped). */
@@ -29,6 +31,8 @@ export interface UpdateInfo {
 export type ToWorker =
   | {
     type: "open"; origin: string; sessionId: string; token: string; encoding: number; vertexCount: number;
+    /** Link-sized updates (issue 45; the page's ?updates=): the worker asks the Watch for them. */
+    updates: LinkSizedChoice;
     indices: Uint32Array; rest: Float32Array; heat: HeatMetric | null; pageTimeOrigin: number;
   }
   /** The page drew the last frame: these buffers may be filled again. */

@@ -40,6 +40,7 @@ import { decoderReady, parseEncoding, PositionState } from "./updates";
 import type { FromWorker, HeatMetric, ToWorker, UpdateInfo } from "./frames";
 import { autoScale, DEFAULT_HEAT_SCALE, heatMax, legend, parseScale, scaleValue, withScale, type HeatScale } from "./heatscale";
 import { viewForKey } from "./views";
+import { linkSizedOptions, parseLinkSized } from "./update_codec";
 import "./style.css";
 
 type Role = "edit" | "view";
@@ -153,6 +154,9 @@ function centroidOfRows(a: ArrayLike<number>): THREE.Vector3 | null {
   return c.divideScalar(n);
 }
 const ENCODING = parseEncoding(query.get("encoding"));
+// ?updates=quantized|lossless[&tolerance=X][&budget=BYTES]: link-sized Watch updates (issue 45).
+const LINK_SIZED = parseLinkSized(query);
+const UPDATES = linkSizedOptions(LINK_SIZED);
 const client = makeClient(location.origin);
 // ?lambda= soft handle weight for new sessions (server default 100 lets fixed vertices drift ~1e-4).
 const LAMBDA = Number(query.get("lambda")) > 0 ? Number(query.get("lambda")) : undefined;
@@ -873,10 +877,11 @@ class App {
   }
 
   /** The request fields for the controls' settings. */
-  private settingsRequest(): Pick<MoveHandlesRequest, "method" | "ora" | "rigidity" | "maxIterations" | "magnify" | "encoding" | "editor"> {
+  private settingsRequest(): Pick<MoveHandlesRequest, "method" | "ora" | "rigidity" | "maxIterations" | "magnify" | "encoding" | "omitPositions" | "editor"> {
     const mag = this.session?.selection.magnifyIndices() ?? [];
     return {
       method: this.method(), ora: $in("ora").checked, rigidity: this.rigidity(), maxIterations: this.iterationsValue, encoding: ENCODING,
+      omitPositions: UPDATES !== undefined, // link-sized updates (issue 45): geometry comes from Watch only
       editor: "web-viewer",
       magnify: mag.length ? [create(MagnifyRegionSchema, { vertices: mag, scale: Number($in("magnify").value) })] : [],
     };
@@ -1752,7 +1757,7 @@ class App {
     };
     w.onerror = (ev) => this.banner.error("The viewer's update worker failed", new Error(ev.message));
     const open: ToWorker = {
-      type: "open", origin: location.origin, sessionId: s.creds.sessionId, token: s.creds.token, encoding: ENCODING, vertexCount: s.state.vertexCount,
+      type: "open", origin: location.origin, sessionId: s.creds.sessionId, token: s.creds.token, encoding: ENCODING, updates: LINK_SIZED, vertexCount: s.state.vertexCount,
       indices: Uint32Array.from(indices), rest: Float32Array.from(s.rest), heat: this.heatMetric(), pageTimeOrigin: performance.timeOrigin,
     };
     w.postMessage(open, [open.indices.buffer, open.rest.buffer]);

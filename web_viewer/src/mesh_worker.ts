@@ -7,11 +7,15 @@ import { cornerAngles, faceAreas2, vertexAreaLog, vertexDistortion } from "./dis
 import { FrameGate, type FromWorker, type HeatMetric, type ToWorker, type UpdateInfo } from "./frames";
 import { boundingSphere, vertexNormals } from "./geometry";
 import { decoderReady, encodingName, PositionState, updateWireBytes } from "./updates";
+import { linkSizedOptions } from "./update_codec";
+import type { UpdateOptions } from "./gen/meshdeform/v1/deformation_pb";
 
 interface Open {
   sessionId: string;
   token: string;
   encoding: number;
+  /** Link-sized updates (issue 45): undefined for positions as `encoding` says. */
+  updates: UpdateOptions | undefined;
   indices: Uint32Array;
   restAngles: Float32Array | null;
   restAreas2: Float64Array | null;
@@ -79,7 +83,7 @@ async function watch(o: Open): Promise<void> {
     if (open !== o) return;
     try {
       const stream = client.watch(
-        { sessionId: o.sessionId, token: o.token, encoding: o.encoding },
+        { sessionId: o.sessionId, token: o.token, encoding: o.encoding, updates: o.updates },
         { contextValues: createContextValues().set(kSessionId, o.sessionId) },
       );
       for await (const upd of stream) {
@@ -128,7 +132,7 @@ self.onmessage = (ev: MessageEvent<ToWorker>) => {
     heatMetric = m.heat;
     const state = new PositionState(m.vertexCount);
     open = {
-      sessionId: m.sessionId, token: m.token, encoding: m.encoding, indices: m.indices, rest: m.rest,
+      sessionId: m.sessionId, token: m.token, encoding: m.encoding, updates: linkSizedOptions(m.updates), indices: m.indices, rest: m.rest,
       restAngles: null, restAreas2: null, state, offset: performance.timeOrigin - m.pageTimeOrigin,
     };
     void watch(open);

@@ -4,6 +4,7 @@
 import { toBinary } from "@bufbuild/protobuf";
 import { MeshoptDecoder } from "meshoptimizer/decoder";
 import { DeformResultSchema, DeformUpdateSchema, PositionEncoding, type DeformResult, type DeformUpdate } from "./gen/meshdeform/v1/deformation_pb";
+import { applyLinkSized } from "./update_codec";
 
 export type EncodingName = "double" | "float32" | "meshopt";
 
@@ -80,6 +81,8 @@ export class PositionState {
   apply(update: DeformUpdate): Applied {
     const r = update.result;
     if (!r) throw new Error("update without result");
+    // Link-sized: a delta against this stream's own updates (continuations too), every vertex.
+    if (update.delta) return { applied: applyLinkSized(this, update).applied, changed: null, result: r };
     const rev = Number(r.revision);
     if (rev <= this.revision) return { applied: false, changed: null, result: r };
     if (update.isSnapshot) {

@@ -17,10 +17,11 @@
 /// version, the revision and the log entry in one atomic step.
 ///
 /// TLS (rediss://): Debian 12's hiredis 0.14 has no TLS support, so each pooled connection to a
-/// rediss:// server is a TCP connection wrapped in OpenSSL here (peer and host name verified, the
-/// handshake done before the connection is pooled, so its errors are connect()'s), bridged to
-/// hiredis through a socketpair (redisConnectFd) by a relay thread that the store owns: the relay
-/// ends when hiredis closes its end (redisFree) and at the latest when the store is destroyed.
+/// rediss:// server is a TCP connection wrapped in OpenSSL (tls_bridge.h: peer and host name
+/// verified, the handshake done before the connection is pooled, so its errors are connect()'s),
+/// bridged to hiredis through a socketpair (redisConnectFd) by a relay thread that the store
+/// owns: the relay ends when hiredis closes its end (redisFree) and at the latest when the store
+/// is destroyed.
 
 #include <atomic>
 #include <chrono>
@@ -37,7 +38,15 @@
 struct redisContext;
 struct ssl_ctx_st;  // OpenSSL's SSL_CTX
 
-namespace meshdeform::service {
+/// The Redis session store, a library of its own (meshdeform::redis: hiredis, OpenSSL): the
+/// service builds and runs without it.
+namespace meshdeform::redis {
+
+using service::PersistedSession;
+using service::SessionId;
+using service::SharedLogEntry;
+using service::SharedState;
+using service::SharedStateStore;
 
 /// Where and how to reach Redis.
 struct RedisConfig {
@@ -131,4 +140,4 @@ class RedisStateStore final : public SharedStateStore {
   std::jthread renewer_;        // last: stopped and joined first
 };
 
-}  // namespace meshdeform::service
+}  // namespace meshdeform::redis
