@@ -93,6 +93,14 @@ void remember_step(EditState& state, int step, KeptPositions shown, int limit) {
   }
 }
 
+std::size_t kept_positions_bytes(const EditState& state) {
+  std::size_t bytes = 0;
+  for (const KeptPositions& k : state.kept) {
+    if (k.positions) bytes += static_cast<std::size_t>(k.positions->size()) * sizeof(double);
+  }
+  return bytes;
+}
+
 std::shared_ptr<const Positions> kept_positions(const EditState& state, std::uint64_t revision) {
   for (const KeptPositions& k : state.kept) {
     if (k.revision == revision) return k.positions;

@@ -48,6 +48,10 @@ int kept_positions_limit(int vertices);
 /// oldest kept are dropped beyond `limit`, and the steps naming them forget their revision.
 void remember_step(EditState& state, int step, KeptPositions shown, int limit);
 
+/// What the kept positions hold (24 bytes per vertex each): charged to the session's memory
+/// estimate as they are kept (Session::estimated_bytes), at most kept_positions_limit of them.
+std::size_t kept_positions_bytes(const EditState& state);
+
 /// The kept positions of `revision`; null when the state keeps none.
 std::shared_ptr<const Positions> kept_positions(const EditState& state, std::uint64_t revision);
 

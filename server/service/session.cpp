@@ -101,9 +101,6 @@ std::size_t estimate_session_bytes(int vertices, int faces, int cached_deformers
   const std::size_t base =
       v * (24 * (3 + static_cast<std::size_t>(std::max(kept_revisions, 0))) + 64 + 24) +
       f * 112 + 4096;
-  // Positions kept for exact undo (edit_history.h), charged in full though they are shared with
-  // the revisions while those are kept too.
-  const std::size_t undo = v * 24 * static_cast<std::size_t>(kept_positions_limit(vertices));
   // One charge for every method, the largest one's: measured heap of a built and solved
   // deformer on Spot at 187k vertices (issue 15): scale-aware 5.1 KB per vertex (the Laplacian
   // guess's bi-Laplacian factor, the n x n and #F x #F preconditioner factors, the scale term's
@@ -115,7 +112,7 @@ std::size_t estimate_session_bytes(int vertices, int faces, int cached_deformers
   // stays as measured, above the multiresolution deformer's 4.6 KB (issue 15's bench at 187k:
   // 977 MiB peak with the refinement, 1020 before).
   const std::size_t per_deformer = v * 5200;
-  return base + undo + per_deformer * static_cast<std::size_t>(std::max(cached_deformers, 0));
+  return base + per_deformer * static_cast<std::size_t>(std::max(cached_deformers, 0));
 }
 
 Result<std::shared_ptr<Session>> Session::create(SessionId id, Token edit_token, Token view_token,
@@ -826,7 +823,10 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
     push_history_locked(result);
     targets_ = targets;
     last_method_ = method;
-    if (edit != nullptr) edit_ = *edit;
+    if (edit != nullptr) {
+      edit_ = *edit;
+      kept_bytes_.store(kept_positions_bytes(edit_));
+    }
     watchers = watchers_;
   }
   entry->state_revision = result->revision;
@@ -1217,7 +1217,10 @@ bool Session::apply_shared_locked(const SharedLogEntry& logged) {
     push_history_locked(result);
     targets_ = logged.targets;
     last_method_ = result->method;
-    if (logged.edit) edit_ = *logged.edit;
+    if (logged.edit) {
+      edit_ = *logged.edit;
+      kept_bytes_.store(kept_positions_bytes(edit_));
+    }
     watchers = watchers_;
   }
   shared_version_ = logged.version;

@@ -402,9 +402,10 @@ struct ServiceStats {
 };
 
 /// Memory charge of a session, for budgeting (an estimate, calibrated by measurement): positions
-/// of the rest mesh, the current and the kept revisions, those kept for exact undo
-/// (kept_positions_limit in edit_history.h), topology and measures, plus per cached deformer
-/// 5.2 KB per vertex (the scale-aware solver's measured heap, the largest method's).
+/// of the rest mesh, the current and the kept revisions, topology and measures, plus per cached
+/// deformer 5.2 KB per vertex (the scale-aware solver's measured heap, the largest method's).
+/// Positions kept for exact undo are charged on top as they are kept (Session::estimated_bytes,
+/// kept_positions_bytes in edit_history.h): a new session holds none.
 /// @param[in] vertices, faces   mesh size.
 /// @param[in] cached_deformers  prefactored systems held.
 /// @param[in] kept_revisions    ServiceOptions::kept_revisions.
