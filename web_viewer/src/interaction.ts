@@ -165,6 +165,9 @@ export class Interaction {
       this.host.modalPointer(e.clientX, e.clientY);
       return;
     }
+    // A drag of the gizmo (TransformControls' own listener moves the group): its input delay
+    // counts as a drag's too.
+    if (v.gizmo.dragging && !this.drag) this.host.inputDelay(Math.max(0, t0 - e.timeStamp));
     if (this.drag && e.pointerId === this.drag.id) {
       e.stopImmediatePropagation();
       // e.timeStamp and performance.now() share the page's clock.
