@@ -357,4 +357,42 @@ test("sculpting in the viewer", { timeout: 280_000 }, async (t) => {
   });
 
   await withTimeout(page.close(), STEP_MS, "close");
+
+  await t.test("(j) link-sized updates (issue 45) reach the page through the worker", async () => {
+    // Lossless deltas: the page's positions must equal those of a page that loads the same
+    // session's snapshot in doubles.
+    const linked = await newPage(env.browser, `${env.baseUrl}/?updates=lossless`);
+    try {
+      await poll(linked, () => window.__meshdeform?.ready === true, null, "editor ready (lossless updates)");
+      const handle = (await hook(linked, () => window.__meshdeform.groups())).findIndex((g) => g.role === "handle");
+      const rev = await hook(linked, () => window.__meshdeform.revision);
+      await drag(linked, await hook(linked, (g) => window.__meshdeform.groupScreenPoint(g), handle), 50, -30);
+      await poll(linked, (r) => window.__meshdeform.revision > r, rev, "a drag's revision through delta updates");
+      await settle(linked, "lossless: settle");
+      const seen = await hook(linked, () => ({ revision: window.__meshdeform.revision, positions: window.__meshdeform.positions(), hash: location.hash }));
+      const restL = await hook(linked, () => window.__meshdeform.restPositions());
+      assert.ok(maxDiff(seen.positions, restL) > 1e-3 * bboxDiag(restL), "the drag moved the mesh on the page");
+      assert.equal(await hook(linked, () => window.__meshdeform.lastError), "");
+      const kinds = new Set(await hook(linked, () => window.__meshdeform.metrics().updateEncodings));
+      assert.deepEqual([...kinds], ["lossless delta"], "every update was a lossless delta");
+      // A second page on the same session, plain doubles: both show the same revision the same.
+      const plain = await newPage(env.browser, `${env.baseUrl}/${seen.hash}`);
+      try {
+        await poll(plain, (r) => window.__meshdeform?.ready === true && window.__meshdeform.revision >= r, seen.revision, "the same session in doubles");
+        let compared = false;
+        for (let i = 0; i < 20 && !compared; i++) {
+          const a = await hook(linked, () => ({ revision: window.__meshdeform.revision, positions: window.__meshdeform.positions() }));
+          const b = await hook(plain, () => ({ revision: window.__meshdeform.revision, positions: window.__meshdeform.positions() }));
+          if (a.revision !== b.revision) { await settle(linked, "lossless: settle again"); continue; }
+          assert.equal(maxDiff(a.positions, b.positions), 0, `the deltas gave the same positions at revision ${a.revision}`);
+          compared = true;
+        }
+        assert.ok(compared, "both pages showed one revision");
+      } finally {
+        await withTimeout(plain.close(), STEP_MS, "close");
+      }
+    } finally {
+      await withTimeout(linked.close(), STEP_MS, "close");
+    }
+  });
 });

@@ -8,7 +8,7 @@ import { FrameGate, type FromWorker, type HeatMetric, type ToWorker, type Update
 import { boundingSphere, vertexNormals } from "./geometry";
 import { decoderReady, encodingName, PositionState, updateWireBytes } from "./updates";
 import { linkSizedOptions } from "./update_codec";
-import type { UpdateOptions } from "./gen/meshdeform/v1/deformation_pb";
+import { DeltaMode, type UpdateOptions } from "./gen/meshdeform/v1/deformation_pb";
 
 interface Open {
   sessionId: string;
@@ -101,7 +101,9 @@ async function watch(o: Open): Promise<void> {
         }
         if (!applied.applied) continue;
         const info: UpdateInfo = {
-          revision: Number(r.revision), bytes, encoding: encodingName(r.encoding), isSnapshot: upd.isSnapshot,
+          revision: Number(r.revision), bytes, isSnapshot: upd.isSnapshot,
+          // Link-sized updates (issue 45) name their delta mode instead of a position encoding.
+          encoding: upd.delta ? (upd.delta.mode === DeltaMode.LOSSLESS ? "lossless delta" : "quantized delta") : encodingName(r.encoding),
           refinement: r.refinement, converged: r.converged, eTheta: r.eTheta, ePhi: r.ePhi, areaLogRms: r.areaLogRms,
           iterations: r.iterations, pcgIterations: r.pcgIterations, solveSeconds: r.solveSeconds,
           appliedAt: performance.now() + o.offset,
