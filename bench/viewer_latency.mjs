@@ -5,7 +5,7 @@
 // resolution streamed by the background refinement after the drag), on loopback, in one run.
 //
 //   node bench/viewer_latency.mjs [--build build] [--moves 90] [--out bench/results] [--model NAME]
-//       [--baseline-dist DIR]
+//       [--baseline-dist DIR] [--name viewer]
 //
 // Input delay (issue 44): for every pointer event of the drag, how long it waited before the
 // page's main thread ran its first handler (performance.now() - event.timeStamp, measured by a
@@ -19,7 +19,7 @@
 // Debian's headless Chromium (playwright-core from web_viewer/node_modules) with real mouse
 // events at 60 Hz, and reads the viewer's own measurements (window.__meshdeform.metrics():
 // pointermove -> first animation frame after that move's revision was uploaded). Writes
-// viewer.md and viewer.json. Not a test: no thresholds. Rendering is CPU (SwiftShader) here.
+// <name>.md and <name>.json (default viewer.*). Not a test: no thresholds. Rendering is CPU (SwiftShader) here.
 import { spawn, execSync } from "node:child_process";
 import { createRequire } from "node:module";
 import { existsSync, mkdirSync, readFileSync, writeFileSync } from "node:fs";
@@ -38,6 +38,7 @@ const args = Object.fromEntries(process.argv.slice(2).reduce((acc, a, i, all) =>
 const build = path.resolve(repo, args.build ?? "build");
 const moves = Number(args.moves ?? 90);
 const out = path.resolve(repo, args.out ?? "bench/results");
+const name = args.name ?? "viewer";
 const serverPath = path.join(build, "server/transport/meshdeform-server");
 const loadtestPath = path.join(build, "client_cpp/loadtest/meshdeform-loadtest");
 const dist = path.join(repo, "web_viewer/dist");
@@ -203,10 +204,10 @@ const machine = {
   rendering: "headless Chromium, SwiftShader (CPU) WebGL", drag: `${moves} mouse events at 60 Hz on a loop of 60 x 80 px`,
 };
 mkdirSync(out, { recursive: true });
-writeFileSync(path.join(out, "viewer.json"), JSON.stringify({ machine, rows, service_alone: alone }, null, 2) + "\n");
+writeFileSync(path.join(out, `${name}.json`), JSON.stringify({ machine, rows, service_alone: alone }, null, 2) + "\n");
 const f = (x, d = 0) => (Number.isFinite(x) ? x.toFixed(d) : "-");
 let md = `# Viewer: drag to frame, updates per second, bytes per update\n\n`;
-md += `Made by \`node bench/viewer_latency.mjs\` on ${machine.date_utc} (${machine.cpu_model}, ${machine.hardware_threads} threads, ` +
+md += `Made by \`node bench/viewer_latency.mjs ${process.argv.slice(2).join(" ")}\` on ${machine.date_utc} (${machine.cpu_model}, ${machine.hardware_threads} threads, ` +
   `load ${machine.load_average}; Chromium ${machine.chromium}, ${machine.rendering}; git ${machine.git_revision}). ` +
   `Server and browser on one machine, loopback; ${machine.drag}; 2 outer iterations per move, one move in flight, newest target wins.\n\n`;
 md += `| model | #V | encoding | viewer | updates/s while dragging | drag -> frame p50 / p95 / max (ms) | frame work p50 (ms) | bytes / update (mean) | dense doubles | dense float32 |\n`;
@@ -237,5 +238,5 @@ if (alone.length) {
 }
 md += `\nbytes / update: the serialized DeformUpdate of every Watch message received during and right after the drag ` +
   `(deltas of the changed vertices: indices + positions; refinement revisions included). Dense: every position, for comparison.\n`;
-writeFileSync(path.join(out, "viewer.md"), md);
+writeFileSync(path.join(out, `${name}.md`), md);
 console.log(`wrote ${path.join(out, "viewer.md")}`);
