@@ -239,4 +239,4 @@ if (alone.length) {
 md += `\nbytes / update: the serialized DeformUpdate of every Watch message received during and right after the drag ` +
   `(deltas of the changed vertices: indices + positions; refinement revisions included). Dense: every position, for comparison.\n`;
 writeFileSync(path.join(out, `${name}.md`), md);
-console.log(`wrote ${path.join(out, "viewer.md")}`);
+console.log(`wrote ${path.join(out, `${name}.md`)}`);
