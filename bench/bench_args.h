@@ -15,8 +15,8 @@
 #include <vector>
 
 #include "common/command_line.h"
-#include "core/allocator.h"
-#include "core/status.h"
+#include "core/base/allocator.h"
+#include "core/base/status.h"
 
 namespace meshdeform::bench {
 
@@ -137,7 +137,7 @@ inline Status write_file(const std::filesystem::path& path, const std::string& t
   return Status::success();
 }
 
-/// main() of a benchmark, after the solvers' heap settings (core/allocator.h): --help/-h prints
+/// main() of a benchmark, after the solvers' heap settings (core/base/allocator.h): --help/-h prints
 /// `usage` and exits 0; `run` returning an error prints it (and the usage, for a bad flag) and
 /// exits 1, as does an escaped exception.
 template <typename Usage, typename Run>

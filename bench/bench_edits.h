@@ -8,8 +8,8 @@
 #include <unsupported/Eigen/MatrixFunctions>
 
 #include "core/io/mesh_io.h"
-#include "core/procedural.h"
-#include "core/status.h"
+#include "core/samples/generators.h"
+#include "core/base/status.h"
 
 namespace meshdeform::bench {
 

@@ -21,8 +21,8 @@
 
 #include <nlohmann/json.hpp>
 
-#include "core/measures.h"
-#include "core/status.h"
+#include "core/mesh/measures.h"
+#include "core/base/status.h"
 
 namespace meshdeform::bench {
 

@@ -8,8 +8,8 @@
 
 #include <Eigen/Core>
 
-#include "core/mesh_data.h"
-#include "core/status.h"
+#include "core/mesh/mesh_data.h"
+#include "core/base/status.h"
 
 namespace meshdeform::bench {
 

@@ -18,11 +18,11 @@
 
 #include "bench/bench_config.h"
 #include "common/command_line.h"
-#include "core/allocator.h"
-#include "core/curve2d.h"
-#include "core/curve2d_svg.h"
-#include "core/koch.h"
-#include "core/status.h"
+#include "core/base/allocator.h"
+#include "core/curves/curve2d.h"
+#include "core/curves/curve2d_svg.h"
+#include "core/curves/koch.h"
+#include "core/base/status.h"
 
 namespace meshdeform::bench {
 namespace {

@@ -1,4 +1,4 @@
-// meshdeform-bench-multires (issue 15): the two-level scale-aware deformation of core/multires.h
+// meshdeform-bench-multires (issue 15): the two-level scale-aware deformation of core/multires/multires.h
 // on Spot Loop-subdivided to ~187k and ~750k vertices, against the single-level solver.
 // Per model, two forked children (each with its own peak resident set):
 //  - multires: MultiresDeformer::create (hierarchy, prolongation factor, coarse precompute); a
@@ -30,14 +30,14 @@
 #include "bench/bench_edits.h"
 #include "bench/bench_process.h"
 #include "bench/machine_info.h"
-#include "core/deform_types.h"
-#include "core/deformer.h"
-#include "core/measures.h"
-#include "core/multires.h"
-#include "core/procedural.h"
-#include "core/scale_aware.h"
-#include "core/status.h"
-#include "core/topology.h"
+#include "core/methods/deform_types.h"
+#include "core/methods/deformer.h"
+#include "core/mesh/measures.h"
+#include "core/multires/multires.h"
+#include "core/samples/generators.h"
+#include "core/methods/scale_aware.h"
+#include "core/base/status.h"
+#include "core/mesh/topology.h"
 
 namespace meshdeform::bench {
 namespace {

@@ -32,15 +32,15 @@
 #include "bench/bench_edits.h"
 #include "bench/bench_process.h"
 #include "bench/machine_info.h"
-#include "core/arap.h"
-#include "core/deform_types.h"
-#include "core/deformer.h"
+#include "core/methods/arap.h"
+#include "core/methods/deform_types.h"
+#include "core/methods/deformer.h"
 #include "core/io/mesh_io.h"
-#include "core/measures.h"
-#include "core/procedural.h"
-#include "core/scale_aware.h"
-#include "core/status.h"
-#include "core/topology.h"
+#include "core/mesh/measures.h"
+#include "core/samples/generators.h"
+#include "core/methods/scale_aware.h"
+#include "core/base/status.h"
+#include "core/mesh/topology.h"
 
 namespace meshdeform::bench {
 namespace {

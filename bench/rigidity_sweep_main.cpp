@@ -24,13 +24,13 @@
 #include "bench/bench_config.h"
 #include "bench/bench_args.h"
 #include "bench/machine_info.h"
-#include "core/deform_types.h"
-#include "core/deformer.h"
+#include "core/methods/deform_types.h"
+#include "core/methods/deformer.h"
 #include "core/io/mesh_io.h"
-#include "core/measures.h"
-#include "core/procedural.h"
-#include "core/status.h"
-#include "core/topology.h"
+#include "core/mesh/measures.h"
+#include "core/samples/generators.h"
+#include "core/base/status.h"
+#include "core/mesh/topology.h"
 
 namespace meshdeform::bench {
 namespace {
@@ -737,7 +737,7 @@ Status run(int argc, char** argv) {
     MD_ASSIGN_OR_RETURN(Edit e, edit_from_benchmark(b, b.name, "table1"));
     edits.push_back(std::move(e));
   }
-  // The project's irregular variants (core/procedural: non-uniform density, flips, jitter,
+  // The project's irregular variants (core/samples/generators: non-uniform density, flips, jitter,
   // slivers), as the speed issue's realistic benchmark uses them.
   MD_ASSIGN_OR_RETURN(const std::vector<core::DeformationBenchmark> irregular,
                       core::make_irregular_suite(options.small ? core::SuiteScale::Small

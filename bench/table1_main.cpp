@@ -25,14 +25,14 @@
 #include "bench/bench_args.h"
 #include "bench/bench_edits.h"
 #include "bench/machine_info.h"
-#include "core/deform_types.h"
-#include "core/deformer.h"
+#include "core/methods/deform_types.h"
+#include "core/methods/deformer.h"
 #include "core/io/report_json.h"
-#include "core/measures.h"
-#include "core/procedural.h"
-#include "core/scale_aware.h"
-#include "core/status.h"
-#include "core/topology.h"
+#include "core/mesh/measures.h"
+#include "core/samples/samples.h"
+#include "core/methods/scale_aware.h"
+#include "core/base/status.h"
+#include "core/mesh/topology.h"
 
 namespace meshdeform::bench {
 namespace {

@@ -15,7 +15,7 @@
 #include "cli/paths.h"
 #include "core/io/deform_spec.h"
 #include "core/io/mesh_io.h"
-#include "core/procedural.h"
+#include "core/samples/samples.h"
 
 namespace meshdeform::cli {
 namespace {
@@ -64,8 +64,17 @@ Method:
                             larger keeps local scale closer to the handles' (default 30;
                             an edit spec may set it)
 Solver:
-  --iterations N            outer iterations, the budget (default 15; an edit spec may set it)
-  --tolerance T             stop when the relative energy change is below T (default 1e-4)
+  --iterations N            outer iterations at full resolution, the budget (default 15; an
+                            edit spec may set it)
+  --tolerance T             converged when the estimated remaining relative energy change is
+                            at most T (default 1e-3; see --stopping)
+  --stopping RULE           remaining (default): the last relative energy change d divided by
+                            1 - q, q the larger of the last two change ratios (at most 0.95),
+                            i.e. how far the energy still has to go; change: d alone (the rule
+                            before this release, which stops slow tails early)
+  --multilevel on|off       on meshes of more than 20,000 vertices (scale-aware, auto start):
+                            solve coarse-to-fine through a decimated hierarchy (default on);
+                            off: one level, at full resolution
   --inner-iterations K      step-one sweeps per outer iteration (default 5)
   --anderson M              Anderson acceleration of the outer iteration: mix the last M
                             updates (default 6; 0 = the plain iteration)
@@ -190,6 +199,26 @@ std::optional<std::string> apply_solver_flags(const ParsedArgs& parsed, RunSetti
     }
     run.options.rigidity = *value;
   }
+  if (auto text = parsed.get("stopping")) {
+    if (*text == "remaining") {
+      run.options.stopping_rule = core::StoppingRule::Remaining;
+    } else if (*text == "change") {
+      run.options.stopping_rule = core::StoppingRule::Change;
+    } else {
+      return "--stopping must be 'remaining' or 'change', got '" + *text + "'";
+    }
+  }
+  if (auto text = parsed.get("multilevel")) {
+    if (*text == "on") {
+      run.options.multilevel = true;
+      run.settings.multilevel_above = core::kDefaultMultilevelAbove;
+    } else if (*text == "off") {
+      run.options.multilevel = false;
+      run.settings.multilevel_above = 0;  // nor build the hierarchy
+    } else {
+      return "--multilevel must be 'on' or 'off', got '" + *text + "'";
+    }
+  }
   if (auto text = parsed.get("threads")) {
     const auto value = parse_integer(*text);
     if (!value || *value < 0 || *value > 4096) {
@@ -226,7 +255,8 @@ int run_deform(const std::vector<std::string>& args) {
                                          {"iterations"},     {"tolerance"},  {"inner-iterations"},
                                          {"start"},          {"lambda"},     {"threads"},
                                          {"method"},         {"ora", false}, {"verbose", false},
-                                         {"rigidity"},       {"anderson"},   {"help", false}};
+                                         {"rigidity"},       {"anderson"},   {"stopping"},
+                                         {"multilevel"},     {"help", false}};
   if (auto error = parse_args(args, specs, parsed)) return usage_error(command, error->message);
   if (parsed.has("help")) {
     std::fputs(kDeformHelp, stdout);

@@ -12,10 +12,10 @@
 #include "cli/args.h"
 #include "cli/commands.h"
 #include "cli/paths.h"
-#include "core/curve2d.h"
-#include "core/curve2d_svg.h"
-#include "core/koch.h"
-#include "core/status.h"
+#include "core/curves/curve2d.h"
+#include "core/curves/curve2d_svg.h"
+#include "core/curves/koch.h"
+#include "core/base/status.h"
 
 namespace meshdeform::cli {
 namespace {

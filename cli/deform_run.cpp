@@ -2,14 +2,15 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <fstream>
 #include <utility>
 #include <vector>
 
 #include "core/io/mesh_io.h"
 #include "core/io/report_json.h"
-#include "core/topology.h"
-#include "core/validate.h"
+#include "core/mesh/topology.h"
+#include "core/mesh/validate.h"
 
 namespace meshdeform::cli {
 namespace {
@@ -194,12 +195,17 @@ Result<DeformOutcome> run_deformation(const DeformInput& input, const RunSetting
                  std::string("ORA and magnification belong to the scale-aware method, not ") +
                      core::method_name(run.method));
   }
-  MD_ASSIGN_OR_RETURN(std::unique_ptr<core::Deformer> deformer,
-                      core::make_deformer(run.method, input.mesh.V, input.mesh.F,
-                                          input.setup.constrained, run.settings));
+  ProgressPrinter printer(run.progress, run.options.max_iterations, run.label);
+  auto made = core::make_deformer(run.method, input.mesh.V, input.mesh.F,
+                                  input.setup.constrained, run.settings, {},
+                                  printer.build_callback());
+  if (!made.ok()) {
+    printer.finish();
+    return made.status();
+  }
+  std::unique_ptr<core::Deformer> deformer = std::move(made).value();
   outcome.precompute_seconds = seconds_between(t0, std::chrono::steady_clock::now());
 
-  ProgressPrinter printer(run.progress, run.options.max_iterations, run.label);
   auto solved = deformer->solve(input.setup.targets, options, printer.callback());
   printer.finish();
   if (!solved.ok()) return solved.status();
@@ -240,7 +246,10 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
                   {"rigidity", run.options.rigidity},
                   {"rigid_start_iterations", run.options.rigid_start_iterations},
                   {"rigid_start_tolerance", run.options.rigid_start_tolerance},
-                  {"anderson_window", run.options.anderson_window}};
+                  {"anderson_window", run.options.anderson_window},
+                  {"stopping_rule", core::stopping_rule_name(run.options.stopping_rule)},
+                  {"multilevel", run.options.multilevel &&
+                                     run.settings.multilevel_above > 0}};
   if (!input.magnify.empty()) {
     json regions = json::array();
     for (const core::MagnifyRegion& region : input.magnify) {
@@ -269,6 +278,30 @@ nlohmann::json make_report(const DeformInput& input, const RunSettings& run,
   j["paper_start_iterations"] = report.paper_iterations;
   j["precompute_seconds"] = outcome.precompute_seconds;
   j["solve_seconds"] = report.seconds;
+  // Issue 41: which rule "converged" is, and where the time went.
+  j["stopping"] = {{"rule", core::stopping_rule_name(run.options.stopping_rule)},
+                   {"description", core::stopping_rule_description(run.options.stopping_rule)},
+                   {"tolerance", run.options.tolerance},
+                   {"estimated_remaining", std::isfinite(report.estimated_remaining)
+                                               ? json(report.estimated_remaining)
+                                               : json(nullptr)}};
+  j["phases"] = {{"setup_seconds", outcome.precompute_seconds},
+                 {"start_seconds", report.phases.start},
+                 {"levels_seconds", report.phases.levels},
+                 {"fine_seconds", report.phases.fine}};
+  json levels = json::array();
+  for (const core::LevelReport& level : report.levels) {
+    levels.push_back({{"level", level.level},
+                      {"vertices", level.vertices},
+                      {"start_iterations", level.start_iterations},
+                      {"start_seconds", level.start_seconds},
+                      {"iterations", level.iterations},
+                      {"converged", level.converged},
+                      {"seconds", level.seconds},
+                      {"energy", level.energy},
+                      {"handle_error", level.handle_error}});
+  }
+  j["multilevel"] = {{"used", !report.levels.empty()}, {"levels", levels}};
   if (!report.history.empty()) {
     j["start"] = {{"e_theta", report.history.front().e_theta},
                   {"e_phi", report.history.front().e_phi},

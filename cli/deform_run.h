@@ -9,15 +9,15 @@
 #include <nlohmann/json.hpp>
 
 #include "cli/progress.h"
-#include "core/deform_types.h"
+#include "core/methods/deform_types.h"
 #include "core/io/deform_spec.h"
-#include "core/measures.h"
-#include "core/mesh_data.h"
-#include "core/procedural.h"
-#include "core/deformer.h"
-#include "core/ora.h"
-#include "core/scale_aware.h"
-#include "core/status.h"
+#include "core/mesh/measures.h"
+#include "core/mesh/mesh_data.h"
+#include "core/samples/samples.h"
+#include "core/methods/deformer.h"
+#include "core/methods/ora.h"
+#include "core/methods/scale_aware.h"
+#include "core/base/status.h"
 
 namespace meshdeform::cli {
 

@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "cli/commands.h"
-#include "core/allocator.h"
+#include "core/base/allocator.h"
 
 int main(int argc, char** argv) {
   meshdeform::core::keep_freed_heap_for_solver_arrays();

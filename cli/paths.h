@@ -5,7 +5,7 @@
 #include <filesystem>
 #include <string>
 
-#include "core/status.h"
+#include "core/base/status.h"
 
 namespace meshdeform::cli {
 

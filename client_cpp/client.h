@@ -26,11 +26,11 @@
 #include <string>
 #include <vector>
 
-#include "core/deformer.h"
-#include "core/edit_types.h"
+#include "core/methods/deformer.h"
+#include "core/methods/edit_types.h"
 #include "core/io/mesh_io.h"
-#include "core/mesh_data.h"
-#include "core/status.h"
+#include "core/mesh/mesh_data.h"
+#include "core/base/status.h"
 
 namespace meshdeform::client {
 
@@ -103,7 +103,7 @@ struct CallOptions {
 
 // ------------------------------------------------------------------------------- domain types
 
-// The edit vocabulary (core/edit_types.h: one definition, shared with the server): handle
+// The edit vocabulary (core/methods/edit_types.h: one definition, shared with the server): handle
 // groups and roles, similarity moves of a group (GroupMove: absolute, relative to the group's
 // anchors, i.e. its positions when SetHandles was called), explicit vertex targets, undo/redo.
 using core::GroupMove;

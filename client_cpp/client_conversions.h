@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "client_cpp/client.h"
-#include "core/status.h"
+#include "core/base/status.h"
 #include "meshdeform/v1/deformation.pb.h"
 
 namespace meshdeform::client::detail {

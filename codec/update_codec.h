@@ -42,8 +42,8 @@
 #include <string_view>
 #include <vector>
 
-#include "core/mesh_data.h"
-#include "core/status.h"
+#include "core/mesh/mesh_data.h"
+#include "core/base/status.h"
 
 namespace meshdeform::codec {
 

@@ -128,6 +128,17 @@ std::string format_rate(double bits) {
 
 double ms(Duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
 
+/// Adds one direction's counters to a total (the live links' and the closed ones').
+void add(DirectionCounters& to, const DirectionCounters& from) {
+  to.bytes_in += from.bytes_in;
+  to.bytes_delivered += from.bytes_delivered;
+  to.chunks += from.chunks;
+  to.losses += from.losses;
+  to.full_queue_waits += from.full_queue_waits;
+  to.queue_delay_ns_sum += from.queue_delay_ns_sum;
+  to.queue_delay_ns_max = std::max(to.queue_delay_ns_max, from.queue_delay_ns_max);
+}
+
 }  // namespace
 
 std::optional<LinkSettings> parse_link_spec(std::string_view spec, std::string& error) {
@@ -344,15 +355,6 @@ std::string LinkEmulator::address() const {
 LinkCounters LinkEmulator::counters() const {
   const std::lock_guard lock(mutex_);
   LinkCounters out = closed_;
-  auto add = [](DirectionCounters& to, const DirectionCounters& from) {
-    to.bytes_in += from.bytes_in;
-    to.bytes_delivered += from.bytes_delivered;
-    to.chunks += from.chunks;
-    to.losses += from.losses;
-    to.full_queue_waits += from.full_queue_waits;
-    to.queue_delay_ns_sum += from.queue_delay_ns_sum;
-    to.queue_delay_ns_max = std::max(to.queue_delay_ns_max, from.queue_delay_ns_max);
-  };
   for (const auto& c : connections_) {
     add(out.up, c->up.model.counters());
     add(out.down, c->down.model.counters());
@@ -393,15 +395,6 @@ void LinkEmulator::close_connection(std::size_t index) {
   Connection& c = *connections_[index];
   if (c.client >= 0) ::close(c.client);
   if (c.target >= 0) ::close(c.target);
-  auto add = [](DirectionCounters& to, const DirectionCounters& from) {
-    to.bytes_in += from.bytes_in;
-    to.bytes_delivered += from.bytes_delivered;
-    to.chunks += from.chunks;
-    to.losses += from.losses;
-    to.full_queue_waits += from.full_queue_waits;
-    to.queue_delay_ns_sum += from.queue_delay_ns_sum;
-    to.queue_delay_ns_max = std::max(to.queue_delay_ns_max, from.queue_delay_ns_max);
-  };
   add(closed_.up, c.up.model.counters());
   add(closed_.down, c.down.model.counters());
   connections_.erase(connections_.begin() + static_cast<std::ptrdiff_t>(index));

@@ -13,7 +13,7 @@
 #
 # The test command runs 10 s per target. Before a change to a parser lands, run the long campaign,
 # 10 minutes per target, one per core at a time (12 targets: about 1 hour on two cores), and
-# report it in the README:
+# report it in docs/testing.md:
 #
 #   scripts/fuzz.sh 600
 set -euo pipefail

@@ -9,7 +9,7 @@ packages=(
   libeigen3-dev libtinygltf-dev nlohmann-json3-dev
   libsuitesparse-dev libopenblas-dev libopenblas0-pthread
   libgtest-dev libgmock-dev libbenchmark-dev
-  libcgal-dev libopenmesh-dev  # OpenMesh: irregular remeshing and subdivision in core/procedural.cpp
+  libcgal-dev libopenmesh-dev  # OpenMesh: irregular remeshing and subdivision in core/samples/
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libboost-dev libmeshoptimizer-dev libssl-dev openssl
   libzstd-dev  # link-sized vertex updates (codec/update_codec.cpp)

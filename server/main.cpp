@@ -25,7 +25,7 @@
 #include <vector>
 
 #include "common/command_line.h"
-#include "core/allocator.h"
+#include "core/base/allocator.h"
 #include "server/service/deformation_service.h"
 #include "server/service/log.h"
 #include "server/service/persistence.h"

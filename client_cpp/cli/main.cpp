@@ -29,7 +29,7 @@
 #include "common/command_line.h"
 #include "core/io/deform_spec.h"
 #include "core/io/mesh_io.h"
-#include "core/similarity.h"
+#include "core/methods/similarity.h"
 
 namespace {
 

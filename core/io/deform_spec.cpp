@@ -1,7 +1,7 @@
 #include "core/io/deform_spec.h"
 
 #include "core/io/json_depth.h"
-#include "core/similarity.h"
+#include "core/methods/similarity.h"
 
 #include <Eigen/Geometry>
 #include <algorithm>

@@ -35,9 +35,9 @@
 #include <vector>
 
 #include "core/io/read_control.h"
-#include "core/mesh_data.h"
-#include "core/procedural.h"
-#include "core/status.h"
+#include "core/mesh/mesh_data.h"
+#include "core/samples/samples.h"
+#include "core/base/status.h"
 
 namespace meshdeform::io {
 

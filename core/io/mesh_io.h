@@ -28,9 +28,9 @@
 #include <string_view>
 
 #include "core/io/read_control.h"
-#include "core/mesh_data.h"
-#include "core/status.h"
-#include "core/validate.h"
+#include "core/mesh/mesh_data.h"
+#include "core/base/status.h"
+#include "core/mesh/validate.h"
 
 namespace meshdeform::io {
 

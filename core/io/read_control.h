@@ -7,7 +7,7 @@
 #include <cstdint>
 #include <stop_token>
 
-#include "core/status.h"
+#include "core/base/status.h"
 
 namespace meshdeform::io {
 

@@ -5,7 +5,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "core/deform_types.h"
+#include "core/methods/deform_types.h"
 
 namespace meshdeform::io {
 

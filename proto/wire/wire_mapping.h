@@ -19,11 +19,11 @@
 #include <string_view>
 #include <vector>
 
-#include "core/deformer.h"
-#include "core/edit_types.h"
+#include "core/methods/deformer.h"
+#include "core/methods/edit_types.h"
 #include "core/io/mesh_io.h"
-#include "core/mesh_data.h"
-#include "core/status.h"
+#include "core/mesh/mesh_data.h"
+#include "core/base/status.h"
 #include "meshdeform/v1/deformation.pb.h"
 
 namespace meshdeform::wire {

@@ -11,8 +11,8 @@
 #include <string>
 #include <string_view>
 
-#include "core/mesh_data.h"
-#include "core/status.h"
+#include "core/mesh/mesh_data.h"
+#include "core/base/status.h"
 
 namespace meshdeform::service {
 

@@ -11,8 +11,8 @@
 #include <string_view>
 #include <utility>
 
-#include "core/procedural.h"
-#include "core/validate.h"
+#include "core/samples/samples.h"
+#include "core/mesh/validate.h"
 #include "server/service/call_stop.h"
 #include "server/service/guard.h"
 #include "server/service/log.h"

@@ -28,7 +28,7 @@
 #include <vector>
 
 #include "core/io/mesh_io.h"
-#include "core/status.h"
+#include "core/base/status.h"
 #include "server/service/admission.h"
 #include "server/service/delay_queue.h"
 #include "server/service/persistence.h"

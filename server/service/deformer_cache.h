@@ -15,8 +15,8 @@
 
 #include <Eigen/Core>
 
-#include "core/deformer.h"
-#include "core/status.h"
+#include "core/methods/deformer.h"
+#include "core/base/status.h"
 
 namespace meshdeform::service {
 

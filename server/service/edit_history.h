@@ -21,7 +21,7 @@
 #include <optional>
 #include <vector>
 
-#include "core/status.h"
+#include "core/base/status.h"
 #include "server/service/binary_codec.h"
 #include "server/service/types.h"
 

@@ -2,14 +2,14 @@
 /// @file guard.h
 /// The one exception guard of the server: no exception leaves a service call, an RPC handler,
 /// an HTTP handler or a worker task (gRPC would turn one into UNKNOWN; a worker thread would
-/// die). Errors inside the server are statuses (core/status.h); this only catches the unexpected.
+/// die). Errors inside the server are statuses (core/base/status.h); this only catches the unexpected.
 
 #include <exception>
 #include <new>
 #include <string>
 #include <string_view>
 
-#include "core/status.h"
+#include "core/base/status.h"
 
 namespace meshdeform::service {
 

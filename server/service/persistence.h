@@ -19,9 +19,9 @@
 #include <string_view>
 #include <vector>
 
-#include "core/deformer.h"
-#include "core/mesh_data.h"
-#include "core/status.h"
+#include "core/methods/deformer.h"
+#include "core/mesh/mesh_data.h"
+#include "core/base/status.h"
 #include "server/service/types.h"
 
 namespace meshdeform::service {
@@ -110,7 +110,7 @@ struct SkippedStateFile {
 
 /// A directory of session files `<id>.state`, shared by every replica started on it.
 ///
-/// What it promises (the README's reliability section): an edit is acknowledged only after its
+/// What it promises (docs/architecture.md, "Reliability: what each store promises"): an edit is acknowledged only after its
 /// state file is on disk: written to a temporary file, fsync'd, renamed over the session's file
 /// and the directory fsync'd. Each rename is a compare-and-set between the processes sharing the
 /// directory: it happens only if the session's file is still the one the writing copy last wrote

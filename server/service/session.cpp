@@ -1,6 +1,6 @@
 #include "server/service/session.h"
 
-#include "core/similarity.h"
+#include "core/methods/similarity.h"
 
 #include <algorithm>
 #include <chrono>
@@ -9,10 +9,10 @@
 #include <thread>
 #include <unordered_map>
 
-#include "core/format_number.h"
-#include "core/ora.h"
+#include "core/base/format_number.h"
+#include "core/methods/ora.h"
 #include "server/service/call_stop.h"
-#include "core/validate.h"
+#include "core/mesh/validate.h"
 #include "server/service/edit_history.h"
 #include "server/service/log.h"
 #include "server/service/tokens.h"
@@ -1174,7 +1174,7 @@ Status Session::sync_shared_locked() {
     }
     if (shared_version_ >= *stored) return Status::success();
   } else {
-    // The store went back (Redis lost acknowledged writes: see the README on appendfsync).
+    // The store went back (Redis lost acknowledged writes: see docs/scale-out.md on appendfsync).
     log_event(LogLevel::Error, "shared_state_went_back",
               LogFields().add("session", id_.value).add("held_version", shared_version_)
                   .add("stored_version", *stored));

@@ -14,9 +14,9 @@
 #include <stop_token>
 #include <vector>
 
-#include "core/deformer.h"
-#include "core/measures.h"
-#include "core/topology.h"
+#include "core/methods/deformer.h"
+#include "core/mesh/measures.h"
+#include "core/mesh/topology.h"
 #include "server/service/deformer_cache.h"
 #include "server/service/metrics.h"
 #include "server/service/persistence.h"

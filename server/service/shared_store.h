@@ -18,7 +18,7 @@
 #include <stop_token>
 #include <vector>
 
-#include "core/status.h"
+#include "core/base/status.h"
 #include "server/service/persistence.h"
 #include "server/service/types.h"
 

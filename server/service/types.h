@@ -17,12 +17,12 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
-#include "core/deformer.h"
-#include "core/edit_types.h"
-#include "core/format_number.h"
+#include "core/methods/deformer.h"
+#include "core/methods/edit_types.h"
+#include "core/base/format_number.h"
 #include "core/io/mesh_io.h"
-#include "core/mesh_data.h"
-#include "core/ora.h"
+#include "core/mesh/mesh_data.h"
+#include "core/methods/ora.h"
 #include "server/service/admission.h"
 #include "server/service/bytes_memo.h"
 

@@ -11,7 +11,7 @@
 #include <optional>
 #include <stop_token>
 
-#include "core/status.h"
+#include "core/base/status.h"
 #include "server/service/types.h"
 
 namespace meshdeform::service {

@@ -19,7 +19,7 @@
 #include <string>
 #include <string_view>
 
-#include "core/status.h"
+#include "core/base/status.h"
 #include "server/transport/connection_gate.h"
 
 namespace meshdeform::transport {

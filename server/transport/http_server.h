@@ -22,7 +22,7 @@
 #include <string>
 #include <string_view>
 
-#include "core/status.h"
+#include "core/base/status.h"
 #include "server/transport/connection_gate.h"
 #include "server/transport/http_message.h"
 #include "server/transport/tls_config.h"

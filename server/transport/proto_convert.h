@@ -8,9 +8,9 @@
 /// value and enum maps themselves are meshdeform::wire's (proto/wire/wire_mapping.h), shared with
 /// the client.
 
-#include "core/deformer.h"
+#include "core/methods/deformer.h"
 #include "core/io/mesh_io.h"
-#include "core/status.h"
+#include "core/base/status.h"
 #include "meshdeform/v1/deformation.pb.h"
 #include "server/service/types.h"
 

@@ -5,7 +5,7 @@
 #include <cstddef>
 #include <filesystem>
 
-#include "core/status.h"
+#include "core/base/status.h"
 #include "server/transport/http_message.h"
 
 namespace meshdeform::transport {

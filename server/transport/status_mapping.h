@@ -9,7 +9,7 @@
 
 #include <grpcpp/support/status.h>
 
-#include "core/status.h"
+#include "core/base/status.h"
 
 namespace meshdeform::transport {
 

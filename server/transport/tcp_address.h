@@ -7,7 +7,7 @@
 
 #include <boost/asio/ip/tcp.hpp>
 
-#include "core/status.h"
+#include "core/base/status.h"
 
 namespace meshdeform::transport {
 

@@ -211,6 +211,8 @@ TEST_F(CliTest, UsageErrorsExitWithTwoAndNameTheProblem) {
       {{"--tolerance", "nan"}, "--tolerance"},
       {{"--inner-iterations", "0"}, "--inner-iterations"},
       {{"--start", "sideways"}, "sideways"},
+      {{"--stopping", "whenever"}, "--stopping"},
+      {{"--multilevel", "maybe"}, "--multilevel"},
       {{"--edit", "edit.json"}, "--edit"},
       {{"stray"}, "stray"},
   };
@@ -242,6 +244,49 @@ TEST_F(CliTest, UsageErrorsExitWithTwoAndNameTheProblem) {
     SCOPED_TRACE(expected);
     EXPECT_EQ(r.exit_code, 2) << r.err;
     EXPECT_NE(r.err.find(expected), std::string::npos) << r.err;
+  }
+}
+
+// Issue 41: the stopping rule and the multilevel switch are options; the report says which rule
+// "converged" is and where the time went, besides every key it had.
+TEST_F(CliTest, ReportStatesTheStoppingRuleAndThePhases) {
+  generate_small("cylinder");
+  const std::vector<std::string> base = {"deform",           "--mesh", "gen/cylinder.off", "--sel",
+                                         "gen/cylinder.sel", "--def",  "gen/cylinder.def", "--out",
+                                         "out.obj",          "--report"};
+  std::vector<std::string> defaults = base;
+  defaults.push_back("default.json");
+  ASSERT_EQ(run(defaults).exit_code, 0);
+  const auto report = nlohmann::json::parse(read_text(dir_ / "default.json"));
+  EXPECT_EQ(report["options"]["stopping_rule"], "remaining");
+  EXPECT_EQ(report["options"]["tolerance"], 1e-3);
+  EXPECT_EQ(report["stopping"]["rule"], "remaining");
+  EXPECT_NE(report["stopping"]["description"].get<std::string>().find("remaining"),
+            std::string::npos);
+  for (const char* key : {"setup_seconds", "start_seconds", "levels_seconds", "fine_seconds"}) {
+    ASSERT_TRUE(report["phases"].contains(key)) << key;
+    EXPECT_GE(report["phases"][key].get<double>(), 0.0) << key;
+  }
+  // 420 vertices: below the multilevel threshold, one level.
+  EXPECT_EQ(report["multilevel"]["used"], false);
+  EXPECT_EQ(report["phases"]["levels_seconds"], 0.0);
+  for (const char* key : {"iterations", "converged", "solve_seconds", "precompute_seconds",
+                          "history", "final", "start_used"}) {
+    EXPECT_TRUE(report.contains(key)) << key;
+  }
+
+  // The rule before issue 41, and the multilevel path off: recorded as asked.
+  std::vector<std::string> old_rule = base;
+  old_rule.insert(old_rule.end(), {"old.json", "--stopping", "change", "--tolerance", "1e-4",
+                                   "--multilevel", "off"});
+  ASSERT_EQ(run(old_rule).exit_code, 0);
+  const auto old_report = nlohmann::json::parse(read_text(dir_ / "old.json"));
+  EXPECT_EQ(old_report["options"]["stopping_rule"], "change");
+  EXPECT_EQ(old_report["options"]["multilevel"], false);
+  EXPECT_EQ(old_report["stopping"]["rule"], "change");
+  // The change rule stops when the last change is below the tolerance, and says how far it was.
+  if (old_report["converged"].get<bool>()) {
+    EXPECT_LT(old_report["stopping"]["estimated_remaining"].get<double>(), 1e-4);
   }
 }
 

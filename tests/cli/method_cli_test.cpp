@@ -11,9 +11,9 @@
 
 #include <nlohmann/json.hpp>
 
-#include "core/deform_types.h"
+#include "core/methods/deform_types.h"
 #include "core/io/mesh_io.h"
-#include "core/procedural.h"
+#include "core/samples/samples.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform {

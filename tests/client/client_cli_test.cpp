@@ -24,10 +24,10 @@
 #include <thread>
 #include <vector>
 
-#include "core/deformer.h"
+#include "core/methods/deformer.h"
 #include "core/io/deform_spec.h"
 #include "core/io/mesh_io.h"
-#include "core/procedural.h"
+#include "core/samples/samples.h"
 #include "tests/support/mesh_factories.h"
 #include "tests/support/child_process.h"
 #include "tests/support/server_process.h"

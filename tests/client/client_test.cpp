@@ -24,9 +24,9 @@
 #include <thread>
 #include <vector>
 
-#include "core/deformer.h"
+#include "core/methods/deformer.h"
 #include "core/io/mesh_io.h"
-#include "core/procedural.h"
+#include "core/samples/samples.h"
 #include "tests/support/mesh_factories.h"
 #include "tests/support/server_process.h"
 

@@ -1,6 +1,6 @@
 // Anderson acceleration (Peng et al. 2018): the helper on a model problem, its energy safeguard,
 // and ARAP with SolveOptions::anderson_window.
-#include "core/anderson.h"
+#include "core/linalg/anderson.h"
 
 #include <gtest/gtest.h>
 
@@ -8,9 +8,9 @@
 
 #include <Eigen/Core>
 
-#include "core/arap.h"
-#include "core/scale_aware.h"
-#include "core/procedural.h"
+#include "core/methods/arap.h"
+#include "core/methods/scale_aware.h"
+#include "core/samples/samples.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

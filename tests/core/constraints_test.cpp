@@ -1,7 +1,7 @@
 // Tests of the checks every solver runs on its constrained vertices and their targets
-// (core/constraints.h): indices in range and distinct, enough of them in every connected
+// (core/methods/constraints.h): indices in range and distinct, enough of them in every connected
 // component, targets of the right shape, finite, and not all coincident per component.
-#include "core/constraints.h"
+#include "core/methods/constraints.h"
 
 #include <gtest/gtest.h>
 
@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "core/topology.h"
+#include "core/mesh/topology.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

@@ -1,6 +1,6 @@
 // Tests of 2D curve editing (paper Section 6.1, Fig. 9): measures, the scale-aware solver's
 // similarity exactness, the Laplacian and ARAP baselines, the Koch example, errors and the SVG.
-#include "core/curve2d.h"
+#include "core/curves/curve2d.h"
 
 #include <gtest/gtest.h>
 
@@ -9,8 +9,8 @@
 #include <string>
 #include <vector>
 
-#include "core/curve2d_svg.h"
-#include "core/koch.h"
+#include "core/curves/curve2d_svg.h"
+#include "core/curves/koch.h"
 
 namespace meshdeform::core {
 namespace {

@@ -1,6 +1,6 @@
 // Every method behind the one Deformer interface: same edit, same calls, method-specific
 // guarantees (ARAP pins handles exactly, the soft-constraint methods within their tolerance).
-#include "core/deformer.h"
+#include "core/methods/deformer.h"
 
 #include <gtest/gtest.h>
 

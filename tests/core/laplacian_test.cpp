@@ -1,9 +1,9 @@
-// Tests of Laplacian editing (core/laplacian.h), the starting guess of the scale-aware solver and a
+// Tests of Laplacian editing (core/methods/laplacian.h), the starting guess of the scale-aware solver and a
 // baseline: the matrix (graph and cotangent Laplacians: symmetry, zero row sums, known weights, a
 // cotangent Laplacian that annihilates linear functions on a flat mesh) and the editor (rest pose
 // and translations reproduced exactly, the normal equations satisfied, constraints tightening
 // with lambda, invalid input rejected).
-#include "core/laplacian.h"
+#include "core/methods/laplacian.h"
 
 #include <gtest/gtest.h>
 
@@ -16,7 +16,7 @@
 #include <utility>
 #include <vector>
 
-#include "core/topology.h"
+#include "core/mesh/topology.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

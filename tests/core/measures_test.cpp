@@ -1,4 +1,4 @@
-#include "core/measures.h"
+#include "core/mesh/measures.h"
 
 #include <gtest/gtest.h>
 
@@ -9,8 +9,8 @@
 
 #include <Eigen/Geometry>
 
-#include "core/fast_angle.h"
-#include "core/topology.h"
+#include "core/mesh/fast_angle.h"
+#include "core/mesh/topology.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

@@ -1,8 +1,8 @@
-// The multiresolution hierarchy (core/multires.h): coarse levels keep the constrained vertices and
+// The multiresolution hierarchy (core/multires/multires.h): coarse levels keep the constrained vertices and
 // stay valid manifolds, the prolongation reproduces the rest pose and similarities exactly, and
 // a full-resolution solve warm-started from a prolonged coarse solve converges to the
 // single-level result.
-#include "core/multires.h"
+#include "core/multires/multires.h"
 
 #include <gtest/gtest.h>
 
@@ -19,13 +19,13 @@
 
 #include <Eigen/Geometry>
 
-#include "core/deformer.h"
 #include "core/io/mesh_io.h"
-#include "core/measures.h"
-#include "core/procedural.h"
-#include "core/scale_aware.h"
-#include "core/topology.h"
-#include "core/validate.h"
+#include "core/mesh/measures.h"
+#include "core/mesh/topology.h"
+#include "core/mesh/validate.h"
+#include "core/methods/deformer.h"
+#include "core/methods/scale_aware.h"
+#include "core/samples/generators.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {
@@ -546,7 +546,7 @@ TEST(Prolongation, DetailsFollowALocalBendWithoutSeams) {
 
 TEST(Prolongation, TwoThreadsGiveTheOneThreadResult) {
   // 25,921 vertices, every 16th coarse: 24k free vertices, above the size from which two threads
-  // factor and solve the base system in two halves (core/split_cholesky.h).
+  // factor and solve the base system in two halves (core/linalg/split_cholesky.h).
   const MeshData plane = make_bumpy_plane(161).mesh;
   Eigen::VectorXi coarse_to_fine((plane.V.rows() + 15) / 16);
   for (Eigen::Index i = 0; i < coarse_to_fine.size(); ++i) {
@@ -619,6 +619,7 @@ TEST(MultiresDeformer, RefinedFromTheProlongedStartMatchesTheSingleLevelSolve) {
   // a slow tail (measured: 2-10% apart in E_theta at 1e-5 on the 3,000-vertex cactus).
   converge.max_iterations = 400;
   converge.tolerance = 1e-7;
+  converge.stopping_rule = StoppingRule::Change;  // a last change of 1e-7: as measured above
   converge.track_metrics = false;
 
   // Single level, from the Laplacian guess (named: Auto's cold start at rigidity > 0 is ARAP's
@@ -763,6 +764,7 @@ TEST(MultiresThroughMakeDeformer, CoarseMovesThenFullResolutionRefinement) {
   refine.full_resolution = true;
   refine.max_iterations = 400;
   refine.tolerance = 1e-7;
+  refine.stopping_rule = StoppingRule::Change;  // a last change of 1e-7, both runs alike
   auto refined = (*deformer)->solve(cactus.setup.targets, refine);
   ASSERT_TRUE(refined.ok()) << refined.status().to_string();
   EXPECT_TRUE(refined->converged);

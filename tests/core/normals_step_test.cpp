@@ -1,11 +1,11 @@
-// Tests of step one of the scale-aware solver (core/normals_step.h, paper Section 4.1.1): the
+// Tests of step one of the scale-aware solver (core/methods/normals_step.h, paper Section 4.1.1): the
 // local/global update of the face normals on the Gauss map. The rest normals and any global
 // rotation of them are fixed points; the output is unit length; the iteration is rotation
 // equivariant, deterministic (also across thread counts) and does the number of sweeps asked;
 // every sweep is a rotation fit per vertex fan then the global step (Eq. 11); the energy
 // sum_v sum_{f in v} ||N_f - R_v N0_f||^2 never increases from sweep to sweep; and, with no
 // constraint, the iteration reaches a zero of it: a rotation of the rest normals.
-#include "core/normals_step.h"
+#include "core/methods/normals_step.h"
 
 #include <gtest/gtest.h>
 
@@ -15,8 +15,8 @@
 #include <string>
 #include <vector>
 
-#include "core/measures.h"
-#include "core/topology.h"
+#include "core/mesh/measures.h"
+#include "core/mesh/topology.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

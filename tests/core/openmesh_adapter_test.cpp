@@ -1,6 +1,6 @@
 // The direct OpenMesh construction from a validated mesh and its topology against add_face's.
 
-#include "core/openmesh_adapter.h"
+#include "core/mesh/openmesh_adapter.h"
 
 #include <gtest/gtest.h>
 
@@ -8,9 +8,9 @@
 #include <vector>
 
 #include "core/io/mesh_io.h"
-#include "core/procedural.h"
-#include "core/topology.h"
-#include "core/validate.h"
+#include "core/samples/generators.h"
+#include "core/mesh/topology.h"
+#include "core/mesh/validate.h"
 
 namespace meshdeform::core {
 namespace {

@@ -1,13 +1,13 @@
 // Optimal rigidity approximation and magnification (paper Section 5.3, Figs. 12-13).
-#include "core/ora.h"
+#include "core/methods/ora.h"
 
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
 
-#include "core/measures.h"
-#include "core/scale_aware.h"
-#include "core/topology.h"
+#include "core/mesh/measures.h"
+#include "core/methods/scale_aware.h"
+#include "core/mesh/topology.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

@@ -1,4 +1,4 @@
-#include "core/procedural.h"
+#include "core/samples/generators.h"
 
 #include <gtest/gtest.h>
 
@@ -16,7 +16,7 @@
 #include <Eigen/Geometry>
 #include <Eigen/LU>
 
-#include "core/validate.h"
+#include "core/mesh/validate.h"
 
 namespace meshdeform::core {
 namespace {

@@ -1,4 +1,4 @@
-#include "core/rotation_fit.h"
+#include "core/linalg/rotation_fit.h"
 
 #include <random>
 #include <vector>
@@ -6,7 +6,7 @@
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
 
-#include "core/normals_step.h"
+#include "core/methods/normals_step.h"
 
 namespace meshdeform::core {
 namespace {

@@ -1,14 +1,14 @@
-#include "core/rotation_start.h"
+#include "core/methods/rotation_start.h"
 
 #include <cmath>
 
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
 
-#include "core/laplacian.h"
-#include "core/procedural.h"
-#include "core/scale_aware.h"
-#include "core/topology.h"
+#include "core/methods/laplacian.h"
+#include "core/samples/samples.h"
+#include "core/methods/scale_aware.h"
+#include "core/mesh/topology.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

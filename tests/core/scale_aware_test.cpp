@@ -1,6 +1,6 @@
 // Exact properties of the scale-aware solver (docs/algorithm.md section 4): the rest pose and any
 // similarity of it are exact zeros of the energy, so the solver must reproduce them.
-#include "core/scale_aware.h"
+#include "core/methods/scale_aware.h"
 
 #include <gtest/gtest.h>
 
@@ -10,9 +10,9 @@
 
 #include <Eigen/Geometry>
 
-#include "core/measures.h"
-#include "core/procedural.h"
-#include "core/topology.h"
+#include "core/mesh/measures.h"
+#include "core/samples/samples.h"
+#include "core/mesh/topology.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

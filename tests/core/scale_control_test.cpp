@@ -3,7 +3,7 @@
 //  - a similarity of the handles is reproduced exactly at every rigidity (the pull is toward the
 //    scale the handles imply, not toward 1);
 //  - within every outer iteration the joint energy does not increase (the scale step and step two
-//    are exact minimisers / descent steps; step one is not, see core/deform_types.h);
+//    are exact minimisers / descent steps; step one is not, see core/methods/deform_types.h);
 //  - a large rigidity brings area distortion toward converged ARAP's, monotonically;
 //  - handles land, ORA and magnification keep working, per-solve changes equal fresh solvers.
 #include <gtest/gtest.h>
@@ -13,12 +13,12 @@
 #include <limits>
 #include <vector>
 
-#include "core/arap.h"
-#include "core/measures.h"
-#include "core/ora.h"
-#include "core/procedural.h"
-#include "core/scale_aware.h"
-#include "core/topology.h"
+#include "core/methods/arap.h"
+#include "core/mesh/measures.h"
+#include "core/methods/ora.h"
+#include "core/samples/generators.h"
+#include "core/methods/scale_aware.h"
+#include "core/mesh/topology.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

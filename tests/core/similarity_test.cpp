@@ -1,11 +1,11 @@
-// core/similarity.h: the group similarity shared by the service, the edit specs and the client.
+// core/methods/similarity.h: the group similarity shared by the service, the edit specs and the client.
 #include <cmath>
 #include <numbers>
 
 #include <gtest/gtest.h>
 
-#include "core/similarity.h"
-#include "core/topology.h"
+#include "core/methods/similarity.h"
+#include "core/mesh/topology.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

@@ -1,8 +1,8 @@
-// Tests of the CHOLMOD wrapper (core/sparse_cholesky.h): solves of random sparse SPD systems
+// Tests of the CHOLMOD wrapper (core/linalg/sparse_cholesky.h): solves of random sparse SPD systems
 // against Eigen's SimplicialLDLT, several right-hand sides at once, numeric refactorization on the
 // same pattern (supernodal and with simplicial solves), a NumericalFailure status (not a crash)
 // for indefinite and singular matrices with recovery afterwards, and moves.
-#include "core/sparse_cholesky.h"
+#include "core/linalg/sparse_cholesky.h"
 
 #include <gtest/gtest.h>
 

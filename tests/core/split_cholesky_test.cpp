@@ -1,9 +1,9 @@
-// Tests of the two-halves Cholesky factorization (core/split_cholesky.h): Dirichlet Laplacians of
+// Tests of the two-halves Cholesky factorization (core/linalg/split_cholesky.h): Dirichlet Laplacians of
 // regular and irregular meshes solved in two halves agree with the whole factorization, the
 // cases that factor whole still solve, a split without a separator, indefinite matrices as a
 // NumericalFailure (whether a half or the separator's Schur complement fails), concurrent
 // solves, and cancellation.
-#include "core/split_cholesky.h"
+#include "core/linalg/split_cholesky.h"
 
 #include <gtest/gtest.h>
 
@@ -12,9 +12,9 @@
 #include <thread>
 #include <vector>
 
-#include "core/laplacian.h"
-#include "core/procedural.h"
-#include "core/topology.h"
+#include "core/methods/laplacian.h"
+#include "core/samples/generators.h"
+#include "core/mesh/topology.h"
 
 namespace meshdeform::core {
 namespace {

@@ -1,4 +1,4 @@
-#include "core/topology.h"
+#include "core/mesh/topology.h"
 
 #include <gtest/gtest.h>
 
@@ -8,7 +8,7 @@
 #include <random>
 #include <vector>
 
-#include "core/edge_table.h"
+#include "core/mesh/edge_table.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

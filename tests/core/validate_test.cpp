@@ -1,4 +1,4 @@
-#include "core/validate.h"
+#include "core/mesh/validate.h"
 
 #include <gtest/gtest.h>
 
@@ -6,7 +6,7 @@
 #include <limits>
 #include <string>
 
-#include "core/deform_types.h"
+#include "core/methods/deform_types.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform::core {

@@ -6,7 +6,7 @@
 #include <string_view>
 
 #include "core/io/deform_spec.h"
-#include "core/procedural.h"
+#include "core/samples/samples.h"
 #include "tests/fuzz/fuzz_support.h"
 
 using namespace meshdeform;

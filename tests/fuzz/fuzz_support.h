@@ -14,9 +14,9 @@
 #include <string_view>
 
 #include "core/io/mesh_io.h"
-#include "core/mesh_data.h"
-#include "core/status.h"
-#include "core/validate.h"
+#include "core/mesh/mesh_data.h"
+#include "core/base/status.h"
+#include "core/mesh/validate.h"
 
 namespace meshdeform::fuzz {
 

@@ -14,7 +14,7 @@
 #include <vector>
 
 #include "core/io/mesh_io.h"
-#include "core/mesh_data.h"
+#include "core/mesh/mesh_data.h"
 
 using namespace meshdeform;
 namespace fs = std::filesystem;

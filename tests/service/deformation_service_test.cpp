@@ -12,9 +12,9 @@
 #include <thread>
 #include <vector>
 
-#include "core/deformer.h"
 #include "core/io/mesh_io.h"
-#include "core/procedural.h"
+#include "core/methods/deformer.h"
+#include "core/samples/samples.h"
 #include "server/service/tokens.h"
 #include "server/service/worker_pool.h"
 #include "tests/support/mesh_factories.h"
@@ -732,6 +732,7 @@ TEST(RefinementTest, ContinuesTheSameSolveWhileHandlesRestAndStops) {
   const Positions targets = expected_targets(bench.mesh.V, f.groups, constrained, 60.0);
   core::SolveOptions solve;
   solve.max_iterations = 1;
+  solve.tolerance = MoveRequest{}.tolerance;  // the service's default, not the CLI's
   auto first = (*deformer)->solve(targets, solve);
   ASSERT_TRUE(first.ok());
   ASSERT_FALSE(first->converged);

@@ -13,7 +13,7 @@
 #include <thread>
 #include <vector>
 
-#include "core/procedural.h"
+#include "core/samples/samples.h"
 #include "server/service/deformation_service.h"
 #include "server/service/persistence.h"
 

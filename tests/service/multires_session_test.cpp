@@ -9,10 +9,10 @@
 #include <string>
 #include <thread>
 
-#include "core/deformer.h"
+#include "core/methods/deformer.h"
 #include "core/io/mesh_io.h"
-#include "core/measures.h"
-#include "core/topology.h"
+#include "core/mesh/measures.h"
+#include "core/mesh/topology.h"
 #include "server/service/deformation_service.h"
 
 namespace meshdeform::service {

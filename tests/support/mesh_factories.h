@@ -7,7 +7,7 @@
 
 #include <Eigen/Core>
 
-#include "core/mesh_data.h"
+#include "core/mesh/mesh_data.h"
 
 namespace meshdeform::test {
 

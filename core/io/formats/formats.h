@@ -14,8 +14,8 @@
 #include <Eigen/Core>
 
 #include "core/io/read_control.h"
-#include "core/mesh_data.h"
-#include "core/status.h"
+#include "core/mesh/mesh_data.h"
+#include "core/base/status.h"
 
 namespace meshdeform::io::detail {
 
