@@ -5,12 +5,21 @@
 // resolution streamed by the background refinement after the drag), on loopback, in one run.
 //
 //   node bench/viewer_latency.mjs [--build build] [--moves 90] [--out bench/results] [--model NAME]
+//       [--baseline-dist DIR] [--name viewer]
+//
+// Input delay (issue 44): for every pointer event of the drag, how long it waited before the
+// page's main thread ran its first handler (performance.now() - event.timeStamp, measured by a
+// listener the bench adds, so any build of the viewer can be measured), how many of the drag's
+// events reached the page, and how long the drag took to issue (each mouse move is acknowledged
+// only once the page took it: a blocked page stretches the drag). --baseline-dist measures
+// another build of the viewer (e.g. the one before issue 44) in the same run, served by a second
+// server, for a side-by-side comparison.
 //
 // Starts its own meshdeform-server (127.0.0.1, ephemeral ports) serving web_viewer/dist, drives
 // Debian's headless Chromium (playwright-core from web_viewer/node_modules) with real mouse
 // events at 60 Hz, and reads the viewer's own measurements (window.__meshdeform.metrics():
 // pointermove -> first animation frame after that move's revision was uploaded). Writes
-// viewer.md and viewer.json. Not a test: no thresholds. Rendering is CPU (SwiftShader) here.
+// <name>.md and <name>.json (default viewer.*). Not a test: no thresholds. Rendering is CPU (SwiftShader) here.
 import { spawn, execSync } from "node:child_process";
 import { createRequire } from "node:module";
 import { existsSync, mkdirSync, readFileSync, writeFileSync } from "node:fs";
@@ -29,10 +38,12 @@ const args = Object.fromEntries(process.argv.slice(2).reduce((acc, a, i, all) =>
 const build = path.resolve(repo, args.build ?? "build");
 const moves = Number(args.moves ?? 90);
 const out = path.resolve(repo, args.out ?? "bench/results");
+const name = args.name ?? "viewer";
 const serverPath = path.join(build, "server/transport/meshdeform-server");
 const loadtestPath = path.join(build, "client_cpp/loadtest/meshdeform-loadtest");
 const dist = path.join(repo, "web_viewer/dist");
-for (const f of [serverPath, path.join(dist, "index.html")]) {
+const baselineDist = args["baseline-dist"] ? path.resolve(args["baseline-dist"]) : null;
+for (const f of [serverPath, path.join(dist, "index.html"), ...(baselineDist ? [path.join(baselineDist, "index.html")] : [])]) {
   if (!existsSync(f)) { console.error(`missing ${f}: run ./scripts/build.sh and ./scripts/build-viewer.sh`); process.exit(2); }
 }
 
@@ -43,9 +54,9 @@ const models = [
   { sample: "bumpy_plane_large", vertices: 187489, encodings: ["float32", "meshopt"], settleMs: Number(args.settle ?? 20_000) },
 ].filter((m) => !args.model || m.sample === args.model);
 
-function startServer() {
+function startServer(webRoot = dist) {
   return new Promise((resolve, reject) => {
-    const server = spawn(serverPath, ["--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0", "--web-root", dist, "--log-level", "info"],
+    const server = spawn(serverPath, ["--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0", "--web-root", webRoot, "--log-level", "info"],
       { stdio: ["ignore", "ignore", "pipe"] });
     let log = "";
     const timer = setTimeout(() => reject(new Error("server did not start\n" + log)), 20_000);
@@ -65,17 +76,30 @@ const quantile = (xs, q) => {
 };
 const mean = (xs) => xs.reduce((a, b) => a + b, 0) / Math.max(xs.length, 1);
 
-async function measure(browser, url, model, encoding) {
+/** Added to every page before its scripts: the input delay of each pointer event while on. */
+function inputProbe() {
+  const b = { on: false, delays: [], events: 0 };
+  window.__bench = b;
+  window.addEventListener("pointermove", (e) => {
+    if (!b.on) return;
+    b.delays.push(Math.max(0, performance.now() - e.timeStamp));
+    b.events += e.getCoalescedEvents?.().length || 1;
+  }, { capture: true });
+}
+
+async function measure(browser, url, model, encoding, viewer = "this") {
   const ctx = await browser.newContext({ viewport: { width: Number(args.width ?? 1200), height: Number(args.height ?? 800) } });
+  await ctx.addInitScript(inputProbe);
   const page = await ctx.newPage();
-  page.setDefaultTimeout(120_000);
+  page.setDefaultTimeout(300_000);
   await page.goto(`${url}/?sample=${model.sample}&encoding=${encoding}`);
-  await page.waitForFunction(() => window.__meshdeform?.ready, null, { timeout: 120_000, polling: 100 });
+  await page.waitForFunction(() => window.__meshdeform?.ready, null, { timeout: 300_000, polling: 100 });
   await page.waitForTimeout(1500);  // let the first refinement of nothing settle
   await page.evaluate(() => window.__meshdeform.resetMetrics());
   const p = await page.evaluate(() => window.__meshdeform.handleScreenPoint());
   await page.mouse.move(p.x, p.y);
   await page.mouse.down();
+  await page.evaluate(() => (window.__bench.on = true));
   const t0 = performance.now();
   for (let i = 1; i <= moves; i++) {
     const a = (2 * Math.PI * i) / moves;
@@ -85,6 +109,10 @@ async function measure(browser, url, model, encoding) {
     if (wait > 0) await new Promise((r) => setTimeout(r, wait));
   }
   const dragSeconds = (performance.now() - t0) / 1000;
+  const probe = await page.evaluate(() => {
+    window.__bench.on = false;
+    return { delays: window.__bench.delays, events: window.__bench.events };
+  });
   await page.mouse.up();
   const upAt = await page.evaluate(() => performance.now());
   await page.waitForTimeout(model.settleMs);
@@ -96,8 +124,11 @@ async function measure(browser, url, model, encoding) {
   const after = m.renderedAt.map((t, i) => ({ t: t - upAt, refinement: m.renderedRefinement[i], converged: m.renderedConverged[i] }))
     .filter((u) => u.t >= 0 && u.refinement);
   return {
-    model: model.sample, vertices: model.vertices, encoding,
-    drag_events: moves, drag_seconds: dragSeconds,
+    model: model.sample, vertices: model.vertices, encoding, viewer,
+    drag_events: moves, drag_seconds: dragSeconds, nominal_drag_seconds: moves / 60,
+    input_delay_ms: { p50: quantile(probe.delays, 0.5), p95: quantile(probe.delays, 0.95), max: probe.delays.length ? Math.max(...probe.delays) : NaN },
+    pointer_events_handled: probe.events,
+    worker_frames: m.workerMs?.length ?? 0,
     own_frames: frames.length, updates_per_second: frames.length / dragSeconds,
     drag_to_frame_ms: { p50: quantile(frames, 0.5), p95: quantile(frames, 0.95), max: Math.max(...frames) },
     updates_received: m.updateBytes.length,
@@ -127,6 +158,7 @@ function serviceAlone(grpc, model) {
 }
 
 const { server, url, grpc } = await startServer();
+const baseline = baselineDist ? await startServer(baselineDist) : null;
 const browser = await chromium.launch({
   executablePath: process.env.CHROMIUM_PATH || "/usr/bin/chromium",
   args: ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
@@ -144,17 +176,23 @@ try {
   }
   for (const model of models) {
     for (const encoding of model.encodings) {
-      const r = await measure(browser, url, model, encoding);
-      rows.push(r);
-      console.log(`${r.model} ${r.encoding}: ${r.updates_per_second.toFixed(1)} updates/s, drag->frame p50 ${r.drag_to_frame_ms.p50.toFixed(0)} ms, ` +
-        `frame work p50 ${r.frame_work_ms.p50.toFixed(1)} ms, drag took ${r.drag_seconds.toFixed(1)} s, ` +
-        `p95 ${r.drag_to_frame_ms.p95.toFixed(0)} ms, ${(r.bytes_per_update_mean / 1024).toFixed(1)} KiB/update`);
+      // This build and the baseline build side by side, model by model (the machine is noisy).
+      for (const [viewer, at] of [["this", url], ...(baseline ? [["baseline", baseline.url]] : [])]) {
+        const r = await measure(browser, at, model, encoding, viewer);
+        rows.push(r);
+        console.log(`${r.model} ${r.encoding} (${viewer}): ${r.updates_per_second.toFixed(1)} updates/s, drag->frame p50 ${r.drag_to_frame_ms.p50.toFixed(0)} ms, ` +
+          `frame work p50 ${r.frame_work_ms.p50.toFixed(1)} ms, drag took ${r.drag_seconds.toFixed(1)} s (nominal ${r.nominal_drag_seconds.toFixed(1)}), ` +
+          `input delay p50 / p95 / max ${r.input_delay_ms.p50.toFixed(1)} / ${r.input_delay_ms.p95.toFixed(1)} / ${r.input_delay_ms.max.toFixed(1)} ms, ` +
+          `${r.pointer_events_handled} of ${r.drag_events} pointer events, ` +
+          `p95 ${r.drag_to_frame_ms.p95.toFixed(0)} ms, ${(r.bytes_per_update_mean / 1024).toFixed(1)} KiB/update`);
+      }
     }
   }
 } finally {
   const version = browser.version();
   await browser.close();
   server.kill("SIGTERM");
+  baseline?.server.kill("SIGTERM");
   var chromiumVersion = version;
 }
 
@@ -166,25 +204,32 @@ const machine = {
   rendering: "headless Chromium, SwiftShader (CPU) WebGL", drag: `${moves} mouse events at 60 Hz on a loop of 60 x 80 px`,
 };
 mkdirSync(out, { recursive: true });
-writeFileSync(path.join(out, "viewer.json"), JSON.stringify({ machine, rows, service_alone: alone }, null, 2) + "\n");
+writeFileSync(path.join(out, `${name}.json`), JSON.stringify({ machine, rows, service_alone: alone }, null, 2) + "\n");
 const f = (x, d = 0) => (Number.isFinite(x) ? x.toFixed(d) : "-");
 let md = `# Viewer: drag to frame, updates per second, bytes per update\n\n`;
-md += `Made by \`node bench/viewer_latency.mjs\` on ${machine.date_utc} (${machine.cpu_model}, ${machine.hardware_threads} threads, ` +
+md += `Made by \`node bench/viewer_latency.mjs ${process.argv.slice(2).join(" ")}\` on ${machine.date_utc} (${machine.cpu_model}, ${machine.hardware_threads} threads, ` +
   `load ${machine.load_average}; Chromium ${machine.chromium}, ${machine.rendering}; git ${machine.git_revision}). ` +
   `Server and browser on one machine, loopback; ${machine.drag}; 2 outer iterations per move, one move in flight, newest target wins.\n\n`;
-md += `| model | #V | encoding | updates/s while dragging | drag -> frame p50 / p95 / max (ms) | frame work p50 (ms) | bytes / update (mean) | dense doubles | dense float32 |\n`;
-md += `|---|---:|---|---:|---|---:|---:|---:|---:|\n`;
+md += `| model | #V | encoding | viewer | updates/s while dragging | drag -> frame p50 / p95 / max (ms) | frame work p50 (ms) | bytes / update (mean) | dense doubles | dense float32 |\n`;
+md += `|---|---:|---|---|---:|---|---:|---:|---:|---:|\n`;
 for (const r of rows) {
-  md += `| ${r.model} | ${r.vertices.toLocaleString("en")} | ${r.encoding} | ${f(r.updates_per_second, 1)} | ${f(r.drag_to_frame_ms.p50)} / ${f(r.drag_to_frame_ms.p95)} / ${f(r.drag_to_frame_ms.max)} | ${f(r.frame_work_ms.p50, 1)} | ` +
+  md += `| ${r.model} | ${r.vertices.toLocaleString("en")} | ${r.encoding} | ${r.viewer} | ${f(r.updates_per_second, 1)} | ${f(r.drag_to_frame_ms.p50)} / ${f(r.drag_to_frame_ms.p95)} / ${f(r.drag_to_frame_ms.max)} | ${f(r.frame_work_ms.p50, 1)} | ` +
     `${Math.round(r.bytes_per_update_mean).toLocaleString("en")} | ${r.dense_double_bytes.toLocaleString("en")} | ${r.dense_float32_bytes.toLocaleString("en")} |\n`;
+}
+md += `\nInput while dragging (issue 44): each pointer event's wait before the page ran its first handler, the events that reached the page, ` +
+  `and how long the ${moves}-event drag took to issue (nominal ${(moves / 60).toFixed(1)} s at 60 Hz; a page that does not take input stretches it)` +
+  `${baseline ? "; \"baseline\" is the viewer build given with --baseline-dist, on a second server of the same binary" : ""}:\n\n`;
+md += `| model | encoding | viewer | input delay p50 / p95 / max (ms) | pointer events handled | drag issued in (s) |\n|---|---|---|---|---:|---:|\n`;
+for (const r of rows) {
+  md += `| ${r.model} | ${r.encoding} | ${r.viewer} | ${f(r.input_delay_ms.p50, 1)} / ${f(r.input_delay_ms.p95, 1)} / ${f(r.input_delay_ms.max, 1)} | ${r.pointer_events_handled} of ${r.drag_events} | ${f(r.drag_seconds, 1)} |\n`;
 }
 md += `\nframe work: main-thread time per rendered frame (normals + WebGL calls); the rasterizing itself runs in Chromium's GPU process, on the CPU here.\n`;
 md += `\nAfter the release (the background refinement: on the ${(187489).toLocaleString("en")}-vertex plane, a multiresolution session, the moves ` +
   `above are coarse-level solves prolonged to full resolution, and these revisions are full-resolution solves):\n\n`;
-md += `| model | encoding | watched (s) | refinement frames | first / last after release (ms) | converged within the watch |\n|---|---|---:|---:|---|---|\n`;
+md += `| model | encoding | viewer | watched (s) | refinement frames | first / last after release (ms) | converged within the watch |\n|---|---|---|---:|---:|---|---|\n`;
 for (const r of rows) {
   const a = r.refinement_after_release;
-  md += `| ${r.model} | ${r.encoding} | ${f(r.settle_ms / 1000, 1)} | ${a.frames} | ${a.frames ? `${f(a.first_ms)} / ${f(a.last_ms)}` : "-"} | ${a.converged ? "yes" : "no"} |\n`;
+  md += `| ${r.model} | ${r.encoding} | ${r.viewer} | ${f(r.settle_ms / 1000, 1)} | ${a.frames} | ${a.frames ? `${f(a.first_ms)} / ${f(a.last_ms)}` : "-"} | ${a.converged ? "yes" : "no"} |\n`;
 }
 if (alone.length) {
   md += `\nThe same loop without a browser (meshdeform-loadtest, native gRPC, same server, 60 Hz ticks, one move in flight, one watcher):\n\n`;
@@ -193,5 +238,5 @@ if (alone.length) {
 }
 md += `\nbytes / update: the serialized DeformUpdate of every Watch message received during and right after the drag ` +
   `(deltas of the changed vertices: indices + positions; refinement revisions included). Dense: every position, for comparison.\n`;
-writeFileSync(path.join(out, "viewer.md"), md);
-console.log(`wrote ${path.join(out, "viewer.md")}`);
+writeFileSync(path.join(out, `${name}.md`), md);
+console.log(`wrote ${path.join(out, `${name}.md`)}`);

@@ -11,5 +11,7 @@ export default defineConfig({
   test: {
     include: ["test/**/*.test.ts"],
     environment: "node",
+    // Conditions, not speed: the default 5 s timed out on a busy 2-core machine.
+    testTimeout: 60_000,
   },
 } as any);

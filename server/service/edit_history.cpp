@@ -68,7 +68,55 @@ EditStep merge_step(const EditStep& current, const std::vector<GroupMove>& moves
 
 void restart_history(EditState& state) {
   state.steps.assign(1, EditStep{});
+  state.steps[0].settings = state.settings;
   state.position = 0;
+}
+
+int kept_positions_limit(int vertices) {
+  const std::size_t per = 24 * static_cast<std::size_t>(std::max(vertices, 1));
+  const std::size_t fit = kKeptPositionsBytes / per;
+  return static_cast<int>(std::clamp<std::size_t>(fit, kMinKeptPositions, kMaxKeptPositions));
+}
+
+void remember_step(EditState& state, int step, KeptPositions shown, int limit) {
+  if (step < 0 || step >= static_cast<int>(state.steps.size()) || !shown.positions) return;
+  state.steps[static_cast<std::size_t>(step)].revision = shown.revision;
+  std::erase_if(state.kept,
+                [&shown](const KeptPositions& k) { return k.revision == shown.revision; });
+  state.kept.push_back(std::move(shown));
+  while (static_cast<int>(state.kept.size()) > std::max(limit, 1)) {
+    const std::uint64_t dropped = state.kept.front().revision;
+    state.kept.erase(state.kept.begin());
+    for (EditStep& s : state.steps) {
+      if (s.revision == dropped) s.revision.reset();
+    }
+  }
+}
+
+std::size_t kept_positions_bytes(const EditState& state) {
+  std::size_t bytes = 0;
+  for (const KeptPositions& k : state.kept) {
+    if (k.positions) bytes += static_cast<std::size_t>(k.positions->size()) * sizeof(double);
+  }
+  return bytes;
+}
+
+std::shared_ptr<const Positions> kept_positions(const EditState& state, std::uint64_t revision) {
+  for (const KeptPositions& k : state.kept) {
+    if (k.revision == revision) return k.positions;
+  }
+  return nullptr;
+}
+
+bool same_settings(const std::optional<EditSettings>& a, const std::optional<EditSettings>& b) {
+  if (!a || !b) return a.has_value() == b.has_value();
+  return a->method == b->method && a->ora == b->ora && a->rigidity == b->rigidity &&
+         a->max_iterations == b->max_iterations && a->tolerance == b->tolerance &&
+         std::equal(a->magnify.begin(), a->magnify.end(), b->magnify.begin(), b->magnify.end(),
+                    [](const core::MagnifyRegion& x, const core::MagnifyRegion& y) {
+                      return x.scale == y.scale && x.vertices.size() == y.vertices.size() &&
+                             x.vertices == y.vertices;
+                    });
 }
 
 bool same_state(const EditStep& a, const EditStep& b) {
@@ -79,13 +127,16 @@ bool same_state(const EditStep& a, const EditStep& b) {
                     });
 }
 
-void record_step(EditState& state, EditStep step, std::size_t max_targets) {
+Recorded record_step(EditState& state, EditStep step, std::size_t max_targets) {
   const auto current = static_cast<std::size_t>(state.position);
   const bool newest = current + 1 == state.steps.size();
+  Recorded recorded = Recorded::Added;
   if (step.gesture != 0 && newest && current > 0 && state.steps[current].gesture == step.gesture) {
     state.steps[current] = std::move(step);
-  } else if (same_state(step, state.steps[current])) {
-    return;
+    recorded = Recorded::Replaced;
+  } else if (same_state(step, state.steps[current]) &&
+             same_settings(step.settings, state.steps[current].settings)) {
+    return Recorded::Unchanged;
   } else {
     state.steps.resize(current + 1);  // a new edit drops the redo branch
     state.steps.push_back(std::move(step));
@@ -96,6 +147,7 @@ void record_step(EditState& state, EditStep step, std::size_t max_targets) {
     state.steps.erase(state.steps.begin());
     --state.position;
   }
+  return recorded;
 }
 
 Result<int> history_target(const EditState& state, HistoryAction action) {
@@ -123,26 +175,36 @@ EditSettings settings_of(const MoveRequest& request, double rigidity) {
   return settings;
 }
 
-// Bytes: u8 has_settings; settings: i32 method, u8 ora, f64 rigidity, i32 max_iterations,
-// f64 tolerance, u32 regions x (f64 scale, u32 n, i32 vertices); u32 steps x (u64 gesture,
-// u32 moves x (i32 group, f64 x3 translation, f64 x4 rotation w x y z, f64 scale, u8 has_pivot,
-// f64 x3 pivot), u32 targets x (i32 vertex, f64 x3)); i32 position.
-void write_edit_state(BinaryWriter& out, const EditState& state) {
-  out.pod<std::uint8_t>(state.settings ? 1 : 0);
-  if (state.settings) {
-    const EditSettings& s = *state.settings;
-    out.pod<std::int32_t>(static_cast<std::int32_t>(s.method));
-    out.pod<std::uint8_t>(s.ora ? 1 : 0);
-    out.pod(s.rigidity);
-    out.pod<std::int32_t>(s.max_iterations);
-    out.pod(s.tolerance);
-    out.pod(static_cast<std::uint32_t>(s.magnify.size()));
-    for (const core::MagnifyRegion& region : s.magnify) {
-      out.pod(region.scale);
-      out.pod(static_cast<std::uint32_t>(region.vertices.size()));
-      for (const int v : region.vertices) out.pod<std::int32_t>(v);
-    }
+namespace {
+
+void write_settings(BinaryWriter& out, const EditSettings& s) {
+  out.pod<std::int32_t>(static_cast<std::int32_t>(s.method));
+  out.pod<std::uint8_t>(s.ora ? 1 : 0);
+  out.pod(s.rigidity);
+  out.pod<std::int32_t>(s.max_iterations);
+  out.pod(s.tolerance);
+  out.pod(static_cast<std::uint32_t>(s.magnify.size()));
+  for (const core::MagnifyRegion& region : s.magnify) {
+    out.pod(region.scale);
+    out.pod(static_cast<std::uint32_t>(region.vertices.size()));
+    for (const int v : region.vertices) out.pod<std::int32_t>(v);
   }
+}
+
+/// Bit 1 of the first byte: every step ends with its settings (issue 44). Without it (bytes
+/// written before), steps have none.
+constexpr std::uint8_t kStepSettings = 2;
+
+}  // namespace
+
+// Bytes: u8 flags (bit 0: has settings, bit 1: steps carry settings); settings: i32 method,
+// u8 ora, f64 rigidity, i32 max_iterations, f64 tolerance, u32 regions x (f64 scale, u32 n,
+// i32 vertices); u32 steps x (u64 gesture, u32 moves x (i32 group, f64 x3 translation, f64 x4
+// rotation w x y z, f64 scale, u8 has_pivot, f64 x3 pivot), u32 targets x (i32 vertex, f64 x3),
+// with bit 1: u8 has settings, settings); i32 position.
+void write_edit_state(BinaryWriter& out, const EditState& state) {
+  out.pod<std::uint8_t>(static_cast<std::uint8_t>((state.settings ? 1 : 0) | kStepSettings));
+  if (state.settings) write_settings(out, *state.settings);
   out.pod(static_cast<std::uint32_t>(state.steps.size()));
   for (const EditStep& step : state.steps) {
     out.pod(step.gesture);
@@ -164,6 +226,8 @@ void write_edit_state(BinaryWriter& out, const EditState& state) {
       out.pod<std::int32_t>(t.vertex);
       for (int c = 0; c < 3; ++c) out.pod(t.position[c]);
     }
+    out.pod<std::uint8_t>(step.settings ? 1 : 0);
+    if (step.settings) write_settings(out, *step.settings);
   }
   out.pod<std::int32_t>(state.position);
 }
@@ -221,7 +285,7 @@ Status read_settings(BinaryReader& in, EditSettings& s, int vertices) {
   return Status::success();
 }
 
-Status read_step(BinaryReader& in, EditStep& step, int vertices, int groups) {
+Status read_step(BinaryReader& in, EditStep& step, int vertices, int groups, bool with_settings) {
   MD_RETURN_IF_ERROR(in.pod(step.gesture, "step gesture"));
   std::uint32_t moves = 0;
   MD_RETURN_IF_ERROR(in.count(moves, "step moves", 4 + 8 * 8 + 1 + 24));
@@ -253,16 +317,30 @@ Status read_step(BinaryReader& in, EditStep& step, int vertices, int groups) {
     MD_RETURN_IF_ERROR(read_index(in, t.vertex, vertices, "step target vertex"));
     MD_RETURN_IF_ERROR(read_vector(in, t.position, "step target position"));
   }
+  step.settings.reset();
+  if (!with_settings) return Status::success();
+  std::uint8_t has_settings = 0;
+  MD_RETURN_IF_ERROR(in.pod(has_settings, "step settings"));
+  if (has_settings > 1) return in.corrupt("step settings flag " + std::to_string(has_settings));
+  if (has_settings != 0) {
+    EditSettings settings;
+    MD_RETURN_IF_ERROR(read_settings(in, settings, vertices));
+    step.settings = std::move(settings);
+  }
   return Status::success();
 }
 
 }  // namespace
 
 Status read_edit_state(BinaryReader& in, EditState& state, int vertices, int groups) {
-  std::uint8_t has_settings = 0;
-  MD_RETURN_IF_ERROR(in.pod(has_settings, "settings"));
+  std::uint8_t flags = 0;
+  MD_RETURN_IF_ERROR(in.pod(flags, "settings"));
+  if ((flags & ~(1 | kStepSettings)) != 0) {
+    return in.corrupt("edit state flags " + std::to_string(flags));
+  }
   state.settings.reset();
-  if (has_settings != 0) {
+  state.kept.clear();
+  if ((flags & 1) != 0) {
     EditSettings settings;
     MD_RETURN_IF_ERROR(read_settings(in, settings, vertices));
     state.settings = std::move(settings);
@@ -273,7 +351,9 @@ Status read_edit_state(BinaryReader& in, EditState& state, int vertices, int gro
     return in.corrupt("history of " + std::to_string(steps) + " steps");
   }
   state.steps.assign(steps, EditStep{});
-  for (EditStep& step : state.steps) MD_RETURN_IF_ERROR(read_step(in, step, vertices, groups));
+  for (EditStep& step : state.steps) {
+    MD_RETURN_IF_ERROR(read_step(in, step, vertices, groups, (flags & kStepSettings) != 0));
+  }
   std::int32_t position = 0;
   MD_RETURN_IF_ERROR(in.pod(position, "history position"));
   if (position < 0 || position >= static_cast<std::int32_t>(steps)) {

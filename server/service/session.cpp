@@ -508,21 +508,48 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   }
   MD_RETURN_IF_ERROR(check_budget(request));
   const double rigidity = request.rigidity.value_or(default_rigidity_);
+  // Exact undo (issue 44): the step the session leaves keeps the positions that show it, and
+  // positions to commit again instead of solving (an undo or redo to a step that kept its own,
+  // or restore_revision).
+  const int kept_limit = kept_positions_limit(static_cast<int>(rest_.V.rows()));
+  const KeptPositions shown{base_revision, base_positions};
+  std::shared_ptr<const Positions> restored;
   // Undo / redo: the step's moves and targets, applied to the anchors (a step is a whole state).
   const std::vector<GroupMove>* moves = &request.moves;
   const std::vector<VertexTarget>* vertex_targets = &request.targets;
   EditStep step;
   if (request.history != HistoryAction::Record) {
+    const std::string action = request.history == HistoryAction::Undo ? "undo" : "redo";
     if (!request.moves.empty() || !request.targets.empty()) {
       return Error(ErrorCode::InvalidArgument,
-                   std::string(request.history == HistoryAction::Undo ? "undo" : "redo") +
-                       " applies a step of the history: send no moves or targets with it");
+                   action + " applies a step of the history: send no moves or targets with it");
     }
-    MD_ASSIGN_OR_RETURN(edit.position, history_target(edit, request.history));
+    if (request.restore_revision) {
+      return Error(ErrorCode::InvalidArgument,
+                   action + " restores its step's own positions: send no restore_revision with it");
+    }
+    MD_ASSIGN_OR_RETURN(const int target, history_target(edit, request.history));
+    remember_step(edit, edit.position, shown, kept_limit);
+    edit.position = target;
     step = edit.steps[static_cast<std::size_t>(edit.position)];
+    if (step.revision) restored = kept_positions(edit, *step.revision);
     moves = &step.moves;
     vertex_targets = &step.targets;
     targets = anchors;
+  } else if (request.restore_revision) {
+    const std::uint64_t wanted = *request.restore_revision;
+    restored = kept_positions(edit, wanted);
+    if (!restored && wanted <= base_revision) {
+      Result<std::shared_ptr<const Positions>> kept = positions_at(wanted);
+      if (kept.ok()) restored = *kept;
+    }
+    if (!restored) {
+      return Error(ErrorCode::FailedPrecondition,
+                   "restore_revision " + std::to_string(wanted) +
+                       " is not kept (the session keeps revision 0, its newest " +
+                       std::to_string(options_.kept_revisions) +
+                       " and those its undo history names)");
+    }
   }
   // Row of each constrained vertex in anchors/targets.
   auto row_of = [&constrained](int v) {
@@ -595,10 +622,16 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   if (request.history == HistoryAction::Record) {
     // Explicit targets kept over all steps: bounded by a multiple of the constrained set.
     const std::size_t max_targets = std::max<std::size_t>(16 * constrained.size(), 1024);
-    record_step(edit,
-                merge_step(edit.steps[static_cast<std::size_t>(edit.position)], request.moves,
-                           request.targets, vertex_group, request.gesture),
-                max_targets);
+    const EditStep& current = edit.steps[static_cast<std::size_t>(edit.position)];
+    EditStep next =
+        merge_step(current, request.moves, request.targets, vertex_group, request.gesture);
+    // A settings change alone is a step too; a one-off solve keeps the step's settings.
+    next.settings = request.keep_settings
+                        ? current.settings
+                        : std::optional<EditSettings>(settings_of(request, rigidity));
+    if (record_step(edit, std::move(next), max_targets) == Recorded::Added) {
+      remember_step(edit, edit.position - 1, shown, kept_limit);
+    }
   }
   if (!request.keep_settings) edit.settings = settings_of(request, rigidity);
 
@@ -621,6 +654,25 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
                  "move cancelled; revision " + std::to_string(base_revision) + " unchanged");
   };
   if (stop.stop_requested() || deadline_passed()) return stopped_status();
+
+  if (restored) {
+    // The kept positions, exactly: no solve, so nothing to refine either. No deformer's
+    // positions() equal them, so the cached ones restart at their next move (state_revision).
+    core::SolveReport report;
+    report.V = *restored;
+    report.converged = true;
+    DeformerCache::Entry no_deformer;
+    Result<DeformResult> committed =
+        commit(std::move(report), request.method, rigidity, targets, base_revision, base_positions,
+               /*built=*/false, request.editor, /*refinement=*/false, &no_deformer, &edit);
+    if (!committed.ok()) return committed.status();
+    DeformResult result = std::move(committed).value();
+    counters_->moves_committed.fetch_add(1);
+    last_move_ticks_.store(std::chrono::steady_clock::now().time_since_epoch().count());
+    refine_.reset();
+    result.history_position = edit.position;
+    return result;
+  }
 
   MD_ASSIGN_OR_RETURN(const DeformerCache::Found found,
                       deformers_->get_or_build(request.method, constrained));
@@ -663,6 +715,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   DeformResult result = std::move(committed).value();
   counters_->moves_committed.fetch_add(1);
   last_move_ticks_.store(std::chrono::steady_clock::now().time_since_epoch().count());
+  result.history_position = edit.position;
   if (options_.refine_budget > 0 && !result.converged) {
     refine_ = RefineState{request.method,           request.ora, std::move(face_scale),
                           request.tolerance,        options_.refine_budget, rigidity};
@@ -770,7 +823,10 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
     push_history_locked(result);
     targets_ = targets;
     last_method_ = method;
-    if (edit != nullptr) edit_ = *edit;
+    if (edit != nullptr) {
+      edit_ = *edit;
+      kept_bytes_.store(kept_positions_bytes(edit_));
+    }
     watchers = watchers_;
   }
   entry->state_revision = result->revision;
@@ -1161,7 +1217,10 @@ bool Session::apply_shared_locked(const SharedLogEntry& logged) {
     push_history_locked(result);
     targets_ = logged.targets;
     last_method_ = result->method;
-    if (logged.edit) edit_ = *logged.edit;
+    if (logged.edit) {
+      edit_ = *logged.edit;
+      kept_bytes_.store(kept_positions_bytes(edit_));
+    }
     watchers = watchers_;
   }
   shared_version_ = logged.version;

@@ -217,8 +217,11 @@ class Session : public std::enable_shared_from_this<Session> {
   void close_watchers(Status reason);
   bool is_closed() const { return closed_.load(); }
 
-  /// What the memory budget charges: the mesh, its revisions and the cached deformers.
-  std::size_t estimated_bytes() const { return base_bytes_ + deformers_->bytes(); }
+  /// What the memory budget charges: the mesh, its revisions, the positions kept for exact undo
+  /// (as they are kept) and the cached deformers.
+  std::size_t estimated_bytes() const {
+    return base_bytes_ + kept_bytes_.load() + deformers_->bytes();
+  }
   std::chrono::steady_clock::time_point last_used() const;
   /// When a move (not refinement) last arrived or was last committed, whichever came later; the
   /// epoch before any. Refinement waits until this is ServiceOptions::refine_delay old: a move
@@ -370,6 +373,8 @@ class Session : public std::enable_shared_from_this<Session> {
 
   std::atomic<bool> closed_{false};
   std::size_t base_bytes_ = 0;  ///< estimate_session_bytes without deformers; set by create()
+  /// kept_positions_bytes(edit_), updated whenever edit_ is committed (issue 44).
+  std::atomic<std::size_t> kept_bytes_{0};
   std::atomic<int> inflight_{0};
 };
 

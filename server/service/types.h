@@ -59,15 +59,6 @@ struct SetHandlesRequest {
   std::string client{};
 };
 
-/// One state of a session's undo history: handle-group moves and explicit vertex targets that,
-/// applied to the anchors (groups without a move stay at their anchors), give the targets.
-struct EditStep {
-  std::vector<GroupMove> moves;  ///< at most one per group, ascending group
-  std::vector<VertexTarget> targets;  ///< at most one per vertex, ascending vertex
-  /// The gesture of the moves recorded here (MoveRequest::gesture; 0 none).
-  std::uint64_t gesture = 0;
-};
-
 /// What a move solved with: kept with the session so that any client opening it later (a
 /// reload, a shared link, another replica) continues with the same settings (issue 17).
 struct EditSettings {
@@ -79,12 +70,38 @@ struct EditSettings {
   double tolerance = 1e-4;
 };
 
+/// One state of a session's undo history: handle-group moves and explicit vertex targets that,
+/// applied to the anchors (groups without a move stay at their anchors), give the targets.
+struct EditStep {
+  std::vector<GroupMove> moves;       ///< at most one per group, ascending group
+  std::vector<VertexTarget> targets;  ///< at most one per vertex, ascending vertex
+  /// The gesture of the moves recorded here (MoveRequest::gesture; 0 none).
+  std::uint64_t gesture = 0;
+  /// The settings the step was solved with (issue 44: a settings change is a step of its own).
+  /// Unset for step 0 of a session without moves and for steps stored before steps had them.
+  std::optional<EditSettings> settings{};
+  /// In memory only (never stored or sent as such): the revision that last showed this step
+  /// while the session keeps its positions (EditState::kept). Undo and redo to the step commit
+  /// those positions again instead of solving.
+  std::optional<std::uint64_t> revision{};
+};
+
+/// Positions of one revision, kept for exact undo (EditState::kept).
+struct KeptPositions {
+  std::uint64_t revision = 0;
+  std::shared_ptr<const Positions> positions;
+};
+
 /// A session's edit state: its settings and its undo history since the last set_handles.
 /// Invariant: steps[position] applied to the anchors gives the current targets.
 struct EditState {
   std::optional<EditSettings> settings;  ///< of the last committed move; unset before any
   std::vector<EditStep> steps{EditStep{}};  ///< oldest first; never empty
   int position = 0;                         ///< the current step
+  /// In memory only (never stored or sent): the positions of revisions that showed steps the
+  /// session left, oldest first, at most kept_positions_limit(#V) of them (edit_history.h).
+  /// They outlive set_handles: MoveRequest::restore_revision can still name them.
+  std::vector<KeptPositions> kept{};
 };
 
 /// One edit: new handle targets (vertices not mentioned keep their previous targets) and how to
@@ -116,6 +133,11 @@ struct MoveRequest {
   std::uint64_t gesture = 0;
   /// A one-off solve: the session's stored EditSettings stay as they are.
   bool keep_settings = false;
+  /// Record only (issue 44): instead of solving, commit the positions of this earlier revision
+  /// again, exactly; `moves` and `targets` are recorded as the state they show, as for any
+  /// move. Revision 0 (the rest mesh) is always available, others while the session keeps them
+  /// (the newest ServiceOptions::kept_revisions and EditState::kept).
+  std::optional<std::uint64_t> restore_revision{};
   /// Stop the solve (DeadlineExceeded) once steady_clock passes this point.
   std::optional<std::chrono::steady_clock::time_point> deadline;
   std::string editor;  ///< free-form label forwarded to watchers ("who edited")
@@ -142,6 +164,9 @@ struct DeformResult {
   /// revision's targets, not by a move; editor is "refinement".
   bool refinement = false;
   int pcg_iterations = 0;       ///< conjugate-gradient iterations of step two in this solve
+  /// A move's own result only (not the watchers' copy): the session's undo-history position
+  /// (EditState::position) after the move.
+  std::optional<int> history_position{};
   /// The positions in the transport's wire encodings, made once for the move's response and
   /// every watcher. Copies share it: a copy whose positions or changed lists then change takes
   /// a new memo. The session clears it when a newer revision commits (only the newest is worth
@@ -381,6 +406,8 @@ struct ServiceStats {
 /// Memory charge of a session, for budgeting (an estimate, calibrated by measurement): positions
 /// of the rest mesh, the current and the kept revisions, topology and measures, plus per cached
 /// deformer 5.2 KB per vertex (the scale-aware solver's measured heap, the largest method's).
+/// Positions kept for exact undo are charged on top as they are kept (Session::estimated_bytes,
+/// kept_positions_bytes in edit_history.h): a new session holds none.
 /// @param[in] vertices, faces   mesh size.
 /// @param[in] cached_deformers  prefactored systems held.
 /// @param[in] kept_revisions    ServiceOptions::kept_revisions.

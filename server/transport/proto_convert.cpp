@@ -163,6 +163,7 @@ Result<service::MoveRequest> move_from_proto(const v1::MoveHandlesRequest& reque
   out.history = *history;
   out.gesture = request.gesture();
   out.keep_settings = request.keep_settings();
+  if (request.has_restore_revision()) out.restore_revision = request.restore_revision();
   out.editor = request.editor().substr(0, 256);
   return out;
 }
@@ -206,23 +207,26 @@ void pack_positions(const Positions& rows, v1::PositionEncoding encoding, std::s
 }
 
 namespace {
-void edit_state_to_proto(const service::EditState& edit, v1::EditState* out) {
-  if (edit.settings) {
-    const service::EditSettings& s = *edit.settings;
-    v1::EditSettings* settings = out->mutable_settings();
-    settings->set_method(wire::method_to_proto(s.method));
-    settings->set_ora(s.ora);
-    settings->set_max_iterations(static_cast<std::uint32_t>(s.max_iterations));
-    settings->set_tolerance(s.tolerance);
-    settings->set_rigidity(s.rigidity);
-    for (const core::MagnifyRegion& region : s.magnify) {
-      v1::MagnifyRegion* r = settings->add_magnify();
-      const std::vector<int> vertices(region.vertices.begin(), region.vertices.end());
-      (void)wire::indices_to_proto(vertices, r->mutable_vertices());
-      r->set_scale(region.scale);
-    }
+void settings_to_proto(const service::EditSettings& s, v1::EditSettings* settings) {
+  settings->set_method(wire::method_to_proto(s.method));
+  settings->set_ora(s.ora);
+  settings->set_max_iterations(static_cast<std::uint32_t>(s.max_iterations));
+  settings->set_tolerance(s.tolerance);
+  settings->set_rigidity(s.rigidity);
+  for (const core::MagnifyRegion& region : s.magnify) {
+    v1::MagnifyRegion* r = settings->add_magnify();
+    const std::vector<int> vertices(region.vertices.begin(), region.vertices.end());
+    (void)wire::indices_to_proto(vertices, r->mutable_vertices());
+    r->set_scale(region.scale);
   }
-  for (const service::EditStep& step : edit.steps) {
+}
+
+/// `revision`: the session's current one, which shows the current step.
+void edit_state_to_proto(const service::EditState& edit, std::uint64_t revision,
+                         v1::EditState* out) {
+  if (edit.settings) settings_to_proto(*edit.settings, out->mutable_settings());
+  for (std::size_t i = 0; i < edit.steps.size(); ++i) {
+    const service::EditStep& step = edit.steps[i];
     v1::EditStep* st = out->add_steps();
     for (const service::GroupMove& move : step.moves) wire::group_move_to_proto(move, st->add_moves());
     for (const service::VertexTarget& t : step.targets) {
@@ -230,6 +234,12 @@ void edit_state_to_proto(const service::EditState& edit, v1::EditState* out) {
       for (int c = 0; c < 3; ++c) st->mutable_targets()->add_positions(t.position[c]);
     }
     st->set_gesture(step.gesture);
+    if (step.settings) settings_to_proto(*step.settings, st->mutable_settings());
+    if (static_cast<int>(i) == edit.position) {
+      st->set_revision(revision);
+    } else if (step.revision) {
+      st->set_revision(*step.revision);
+    }
   }
   out->set_position(static_cast<std::uint32_t>(edit.position));
 }
@@ -251,7 +261,7 @@ void session_info_to_proto(const service::SessionInfo& info, v1::SessionInfo* ou
   out->set_estimated_bytes(info.estimated_bytes);
   out->set_cached_deformers(static_cast<std::uint32_t>(info.cached_deformers));
   out->set_watchers(static_cast<std::uint32_t>(info.watchers));
-  edit_state_to_proto(info.edit, out->mutable_edit());
+  edit_state_to_proto(info.edit, info.revision, out->mutable_edit());
   wire::rows_to_proto(info.group_anchors, out->mutable_group_anchors());
 }
 
@@ -286,6 +296,9 @@ void result_metrics_to_proto(const service::DeformResult& result, v1::DeformResu
   out->set_editor(result.editor);
   out->set_refinement(result.refinement);
   out->set_pcg_iterations(static_cast<std::uint32_t>(std::max(result.pcg_iterations, 0)));
+  if (result.history_position) {
+    out->set_history_position(static_cast<std::uint32_t>(std::max(*result.history_position, 0)));
+  }
 }
 
 // Which of a result's position arrays to send.

@@ -1334,3 +1334,82 @@ TEST_F(DeformServiceTest, ACancelledProgressStreamEndsAndTheSessionStillServes) 
 
 }  // namespace
 }  // namespace meshdeform::transport
+
+namespace meshdeform::transport {
+namespace {
+
+// Issue 44: exact undo over the wire. Steps carry their settings and (while kept) the revision
+// that showed them, moves answer with the history position, undo commits the kept positions
+// bit for bit, and restore_revision brings back an earlier shape after a SetHandles.
+TEST_F(DeformServiceTest, ExactUndoFieldsOverTheWire) {
+  const v1::CreateSessionResponse created = create_with_handles("cylinder_small");
+  v1::MoveHandlesRequest first = bend_request(created, 20);
+  first.set_max_iterations(2);  // scale-aware, far from converged: a re-solve would land elsewhere
+  first.set_full_positions(true);
+  v1::MoveHandlesResponse bent, second, undone, response;
+  ASSERT_TRUE(move(first, &bent).ok());
+  EXPECT_EQ(bent.result().history_position(), 1u);
+  v1::MoveHandlesRequest stiffer = first;
+  stiffer.set_rigidity(300);  // the same moves, other settings: a step of its own
+  ASSERT_TRUE(move(stiffer, &second).ok());
+  EXPECT_TRUE(second.result().has_history_position());
+  EXPECT_EQ(second.result().history_position(), 2u);
+
+  v1::SessionInfo now;
+  ASSERT_TRUE(info(created.session_id(), created.view_token(), &now).ok());
+  ASSERT_EQ(now.edit().steps_size(), 3);
+  EXPECT_FALSE(now.edit().steps(0).has_settings());  // the handles as set, before any move
+  ASSERT_TRUE(now.edit().steps(2).has_settings());
+  EXPECT_EQ(now.edit().steps(2).settings().rigidity(), 300);
+  EXPECT_NE(now.edit().steps(1).settings().rigidity(), 300);
+  ASSERT_TRUE(now.edit().steps(1).has_revision());
+  EXPECT_EQ(now.edit().steps(1).revision(), bent.result().revision());
+  ASSERT_TRUE(now.edit().steps(2).has_revision());  // the current step: the current revision
+  EXPECT_EQ(now.edit().steps(2).revision(), now.revision());
+
+  v1::MoveHandlesRequest undo;
+  undo.set_session_id(created.session_id());
+  undo.set_token(created.edit_token());
+  undo.set_history(v1::HISTORY_ACTION_UNDO);
+  undo.set_full_positions(true);
+  ASSERT_TRUE(move(undo, &undone).ok());
+  EXPECT_EQ(undone.result().iterations(), 0u);  // restored, not solved
+  EXPECT_EQ(undone.result().history_position(), 1u);
+  ASSERT_EQ(undone.result().positions_size(), bent.result().positions_size());
+  for (int i = 0; i < bent.result().positions_size(); ++i) {
+    ASSERT_EQ(undone.result().positions(i), bent.result().positions(i)) << "coordinate " << i;
+  }
+  // Watch updates never carry a history position.
+  EXPECT_FALSE(v1::DeformResult().has_history_position());
+
+  // New handles (the same groups again), then the first bend's shape by its revision.
+  {
+    grpc::ClientContext context;
+    bound(context);
+    v1::SetHandlesRequest again;
+    again.set_session_id(created.session_id());
+    again.set_token(created.edit_token());
+    *again.mutable_groups() = created.suggested_groups();
+    v1::SetHandlesResponse set;
+    ASSERT_TRUE(stub_->SetHandles(&context, again, &set).ok());
+  }
+  v1::MoveHandlesRequest restore = bend_request(created, 0);
+  restore.clear_moves();
+  restore.set_restore_revision(bent.result().revision());
+  restore.set_full_positions(true);
+  ASSERT_TRUE(move(restore, &response).ok());
+  EXPECT_EQ(response.result().iterations(), 0u);
+  for (int i = 0; i < bent.result().positions_size(); ++i) {
+    ASSERT_EQ(response.result().positions(i), bent.result().positions(i)) << "coordinate " << i;
+  }
+  restore.set_restore_revision(response.result().revision() + 10);
+  const grpc::Status unknown = move(restore, &response);
+  EXPECT_EQ(unknown.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << describe(unknown);
+  EXPECT_NE(unknown.error_message().find("not kept"), std::string::npos);
+  v1::MoveHandlesRequest both = undo;
+  both.set_restore_revision(0);
+  EXPECT_EQ(move(both, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+}
+
+}  // namespace
+}  // namespace meshdeform::transport

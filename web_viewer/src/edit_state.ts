@@ -4,6 +4,8 @@
 import { Method, type EditSettings, type EditState, type EditStep } from "./gen/meshdeform/v1/deformation_pb";
 import { cloneMove, IDENTITY, rotate, type GroupStates, type MoveState, type Vec3 } from "./moves";
 import { DEFAULT_ITERATIONS } from "./iterations";
+import { rigidityStep } from "./rigidity";
+import type { Entry, Settings } from "./timeline";
 
 /** What the settings controls show for the session. */
 export interface SettingsView {
@@ -69,4 +71,29 @@ export function historyFromEdit(edit: EditState | undefined, centroids: (Vec3 | 
 /** A fresh gesture id for one drag (MoveHandlesRequest.gesture): random, non-zero, 53 bits. */
 export function newGesture(random: () => number = Math.random): bigint {
   return BigInt(Math.floor(random() * (2 ** 53 - 1))) + 1n;
+}
+
+/** A step's settings as the page keeps them (timeline.ts), `fallback` when it has none. */
+export function stepSettings(settings: EditSettings | undefined, fallback: Settings, vertexCount: number): Settings {
+  if (!settings) return fallback;
+  const v = settingsView(settings);
+  return {
+    method: v.method, ora: v.ora, rigidityStep: rigidityStep(v.rigidity ?? 0), iterations: v.iterations, magnifyScale: v.magnifyScale,
+    magnify: v.magnifyVertices.filter((x) => x < vertexCount),
+  };
+}
+
+/** The page's history entries for the server's (one epoch, `epoch` filled in by the caller):
+ * every step's states, settings (the step's own, else `fallback`) and the revision the server
+ * keeps for it. */
+export function entriesFromEdit(edit: EditState | undefined, centroids: (Vec3 | null)[],
+  fallback: (index: number, step: EditStep | undefined) => Settings, vertexCount: number): { entries: Entry[]; index: number } {
+  const { states, index } = historyFromEdit(edit, centroids);
+  const steps = edit?.steps ?? [];
+  const entries = states.map((st, i): Entry => ({
+    epoch: 0, serverPos: i, states: st, draft: null,
+    settings: stepSettings(steps[i]?.settings, fallback(i, steps[i]), vertexCount),
+    revision: steps[i]?.revision === undefined ? null : Number(steps[i].revision),
+  }));
+  return { entries, index };
 }

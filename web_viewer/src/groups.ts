@@ -12,7 +12,7 @@ export interface GroupSpec {
 
 export class GroupSet {
   private owner: Int32Array;
-  private roles: GroupRole[] = [];
+  private roleList: GroupRole[] = [];
   private counts: number[] = [];
   /** Index of the selected group, -1 for none. */
   selected = -1;
@@ -21,8 +21,8 @@ export class GroupSet {
   constructor(readonly vertexCount: number, groups: GroupSpec[] = []) {
     this.owner = new Int32Array(vertexCount).fill(-1);
     for (const g of groups) {
-      const k = this.roles.length;
-      this.roles.push(g.role);
+      const k = this.roleList.length;
+      this.roleList.push(g.role);
       this.counts.push(0);
       for (const v of g.vertices) this.assign(v, k);
     }
@@ -30,11 +30,16 @@ export class GroupSet {
   }
 
   get size(): number {
-    return this.roles.length;
+    return this.roleList.length;
   }
 
   role(i: number): GroupRole {
-    return this.roles[i];
+    return this.roleList[i];
+  }
+
+  /** Every group's role, in order. */
+  roles(): GroupRole[] {
+    return [...this.roleList];
   }
 
   count(i: number): number {
@@ -55,7 +60,7 @@ export class GroupSet {
   /** Ordinal of group i among the groups of its role (colour and label: "Handle 2"). */
   ordinal(i: number): number {
     let k = 0;
-    for (let j = 0; j < i; j++) if (this.roles[j] === this.roles[i]) k++;
+    for (let j = 0; j < i; j++) if (this.roleList[j] === this.roleList[i]) k++;
     return k;
   }
 
@@ -76,10 +81,10 @@ export class GroupSet {
     for (const v of indices) {
       if (st.target < 0) {
         const sel = this.selected;
-        if (st.extend && sel >= 0 && this.roles[sel] === st.role) st.target = sel;
+        if (st.extend && sel >= 0 && this.roleList[sel] === st.role) st.target = sel;
         else {
-          st.target = this.roles.length;
-          this.roles.push(st.role);
+          st.target = this.roleList.length;
+          this.roleList.push(st.role);
           this.counts.push(0);
         }
       }
@@ -108,16 +113,16 @@ export class GroupSet {
 
   clear(): void {
     this.owner.fill(-1);
-    this.roles = [];
+    this.roleList = [];
     this.counts = [];
     this.selected = -1;
     if (this.stroke) this.stroke.target = -1;
   }
 
   specs(): GroupSpec[] {
-    const lists: number[][] = this.roles.map(() => []);
+    const lists: number[][] = this.roleList.map(() => []);
     for (let v = 0; v < this.vertexCount; v++) if (this.owner[v] >= 0) lists[this.owner[v]].push(v);
-    return this.roles.map((role, i) => ({ role, vertices: lists[i] }));
+    return this.roleList.map((role, i) => ({ role, vertices: lists[i] }));
   }
 
   /** True when the groups are exactly `other` (same order, roles and vertices). */
@@ -129,9 +134,9 @@ export class GroupSet {
   /** null when the groups can become handles, else what to do. */
   validate(): string | null {
     if (this.size === 0) return "Nothing painted yet: paint a fixed region and a handle, then Apply.";
-    const handles = this.roles.filter((r) => r === "handle").length;
+    const handles = this.roleList.filter((r) => r === "handle").length;
     if (handles === 0) return "No handle group: paint one in mode “handle”.";
-    if (handles === 1 && this.roles.length === 1) return "No fixed region: paint one in mode “fixed” (or a second handle group).";
+    if (handles === 1 && this.roleList.length === 1) return "No fixed region: paint one in mode “fixed” (or a second handle group).";
     return null;
   }
 
@@ -151,10 +156,10 @@ export class GroupSet {
     const counts: number[] = [];
     this.counts.forEach((c, i) => {
       map.push(c > 0 ? roles.length : -1);
-      if (c > 0) { roles.push(this.roles[i]); counts.push(c); }
+      if (c > 0) { roles.push(this.roleList[i]); counts.push(c); }
     });
     for (let v = 0; v < this.vertexCount; v++) if (this.owner[v] >= 0) this.owner[v] = map[this.owner[v]];
-    this.roles = roles;
+    this.roleList = roles;
     this.counts = counts;
     this.selected = this.selected >= 0 ? map[this.selected] ?? -1 : -1;
     if (this.stroke && this.stroke.target >= 0) this.stroke.target = map[this.stroke.target] ?? -1;

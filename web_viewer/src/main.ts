@@ -1,28 +1,31 @@
-// Wiring: session lifecycle, the Watch stream, moves, tools and the test hooks.
+// Wiring: session lifecycle, the Watch stream's worker, moves, tools, the undo history and the
+// test hooks.
 import * as THREE from "three";
 import { create } from "@bufbuild/protobuf";
 import { Code, ConnectError, createContextValues } from "@connectrpc/connect";
 import {
-  HandleGroupSchema, HandleRole, HistoryAction, MagnifyRegionSchema, MeshFormat, Method, VertexTargetsSchema,
-  type CreateSessionResponse, type DeformUpdate, type HandleGroup, type MoveHandlesResponse, type SessionInfo, type SetHandlesResponse,
+  HandleGroupSchema, HandleRole, HistoryAction, MagnifyRegionSchema, MeshFormat, Method,
+  type CreateSessionResponse, type HandleGroup, type MoveHandlesRequest, type MoveHandlesResponse, type SessionInfo, type SetHandlesResponse,
 } from "./gen/meshdeform/v1/deformation_pb";
 import { kSessionId, makeClient } from "./client";
 import { progressText, readWithProgress } from "./progress";
 import { MoveCoalescer } from "./coalescer";
 import { rigidityLabel, rigidityStep, rigidityValue } from "./rigidity";
-import { cornerAngles, faceAreas2, ramp, rampCss, scaleMax, vertexAreaLog, vertexDistortion } from "./distortion";
+import { rampCss } from "./distortion";
 import { errorCode, type Action } from "./errors";
 import { GroupSet, groupColor, type GroupSpec } from "./groups";
 import { parseGlb } from "./glb";
-import { historyFromEdit, newGesture, settingsView } from "./edit_state";
-import { UndoStack } from "./history";
-import { Interaction, type HandleGroupView, type Tool } from "./interaction";
+import { entriesFromEdit, newGesture, settingsView } from "./edit_state";
+import { derive, Timeline, type Entry, type Settings } from "./timeline";
+import { Interaction, type HandleGroupView, type PickHit, type Tool } from "./interaction";
 import { DEFAULT_ITERATIONS, parseIterations } from "./iterations";
-import { describeCommand, feedKey, startCommand, type KeyCommand } from "./keycmd";
+import { describeCommand, effectiveAxis, feedKey, startCommand, typedValue, type KeyCommand } from "./keycmd";
+import { modalState, type ModalPointer } from "./modal";
 import {
-  applyMove, AXES, cloneStates, composeCommand, identityStates, planReset, statesKey, toGroupMove,
+  applyMove, cloneStates, fitSimilarity, identityStates, planReset, statesKey, toGroupMove,
   type GroupStates, type Vec3,
 } from "./moves";
+import { buildAdjacency, components, farSide, pickGroups, type Adjacency } from "./pick";
 import { Viewer3D } from "./scene";
 import { loadPrefs, savePrefs } from "./prefs";
 import { SelectionState, type PaintMode } from "./selection";
@@ -31,7 +34,12 @@ import { Banner, $, $btn, $in, $sel } from "./ui/dom";
 import { renderGroupList } from "./ui/groupsPanel";
 import { showBytes, showCounts, showResult } from "./ui/metrics";
 import { dismissFirstHint, hideLinkProblem, showFirstHint, showLinkProblem } from "./ui/notice";
-import { decoderReady, encodingName, parseEncoding, PositionState, updateWireBytes } from "./updates";
+import { ColorPainter } from "./ui/colors";
+import { clearStateNotice, showStateNotice, type NoticeAction } from "./ui/stateNotice";
+import { decoderReady, parseEncoding, PositionState } from "./updates";
+import type { FromWorker, HeatMetric, ToWorker, UpdateInfo } from "./frames";
+import { autoScale, DEFAULT_HEAT_SCALE, heatMax, legend, parseScale, scaleValue, withScale, type HeatScale } from "./heatscale";
+import { viewForKey } from "./views";
 import { linkSizedOptions, parseLinkSized } from "./update_codec";
 import "./style.css";
 
@@ -48,6 +56,12 @@ interface Hooks {
   gone: boolean;
   /** Index of the selected group (into groups()), -1 for none. */
   selectedGroup: number;
+  /** The open modal transform's overlay text ("" when none), and whether undo/redo is running. */
+  modal: string;
+  historyBusy: boolean;
+  tool: Tool;
+  /** Grab tool: the pointer is over the mesh (the radius preview shows). */
+  hovering: boolean;
   /** Screen point of the selected handle group's centre (else the first handle group's). */
   handleScreenPoint(): { x: number; y: number } | null;
   /** Screen point of group i's centre as rendered, or of vertex v. */
@@ -57,29 +71,39 @@ interface Hooks {
   positions(): number[];
   /** The rest mesh (revision 0) as loaded. */
   restPositions(): number[];
-  /** renderedAt / renderedRefinement / renderedConverged: per rendered update, performance.now() when it was applied and
-   * whether it was a background refinement revision and converged (how a big mesh's full-resolution result arrives). */
+  /** Per rendered frame and update: see metrics in App. inputDelayMs: per pointer event during a
+   * drag, how long it waited before the page's handler ran. */
   metrics(): {
     dragToFrameMs: number[]; updateBytes: number[]; updateEncodings: string[]; updatesRendered: number; frameWorkMs: number[];
-    renderedAt: number[]; renderedRefinement: boolean[]; renderedConverged: boolean[];
+    renderedAt: number[]; renderedRefinement: boolean[]; renderedConverged: boolean[]; inputDelayMs: number[]; workerMs: number[];
+    updatesDropped: number;
   };
   resetMetrics(): void;
   /** Every applied group's move as the page holds it (translation, rotation w x y z, scale). */
   moveStates(): { translation: number[]; rotation: number[]; scale: number }[];
   /** The session's handle groups as applied (role 'fixed' | 'handle'), for tests. */
   groups(): { role: "fixed" | "handle"; vertices: number[] }[];
+  /** The painted groups (applied or not). */
+  draftGroups(): { role: "fixed" | "handle"; vertices: number[] }[];
+  /** The undo history: position and size. */
+  history(): { position: number; size: number; canUndo: boolean; canRedo: boolean };
+  /** The state notice shown (what is missing and the way out), "" for none. */
+  notice(): string;
+  /** The heat map's legend as shown, and the sRGB colour of vertex v on screen. */
+  legend(): string[];
+  vertexColor(v: number): number[];
+  /** The view direction (unit, from the camera). */
+  viewDirection(): number[];
 }
 
 interface MoveTarget {
   states: GroupStates;
   t0: number;
   opts: string;
-  /** Reset to rest: identity moves solved with the Laplacian method (see planReset). */
-  reset: boolean;
-  /** UNSPECIFIED records `states` in the server's history; UNDO / REDO apply its steps. */
-  history: HistoryAction;
   /** The drag this move belongs to (its moves make one undo step); 0n: a step of its own. */
   gesture: bigint;
+  /** The history entry this move makes (its server step is filled in from the response). */
+  entry: Entry | null;
 }
 
 /** Per applied group: where its vertices were when the handles were set (the server's anchors, as
@@ -87,6 +111,28 @@ interface MoveTarget {
 interface Anchor {
   centroid: THREE.Vector3 | null;
   positions: Float32Array;
+}
+
+/** An open G / R / S command. */
+interface Modal {
+  cmd: KeyCommand;
+  group: number;
+  base: GroupStates;
+  gesture: bigint;
+  entry: Entry;
+  start: { x: number; y: number } | null;
+  now: { x: number; y: number } | null;
+  sent: boolean;
+  label: string;
+}
+
+/** A pick-and-drag whose handles are being set while the pointer already moves. */
+interface PendingPick {
+  delta: THREE.Vector3 | null;
+  t0: number;
+  applied: boolean;
+  released: boolean;
+  failed: boolean;
 }
 
 const query = new URLSearchParams(location.search);
@@ -100,7 +146,7 @@ function storage(): Storage | null {
 }
 
 /** The centroid of 3-per-vertex rows, or null for none. */
-function centroidOfRows(a: Float32Array): THREE.Vector3 | null {
+function centroidOfRows(a: ArrayLike<number>): THREE.Vector3 | null {
   const n = a.length / 3;
   if (n === 0) return null;
   const c = new THREE.Vector3();
@@ -109,17 +155,18 @@ function centroidOfRows(a: Float32Array): THREE.Vector3 | null {
 }
 const ENCODING = parseEncoding(query.get("encoding"));
 // ?updates=quantized|lossless[&tolerance=X][&budget=BYTES]: link-sized Watch updates (issue 45).
-const UPDATES = linkSizedOptions(parseLinkSized(query));
+const LINK_SIZED = parseLinkSized(query);
+const UPDATES = linkSizedOptions(LINK_SIZED);
 const client = makeClient(location.origin);
 // ?lambda= soft handle weight for new sessions (server default 100 lets fixed vertices drift ~1e-4).
 const LAMBDA = Number(query.get("lambda")) > 0 ? Number(query.get("lambda")) : undefined;
 const FORMATS: Record<string, MeshFormat> = {
   obj: MeshFormat.OBJ, off: MeshFormat.OFF, ply: MeshFormat.PLY, stl: MeshFormat.STL, glb: MeshFormat.GLB, gltf: MeshFormat.GLTF,
 };
-const COLORS = { base: [0.78, 0.8, 0.84], magnify: [0.25, 0.68, 0.42] };
 /** Controls that edit the session (disabled for watchers and once the session is gone). */
-const EDIT_CONTROLS = ["tool-move", "tool-brush", "tool-lasso", "gizmo-translate", "gizmo-rotate", "gizmo-scale", "apply-handles", "clear-selection", "extend-group", "paint-mode",
-  "undo", "redo", "method", "ora", "rigidity", "iterations", "magnify", "delete-group", "reset-rest"];
+const EDIT_CONTROLS = ["tool-move", "tool-grab", "tool-brush", "tool-lasso", "gizmo-translate", "gizmo-rotate", "gizmo-scale", "apply-handles",
+  "clear-selection", "extend-group", "paint-mode", "undo", "redo", "method", "ora", "rigidity", "iterations", "magnify", "delete-group",
+  "reset-rest", "grab-radius"];
 const GONE_TEXT = "The session this link points to no longer exists: it was closed, it expired, or the server restarted. Its edits cannot be recovered from here.";
 
 /** Everything that belongs to one open session. */
@@ -129,11 +176,10 @@ interface Session {
   viewToken: string | null;
   editToken: string | null;
   indices: Uint32Array;
-  restAngles: Float32Array;
-  restAreas2: Float64Array;
   /** Revision 0 as loaded; restKnown false if the server no longer had it (then it is the shape at opening). */
   rest: Float32Array;
   restKnown: boolean;
+  /** The positions on screen and their revision (the worker's last frame). */
   state: PositionState;
   selection: SelectionState; // the magnify region
   draft: GroupSet; // the groups as painted
@@ -141,13 +187,14 @@ interface Session {
   anchors: Anchor[];
   /** The applied groups' anchors are the rest positions: identity moves give the rest pose. */
   anchorsAtRest: boolean;
-  /** The last move sent (or the shape at opening) is the rest pose. */
-  shapeAtRest: boolean;
   gone: boolean;
-  watchGen: number;
-  watchAbort: AbortController | null;
+  worker: Worker | null;
   gotSnapshot: Promise<void>;
   resolveSnapshot: () => void;
+  /** The heat map's values of the last frame (radians or |log ratio|) and their metric. */
+  heat: Float32Array | null;
+  heatMetric: HeatMetric | null;
+  topology: { adjacency: Adjacency; components: { id: Int32Array; count: number } } | null;
 }
 
 class App {
@@ -155,39 +202,44 @@ class App {
   readonly canvas = $("canvas") as HTMLCanvasElement;
   viewer!: Viewer3D;
   interaction!: Interaction;
+  colors!: ColorPainter;
   session: Session | null = null;
   tool: Tool = "move";
   /** Every applied group's move (identity for fixed groups), absolute from its anchors. */
   states: GroupStates = [];
-  history = new UndoStack<GroupStates>([]);
+  readonly timeline = new Timeline();
+  /** The server's undo-history position, as its last answer said. */
+  private serverPos = 0;
   dirty = false; // the painted groups differ from the applied ones
-  private keyCmd: KeyCommand | null = null;
+  modal: Modal | null = null;
+  private pendingPick: PendingPick | null = null;
+  private historyChain: Promise<void> = Promise.resolve();
+  historyBusy = false;
   private iterationsValue = DEFAULT_ITERATIONS;
   private sessionStatus = "";
   private targetTimer: ReturnType<typeof setTimeout> | undefined;
-  private watchGenCounter = 0;
+  private heatScale: HeatScale = { ...DEFAULT_HEAT_SCALE };
+  noticeText = "";
   private readonly moveT0 = new Map<number, number>(); // revision -> pointer time
   private readonly frameAt = new Map<number, number>(); // revision -> end of its first frame
   readonly metrics = {
     dragToFrameMs: [] as number[], updateBytes: [] as number[], updateEncodings: [] as string[], updatesRendered: 0,
     renderedAt: [] as number[], renderedRefinement: [] as boolean[], renderedConverged: [] as boolean[],
+    inputDelayMs: [] as number[], workerMs: [] as number[], updatesDropped: 0,
   };
 
   readonly coalescer = new MoveCoalescer<MoveTarget, MoveHandlesResponse>({
-    key: (t) => statesKey(t.states) + "|" + t.opts + (t.reset ? "|reset" : "") + "|" + t.history,
+    key: (t) => statesKey(t.states) + "|" + t.opts,
     send: (t) => this.sendMove(t),
     onResult: (r, t) => this.onMoveResult(r, t),
-    onError: (e, t) => {
-      if (t.reset && this.session) this.session.shapeAtRest = false;
-      this.fail(t.reset ? "Reset failed" : "Move failed", e, t.reset ? "reset" : "move");
-    },
+    onError: (e) => this.fail("Move failed", e, "move"),
   });
 
   start(): void {
     this.interaction = new Interaction(() => this.viewer, this.canvas, {
       tool: () => this.tool,
       canEdit: () => this.canEdit(),
-      canMove: () => !this.dirty && !this.keyCmd,
+      canMove: () => !this.dirty && !this.historyBusy && !this.pendingPick,
       positions: () => this.session?.state.positions ?? null,
       handleGroups: () => this.handleGroupViews(),
       groupOf: (v) => this.session?.draft.groupOf(v) ?? -1,
@@ -195,19 +247,31 @@ class App {
       dragStart: (g) => this.dragStart(g),
       dragMove: (d, t0) => this.dragMove(d, t0),
       dragEnd: () => this.dragEnd(),
+      pickStart: (hit) => this.pickStart(hit),
+      hover: (hit) => {
+        hooks.hovering = !!hit;
+        this.viewer.setGrabPreview(hit ? hit.point : null, this.grabRadius());
+      },
+      radiusWheel: (dy) => this.radiusWheel(dy),
+      modalActive: () => this.modal !== null,
+      modalPointer: (x, y) => this.modalPointer(x, y),
+      modalConfirm: () => this.confirmModal(),
+      modalCancel: () => this.cancelModal(),
       paintStart: (extend) => this.paintStart(extend),
       paint: (ix) => this.paint(ix),
       paintEnd: () => this.paintEnd(),
       brushRadius: () => Number($in("brush-radius").value) * this.meshScale(),
+      inputDelay: (ms) => { if (this.metrics.inputDelayMs.length < 100_000) this.metrics.inputDelayMs.push(ms); },
     }, $("lasso-line") as unknown as SVGPolylineElement);
     this.viewer = new Viewer3D(this.canvas, () => this.interaction.attach());
+    this.colors = new ColorPainter(this.viewer);
     this.wireGizmo();
     this.wireControls();
     $("legend-bar").style.background = rampCss();
     void this.boot();
   }
 
-  private canEdit(): boolean {
+  canEdit(): boolean {
     const s = this.session;
     return !!s && s.role === "edit" && !s.gone && s.state.hasSnapshot;
   }
@@ -253,6 +317,8 @@ class App {
     $("role").textContent = this.session ? "Session gone" : "No session";
     this.renderGroups();
     this.banner.status("No session open");
+    clearStateNotice();
+    this.noticeText = "";
     showLinkProblem(detail, () => {
       // Same page without the fragment: a fresh demo session (the query, e.g. ?sample=, is kept).
       location.assign(location.pathname + location.search);
@@ -263,10 +329,10 @@ class App {
   private markGone(s: Session, detail = GONE_TEXT): void {
     if (s.gone) return;
     s.gone = true;
-    s.watchGen = -1;
-    s.watchAbort?.abort();
+    s.worker?.terminate();
+    s.worker = null;
     this.coalescer.reset();
-    this.cancelKeyCommand();
+    this.closeModal();
     this.linkProblem(detail);
     this.placeGizmo();
   }
@@ -290,8 +356,9 @@ class App {
     const creds = { sessionId: r.sessionId, token: r.editToken };
     await this.load(creds, "edit", r.info!, r.viewToken, r.editToken);
     if (r.suggestedGroups.length) {
-      await this.setHandles(r.suggestedGroups);
+      await this.setHandles(r.suggestedGroups.map((g) => ({ role: g.role === HandleRole.FIXED ? "fixed" as const : "handle" as const, vertices: [...g.vertices] })));
     }
+    this.startTool();
     history.replaceState(null, "", location.pathname + location.search + formatHash(creds));
   }
 
@@ -303,6 +370,7 @@ class App {
     // The server hands out the groups' anchors, settings and undo history: the page continues
     // exactly where the last one left off, without setting the handles again.
     await this.load(creds, role, info, r.canEdit ? r.viewToken : creds.token, r.canEdit ? creds.token : null);
+    this.startTool();
   }
 
   /** Loads faces + rest positions, switches the screen to this session, opens Watch. */
@@ -340,11 +408,9 @@ class App {
     const gotSnapshot = new Promise<void>((r) => (resolveSnapshot = r));
     const state = new PositionState(n);
     const s: Session = {
-      creds, role, viewToken, editToken, indices: mesh.indices, restAngles: cornerAngles(mesh.positions, mesh.indices),
-      restAreas2: faceAreas2(mesh.positions, mesh.indices), rest: Float32Array.from(mesh.positions), restKnown,
+      creds, role, viewToken, editToken, indices: mesh.indices, rest: Float32Array.from(mesh.positions), restKnown,
       state, selection: new SelectionState(n), draft: new GroupSet(n), groups: [], anchors: [],
-      anchorsAtRest: false, shapeAtRest: false, gone: false,
-      watchGen: ++this.watchGenCounter, watchAbort: null, gotSnapshot, resolveSnapshot,
+      anchorsAtRest: false, gone: false, worker: null, gotSnapshot, resolveSnapshot, heat: null, heatMetric: null, topology: null,
     };
     state.positions.set(mesh.positions);
     this.session = s;
@@ -362,32 +428,46 @@ class App {
       s.selection.paint(settings.magnifyVertices.filter((v) => v < n), "magnify");
     }
     this.adoptGroups(info.groups, info.groupAnchors);
-    this.resetMoves();
+    this.timeline.clear();
     // The session's undo history and the groups' current moves, as the server keeps them.
-    const restored = historyFromEdit(info.edit, s.anchors.map((a) => (a.centroid ? (a.centroid.toArray() as Vec3) : null)));
-    this.history.restore(restored.states, restored.index);
-    this.states = cloneStates(this.history.current);
+    const epoch = this.timeline.addEpoch({ groups: this.appliedSpecs(), anchors: s.anchors.map((a) => a.positions) });
+    // A step without settings: the first of a session without moves (the defaults), or one stored
+    // before steps kept theirs (the session's).
+    const defaults: Settings = {
+      method: Method.SCALE_AWARE, ora: false, rigidityStep: rigidityStep(info.rigidity), iterations: DEFAULT_ITERATIONS, magnifyScale: 1, magnify: [],
+    };
+    const restored = entriesFromEdit(info.edit, s.anchors.map((a) => (a.centroid ? (a.centroid.toArray() as Vec3) : null)),
+      (i, step) => (i === 0 && step && step.moves.length === 0 && step.targets === undefined ? defaults : this.currentSettings()), n);
+    this.timeline.restore(restored.entries.map((e) => ({ ...e, epoch })), restored.index);
+    this.serverPos = restored.index;
+    this.states = cloneStates(this.timeline.current?.states ?? identityStates(s.groups.length));
     this.updateUndoButtons();
     this.updateMethodAvailability();
     this.recolor();
     this.setStatus(`Session ${creds.sessionId.slice(0, 8)}… · ${info.vertices.toLocaleString("en")} vertices`);
-    void this.watchLoop(s, s.watchGen);
+    this.startStream(s, mesh.indices);
     await gotSnapshot;
     // Opened at revision 0 (the normal case for a new session): the groups' anchors are the rest pose.
-    s.shapeAtRest = restKnown && s.state.revision === 0;
-    s.anchorsAtRest = s.shapeAtRest || (restKnown && this.anchorsAreRest(s));
+    s.anchorsAtRest = (restKnown && s.state.revision === 0) || (restKnown && this.anchorsAreRest(s));
     this.updateReady();
+  }
+
+  /** Nothing to drag on a mesh without groups (an upload): start with pick and drag. */
+  private startTool(): void {
+    const s = this.session;
+    if (s && s.role === "edit" && !s.gone && s.groups.length === 0 && s.draft.size === 0) this.setTool("grab");
   }
 
   private closeCurrent(): void {
     const s = this.session;
     if (!s) return;
-    s.watchGen = -1;
-    s.watchAbort?.abort();
+    s.worker?.terminate();
+    s.worker = null;
     this.session = null;
     hooks.ready = false;
     this.coalescer.reset();
-    this.cancelKeyCommand();
+    this.closeModal();
+    this.pendingPick = null;
   }
 
   private setRole(role: Role): void {
@@ -414,20 +494,46 @@ class App {
     this.banner.status(text);
   }
 
+  /** Readiness, the tool hint and the state notice: what is missing and the way out of it. */
   private updateReady(): void {
     const s = this.session;
-    hooks.ready = !!s && !s.gone && s.state.hasSnapshot && this.handleIndices().length > 0;
+    hooks.ready = !!s && !s.gone && s.state.hasSnapshot && this.handleIndices().length > 0 && !this.dirty;
+    const edit = !!s && s.role === "edit" && !s.gone;
     const hint = $("hint");
-    if (s && s.role === "edit" && !s.gone && this.handleIndices().length === 0) {
-      hint.textContent = "Paint a fixed region and a handle, then Apply.";
-      hint.hidden = false;
-      if (this.tool === "move") this.setTool("brush");
-    } else if (s && s.role === "edit" && this.dirty) {
-      hint.textContent = "The painted groups are not applied yet: Apply handles (or switch to Move) to drag them.";
-      hint.hidden = false;
-    } else {
-      hint.hidden = true;
+    hint.hidden = true;
+    if (!s || !edit) {
+      clearStateNotice();
+      this.noticeText = "";
+      this.updateGroupButtons();
+      this.placeGizmo();
+      return;
     }
+    const actions: NoticeAction[] = [];
+    let text = "";
+    const pick: NoticeAction = { id: "notice-pick", label: "Pick & drag", run: () => this.setTool("grab") };
+    const problem = s.draft.validate();
+    if (s.draft.size === 0) {
+      text = this.tool === "grab"
+        ? "Nothing to drag yet: press on the mesh and drag. A handle forms around the point (its size: the wheel over the mesh, or Grab radius) and the far side stays fixed."
+        : "Nothing to drag yet: pick a point and drag it, or paint a fixed region and a handle (Brush or Lasso).";
+      if (this.tool !== "grab") actions.push(pick);
+    } else if (problem && s.draft.roles().every((r) => r === "fixed")) {
+      text = "No handle group: nothing can move. Pick a point on the mesh and drag it, or paint a handle (Brush, mode handle).";
+      if (this.tool !== "grab") actions.push(pick);
+      if (this.timeline.canUndo) actions.push({ id: "notice-undo", label: "Undo", run: () => this.undoRedo(false) });
+    } else if (problem) {
+      text = "No fixed region: a handle alone would carry the whole mesh along. Fix the side of the mesh away from the handles, or paint a fixed region.";
+      actions.push({ id: "notice-fix-far", label: "Fix the far side", run: () => void this.fixFarSide() });
+      if (this.timeline.canUndo) actions.push({ id: "notice-undo", label: "Undo", run: () => this.undoRedo(false) });
+    } else if (this.dirty) {
+      text = this.tool === "move"
+        ? "The painted groups are not applied yet: apply them to drag."
+        : "The painted groups are not applied yet: apply them (or switch to Move) to drag.";
+      actions.push({ id: "notice-apply", label: "Apply handles", run: () => void this.applyHandles() });
+    }
+    if (text) showStateNotice(text, actions);
+    else clearStateNotice();
+    this.noticeText = text;
     this.updateGroupButtons();
     this.placeGizmo();
   }
@@ -491,9 +597,22 @@ class App {
     return (this.session?.groups ?? []).map((g) => ({ role: g.role === HandleRole.FIXED ? "fixed" : "handle", vertices: [...g.vertices] }));
   }
 
-  private async setHandles(groups: HandleGroup[]): Promise<void> {
+  /** The server's step revisions for the live epoch's history entries (before the server's
+   * history is replaced: a SetHandles, or a restore that drops its redo branch). */
+  private async captureRevisions(): Promise<void> {
+    const s = this.session;
+    if (!s) return;
+    const r = await client.getSessionInfo({ sessionId: s.creds.sessionId, token: s.creds.token });
+    const edit = r.info?.edit;
+    if (!edit) return;
+    this.timeline.takeRevisions(edit.steps.map((st) => (st.revision === undefined ? null : Number(st.revision))));
+    this.serverPos = edit.position;
+  }
+
+  /** SetHandles for `specs` on the current shape: a new epoch of the history (not a step). */
+  private async setHandlesRaw(specs: GroupSpec[]): Promise<void> {
     const s = this.session!;
-    await this.coalescer.idle();
+    const groups = specs.map((g) => create(HandleGroupSchema, { role: g.role === "fixed" ? HandleRole.FIXED : HandleRole.HANDLE, vertices: g.vertices }));
     await this.banner.progress("Factorizing…", async () => {
       this.banner.status("Factorizing…");
       const t = performance.now();
@@ -506,14 +625,33 @@ class App {
         (p) => this.banner.status(progressText("Factorizing…", p)),
       );
       const nh = groups.filter((g) => g.role === HandleRole.HANDLE).length;
-      this.setStatus(`Handles set (${nh} handle group${nh === 1 ? "" : "s"}, ${groups.length - nh} fixed) in ${((performance.now() - t) / 1000).toFixed(2)} s — drag the orange handle`);
-      s.anchorsAtRest = s.shapeAtRest;
+      this.setStatus(`Handles set (${nh} handle group${nh === 1 ? "" : "s"}, ${groups.length - nh} fixed) in ${((performance.now() - t) / 1000).toFixed(2)} s — drag a handle`);
+      s.anchorsAtRest = s.state.revision === 0 && s.restKnown;
       this.adoptGroups(r.info?.groups.length ? r.info.groups : groups);
     });
-    this.resetMoves();
+    this.timeline.addEpoch({ groups: this.appliedSpecs(), anchors: s.anchors.map((a) => a.positions) });
+    this.states = identityStates(s.groups.length);
+    this.serverPos = 0;
+    this.coalescer.reset();
+  }
+
+  /** Sets new groups as a step of the history (the server's own history starts again). The
+   * first groups of a session start the history: there is no state without groups to go back to. */
+  private async setHandles(specs: GroupSpec[], capture = true): Promise<void> {
+    const s = this.session!;
+    await this.coalescer.idle();
+    const first = s.groups.length === 0;
+    if (capture && !first && this.timeline.current) await this.captureRevisions();
+    await this.setHandlesRaw(specs);
+    if (first) this.timeline.clearEntries();
+    this.timeline.push({
+      epoch: this.timeline.live, serverPos: 0, states: cloneStates(this.states), settings: this.currentSettings(), draft: null,
+      revision: s.state.revision,
+    });
+    this.updateUndoButtons();
     this.recolor();
     this.updateReady();
-    if (this.tool !== "move") this.setTool("move");
+    if (this.tool !== "move" && this.tool !== "grab") this.setTool("move");
   }
 
   /** Sends the painted groups (SetHandles). Returns false if they are not valid or the call failed. */
@@ -522,13 +660,12 @@ class App {
     if (!s || s.role !== "edit" || s.gone) return false;
     const msg = s.draft.validate();
     if (msg) {
-      this.banner.message(msg);
+      this.updateReady(); // the notice says what is missing, with its way out
       return false;
     }
     this.banner.clearError();
-    const groups = s.draft.specs().map((g) => create(HandleGroupSchema, { role: g.role === "fixed" ? HandleRole.FIXED : HandleRole.HANDLE, vertices: g.vertices }));
     try {
-      await this.setHandles(groups);
+      await this.setHandles(s.draft.specs());
       return true;
     } catch (e) {
       this.fail("Apply handles failed", e, "handles");
@@ -549,19 +686,52 @@ class App {
     const s = this.session;
     if (!s || s.role !== "edit" || s.gone || i < 0 || i >= s.draft.size) return;
     s.draft.delete(i);
+    // Deleting takes effect at once when the rest is a valid set; else the notice says what is
+    // missing (with one click to fix it, or undo).
+    if (!s.draft.validate()) {
+      this.banner.clearError();
+      try {
+        await this.setHandles(s.draft.specs());
+      } catch (e) {
+        this.fail("Delete failed", e, "handles");
+        this.afterDraftChange(); // not applied: the painted groups say so
+      }
+      return;
+    }
     this.afterDraftChange();
-    // Deleting takes effect at once when the rest is a valid set; else it waits for more painting.
-    if (!s.draft.validate()) await this.applyHandles();
-    else this.banner.message(`${s.draft.validate()} The deleted group is still applied until then.`);
   }
 
+  /** The painted groups changed: a step of the history (undo brings them back). */
   private afterDraftChange(): void {
     const s = this.session;
     if (!s) return;
     this.dirty = !s.draft.equals(this.appliedSpecs());
+    const cur = this.timeline.current;
+    if (cur) this.timeline.push(derive(cur, { draft: this.dirty ? s.draft.specs() : null }));
     this.renderGroups();
     this.recolor();
+    this.updateUndoButtons();
     this.updateReady();
+  }
+
+  /** "Fix the far side": a fixed group on the side of each handle's part away from the handles. */
+  private async fixFarSide(): Promise<void> {
+    const s = this.session;
+    if (!s) return;
+    const topo = this.topology(s);
+    const specs = s.draft.specs();
+    const taken = new Set(specs.flatMap((g) => g.vertices));
+    const handles = specs.filter((g) => g.role === "handle").flatMap((g) => g.vertices);
+    if (handles.length === 0) return;
+    const c = centroidOfRows(handles.flatMap((v) => [...s.state.positions.subarray(v * 3, v * 3 + 3)]))!;
+    const comp = topo.components.id[handles[0]];
+    const far = farSide(s.state.positions, topo.components.id, comp, [c.x, c.y, c.z], (v) => taken.has(v));
+    if (far.length === 0) return;
+    s.draft.beginStroke("fixed", false);
+    s.draft.paint(far);
+    s.draft.endStroke();
+    this.afterDraftChange();
+    await this.applyHandles();
   }
 
   private renderGroups(): void {
@@ -580,15 +750,7 @@ class App {
     $btn("reset-rest").disabled = !edit || this.handleIndices().length === 0 || plan === "unavailable";
     $btn("reset-rest").title = plan === "unavailable"
       ? "The server no longer keeps this session's rest mesh (revision 0), so the rest pose is unknown here."
-      : "Every handle back to its rest position; the mesh returns to the rest pose (undoable)";
-  }
-
-  private resetMoves(): void {
-    const n = this.session?.groups.length ?? 0;
-    this.states = identityStates(n);
-    this.history.reset(identityStates(n));
-    this.coalescer.reset();
-    this.updateUndoButtons();
+      : "Every handle back to its rest position; the mesh returns to the rest pose exactly (undoable)";
   }
 
   private centroidOf(vs: ArrayLike<number>): THREE.Vector3 | null {
@@ -608,7 +770,15 @@ class App {
     return idx.map((i) => ({ index: i, vertices: s.groups[i].vertices, centroid: this.centroidOf(s.groups[i].vertices) }));
   }
 
-  // ---------- moves ----------
+  private topology(s: Session): NonNullable<Session["topology"]> {
+    if (!s.topology) {
+      const adjacency = buildAdjacency(s.indices, s.state.vertexCount);
+      s.topology = { adjacency, components: components(adjacency, s.state.vertexCount) };
+    }
+    return s.topology;
+  }
+
+  // ---------- settings ----------
 
   private method(): Method {
     return Number($sel("method").value) as Method;
@@ -620,6 +790,33 @@ class App {
 
   private rigidity(): number {
     return rigidityValue(Number($in("rigidity").value));
+  }
+
+  /** The solver settings the controls show (a history entry's). */
+  private currentSettings(): Settings {
+    return {
+      method: this.method(), ora: $in("ora").checked, rigidityStep: Number($in("rigidity").value), iterations: this.iterationsValue,
+      magnifyScale: Number($in("magnify").value), magnify: this.session?.selection.magnifyIndices() ?? [],
+    };
+  }
+
+  /** Shows `st` in the controls (an undo or redo to a step solved with them). */
+  private applySettings(st: Settings): void {
+    const s = this.session;
+    $sel("method").value = String(st.method);
+    $in("ora").checked = st.ora;
+    $in("rigidity").value = String(st.rigidityStep);
+    $in("iterations").value = String(st.iterations);
+    this.iterationsValue = st.iterations;
+    this.checkIterations();
+    $in("magnify").value = String(st.magnifyScale);
+    $("magnify-val").textContent = st.magnifyScale.toFixed(2);
+    if (s) {
+      s.selection.clear();
+      s.selection.paint(st.magnify, "magnify");
+    }
+    this.showRigidity();
+    this.updateMethodAvailability();
   }
 
   private showRigidity(): void {
@@ -649,55 +846,68 @@ class App {
     if (!scaleAware && $sel("paint-mode").value === "magnify") $sel("paint-mode").value = "handle";
   }
 
-  private submitMove(states: GroupStates, t0: number, force = false, reset = false,
-    history: HistoryAction = HistoryAction.UNSPECIFIED, gesture = 0n): void {
+  /** A setting changed: solve again with it, as a step of the history (the server also keeps it
+   * for the next page that opens the session). */
+  private resolveWithSettings(): void {
+    const cur = this.timeline.current;
+    if (this.handleIndices().length === 0 || !cur || this.dirty) return;
+    const entry = derive(cur, { settings: this.currentSettings(), serverPos: -1, revision: null, draft: null });
+    this.submitMove(this.states, performance.now(), { force: true, entry });
+    this.timeline.push(entry);
+    this.updateUndoButtons();
+  }
+
+  // ---------- moves ----------
+
+  private submitMove(states: GroupStates, t0: number, o: { force?: boolean; gesture?: bigint; entry?: Entry | null } = {}): void {
     const s = this.session;
     if (!s || s.gone || this.handleIndices().length === 0 || s.role !== "edit") return;
     this.states = cloneStates(states);
-    s.shapeAtRest = reset;
-    // Undo and redo must each reach the server (its history moves one step per call).
-    const barrier = history !== HistoryAction.UNSPECIFIED;
-    this.coalescer.submit({ states: cloneStates(states), t0, opts: this.optsKey(), reset, history, gesture }, force, barrier);
+    this.coalescer.submit({ states: cloneStates(states), t0, opts: this.optsKey(), gesture: o.gesture ?? 0n, entry: o.entry ?? null }, o.force ?? false);
     this.scheduleTargetGhost();
+  }
+
+  /** The moves of every handle group about the live anchors (moves are absolute). */
+  private groupMoves(states: GroupStates) {
+    const s = this.session!;
+    return this.handleIndices().map((i) => {
+      const c = s.anchors[i]?.centroid ?? new THREE.Vector3();
+      return toGroupMove(i, states[i], [c.x, c.y, c.z]);
+    });
+  }
+
+  /** The request fields for the controls' settings. */
+  private settingsRequest(): Pick<MoveHandlesRequest, "method" | "ora" | "rigidity" | "maxIterations" | "magnify" | "encoding" | "omitPositions" | "editor"> {
+    const mag = this.session?.selection.magnifyIndices() ?? [];
+    return {
+      method: this.method(), ora: $in("ora").checked, rigidity: this.rigidity(), maxIterations: this.iterationsValue, encoding: ENCODING,
+      omitPositions: UPDATES !== undefined, // link-sized updates (issue 45): geometry comes from Watch only
+      editor: "web-viewer",
+      magnify: mag.length ? [create(MagnifyRegionSchema, { vertices: mag, scale: Number($in("magnify").value) })] : [],
+    };
   }
 
   private sendMove(t: MoveTarget): Promise<MoveHandlesResponse> {
     const s = this.session!;
-    const mag = t.reset ? [] : s.selection.magnifyIndices();
-    // Every handle group, every time: moves are absolute, so the others keep their targets.
-    // Undo / redo send none: the server applies its history's step.
-    const moves = t.history !== HistoryAction.UNSPECIFIED ? [] : this.handleIndices().map((i) => {
-      const c = s.anchors[i]?.centroid ?? new THREE.Vector3();
-      return toGroupMove(i, t.states[i], [c.x, c.y, c.z]);
-    });
     return client.moveHandles(
-      {
-        sessionId: s.creds.sessionId,
-        token: s.creds.token,
-        moves,
-        // Reset: one direct Laplacian solve, no warm start from the deformed shape, so the rest
-        // targets give the rest mesh itself (an iterative method would stop near it).
-        method: t.reset ? Method.LAPLACIAN : this.method(),
-        ora: t.reset ? false : $in("ora").checked,
-        rigidity: this.rigidity(),
-        maxIterations: t.reset ? 1 : this.iterationsValue,
-        encoding: ENCODING,
-        omitPositions: UPDATES !== undefined, // geometry comes from Watch only
-        editor: t.reset ? "web-viewer reset" : "web-viewer",
-        history: t.history,
-        gesture: t.gesture,
-        // The reset's Laplacian solve is a means, not the user's choice of method.
-        keepSettings: t.reset,
-        magnify: mag.length ? [create(MagnifyRegionSchema, { vertices: mag, scale: Number($in("magnify").value) })] : [],
-      },
+      { sessionId: s.creds.sessionId, token: s.creds.token, moves: this.groupMoves(t.states), gesture: t.gesture, ...this.settingsRequest() },
       { timeoutMs: 60_000 },
     );
   }
 
-  private onMoveResult(r: MoveHandlesResponse, t: MoveTarget): void {
-    // Geometry comes from Watch only (in order); the response is for flow control and latency.
+  /** A move's answer: its server step (for the history) and the latency bookkeeping. */
+  private onMoveResult(r: MoveHandlesResponse, t: MoveTarget | null): void {
     const rev = Number(r.result?.revision ?? -1);
-    if (rev < 0) return;
+    if (r.result?.historyPosition !== undefined) {
+      this.serverPos = r.result.historyPosition;
+      if (t?.entry) {
+        t.entry.serverPos = this.serverPos;
+        t.entry.epoch = this.timeline.live;
+        t.entry.revision = rev >= 0 ? rev : null;
+      }
+    }
+    if (rev < 0 || !t) return;
+    // Geometry comes from Watch only (in order); the response is for flow control and latency.
     const done = this.frameAt.get(rev);
     if (done !== undefined) {
       this.metrics.dragToFrameMs.push(done - t.t0);
@@ -710,432 +920,301 @@ class App {
   private dragBase: GroupStates = [];
   private dragGroup = -1;
   private dragGesture = 0n;
+  private dragEntry: Entry | null = null;
+  private dragSent = false;
   private gizmoGesture = 0n;
+
+  /** A gesture's entry: the current state's, to be filled in at its end. */
+  private newGestureEntry(): Entry | null {
+    const cur = this.timeline.current;
+    return cur ? derive(cur, { serverPos: -1, revision: null, draft: null, settings: this.currentSettings() }) : null;
+  }
+
   private dragStart(group: number): void {
     this.dragBase = cloneStates(this.states);
     this.dragGroup = group;
     this.dragGesture = newGesture();
+    this.dragEntry = this.newGestureEntry();
+    this.dragSent = false;
     dismissFirstHint();
   }
   private dragMove(delta: THREE.Vector3, t0: number): void {
+    const pick = this.pendingPick;
+    if (pick) {
+      // The handles are still being set: keep the newest travel, sent once they are.
+      pick.delta = delta.clone();
+      pick.t0 = t0;
+      if (!pick.applied) return;
+    }
     const i = this.dragGroup;
     if (!this.isHandle(i)) return;
     const st = cloneStates(this.dragBase);
     const b = this.dragBase[i].translation;
     st[i].translation = [b[0] + delta.x, b[1] + delta.y, b[2] + delta.z];
-    this.submitMove(st, t0, false, false, HistoryAction.UNSPECIFIED, this.dragGesture);
+    this.submitMove(st, t0, { gesture: this.dragGesture, entry: this.dragEntry });
+    this.dragSent = true;
     this.placeGizmo();
   }
   private dragEnd(): void {
-    this.history.push(cloneStates(this.states));
+    const pick = this.pendingPick;
+    if (pick && !pick.applied) {
+      pick.released = true; // finished once the handles are set
+      return;
+    }
+    this.finishGesture();
+  }
+  private finishGesture(): void {
+    this.pendingPick = null;
+    if (this.dragSent && this.dragEntry) {
+      this.dragEntry.states = cloneStates(this.states);
+      this.timeline.push(this.dragEntry);
+    }
+    this.dragEntry = null;
+    this.dragSent = false;
     this.updateUndoButtons();
+    this.updateReady();
   }
 
-  // ---------- reset, numeric entry ----------
+  // ---------- pick and drag ----------
 
-  /** Every handle back to its rest position, the mesh back to the rest pose (see planReset). */
+  private grabRadius(): number {
+    return Number($in("grab-radius").value) * this.meshScale();
+  }
+
+  private showGrabRadius(): void {
+    $("grab-radius-val").textContent = `${(Number($in("grab-radius").value) * 100).toFixed(1)}% of size`;
+  }
+
+  private radiusWheel(dy: number): void {
+    const el = $in("grab-radius");
+    // Wheel up (negative) grows it, as Blender's proportional size.
+    const v = Math.min(Number(el.max), Math.max(Number(el.min), Number(el.value) * Math.exp(-dy / 600)));
+    el.value = String(v);
+    this.showGrabRadius();
+    const hit = this.interaction.lastPointer && this.interaction.pickAt(this.viewer, this.interaction.lastPointer.x, this.interaction.lastPointer.y);
+    this.viewer.setGrabPreview(hit ? hit.point : null, this.grabRadius());
+  }
+
+  /** A press on the mesh with Grab: the groups it adds are set, and the drag goes on meanwhile. */
+  private pickStart(hit: PickHit): boolean {
+    const s = this.session;
+    if (!s || this.dirty || this.historyBusy) return false;
+    const topo = this.topology(s);
+    const specs = this.appliedSpecs();
+    const res = pickGroups({
+      positions: s.state.positions, adjacency: topo.adjacency, components: topo.components, groupOf: (v) => s.draft.groupOf(v),
+      roles: specs.map((g) => g.role), point: [hit.point.x, hit.point.y, hit.point.z], faceVertices: hit.face, radius: this.grabRadius(),
+    });
+    if ("reason" in res) {
+      this.banner.message(res.reason);
+      return false;
+    }
+    this.banner.clearError();
+    const next: GroupSpec[] = [...specs, { role: "handle", vertices: res.handle }];
+    const handleIndex = next.length - 1;
+    if (res.farFixed.length) next.push({ role: "fixed", vertices: res.farFixed });
+    if (res.otherParts.length) next.push({ role: "fixed", vertices: res.otherParts });
+    const pick: PendingPick = { delta: null, t0: performance.now(), applied: false, released: false, failed: false };
+    this.pendingPick = pick;
+    this.viewer.setGrabPreview(null, 0);
+    dismissFirstHint();
+    void (async () => {
+      try {
+        await this.setHandles(next);
+      } catch (e) {
+        pick.failed = true;
+        this.pendingPick = null;
+        this.fail("Pick failed", e, "handles");
+        return;
+      }
+      if (this.pendingPick !== pick) return;
+      this.selectGroup(handleIndex);
+      this.dragBase = cloneStates(this.states);
+      this.dragGroup = handleIndex;
+      this.dragGesture = newGesture();
+      this.dragEntry = this.newGestureEntry();
+      this.dragSent = false;
+      pick.applied = true;
+      if (pick.delta) this.dragMove(pick.delta, pick.t0);
+      if (pick.released) this.finishGesture();
+    })();
+    return true;
+  }
+
+  // ---------- reset ----------
+
+  /** Every handle back to its rest position, the mesh back to the rest pose exactly: the
+   * server commits revision 0's positions again (restore_revision), no solve. */
   private async resetToRest(): Promise<void> {
     const s = this.session;
     if (!s || s.role !== "edit" || s.gone || this.handleIndices().length === 0) return;
     if (this.dirty && !(await this.applyHandles())) return;
-    $in("magnify").value = "1";
-    $("magnify-val").textContent = "1.00";
     const plan = planReset(s.restKnown, s.anchorsAtRest);
     if (plan === "unavailable") {
       this.banner.message("Reset is not possible: the server no longer keeps this session's rest mesh.");
       return;
     }
-    if (plan === "identity") {
-      const id = identityStates(s.groups.length);
-      this.submitMove(id, performance.now(), true, true);
-      this.history.push(cloneStates(id));
-      this.updateUndoButtons();
-      this.placeGizmo();
+    this.closeModal();
+    await this.runHistoryOp(async () => {
+      $in("magnify").value = "1";
+      $("magnify-val").textContent = "1.00";
+      if (plan === "identity") {
+        const id = identityStates(s.groups.length);
+        const entry = derive(this.timeline.current!, { states: id, settings: this.currentSettings(), serverPos: -1, revision: null, draft: null });
+        const r = await this.historyMove({ moves: this.groupMoves(id), restoreRevision: 0n });
+        this.states = id;
+        this.onMoveResult(r, null);
+        entry.serverPos = this.serverPos;
+        entry.revision = Number(r.result?.revision ?? -1);
+        this.timeline.push(entry);
+      } else {
+        // The anchors are a deformed shape: the rest pose first, then the same groups set again
+        // there (anchors = rest): one step of the history. The steps' revisions are taken
+        // before the restore makes the rest pose the server's current one.
+        await this.captureRevisions();
+        const r = await this.historyMove({ moves: [], restoreRevision: 0n });
+        this.onMoveResult(r, null);
+        await this.waitForRevision(s, Number(r.result?.revision ?? 0));
+        await this.setHandles(this.appliedSpecs(), false);
+      }
       this.banner.status("Reset to rest");
-      return;
-    }
-    // The anchors are a deformed shape: send every constrained vertex to its rest position as one
-    // temporary handle group, then set the real groups again there (anchors = rest).
-    const groups = s.groups.map((g) => create(HandleGroupSchema, { role: g.role, vertices: [...g.vertices] }));
-    const all = [...new Set(groups.flatMap((g) => g.vertices))].sort((a, b) => a - b);
-    const positions: number[] = [];
-    for (const v of all) positions.push(s.rest[v * 3], s.rest[v * 3 + 1], s.rest[v * 3 + 2]);
-    try {
-      await this.coalescer.idle();
-      await this.banner.progress("Resetting to rest…", async () => {
-        const opts = { sessionId: s.creds.sessionId, token: s.creds.token };
-        await client.setHandles({ ...opts, groups: [create(HandleGroupSchema, { role: HandleRole.HANDLE, vertices: all })], prepare: Method.LAPLACIAN });
-        await client.moveHandles({
-          ...opts, method: Method.LAPLACIAN, maxIterations: 1, encoding: ENCODING, editor: "web-viewer reset", keepSettings: true,
-          targets: create(VertexTargetsSchema, { vertices: all, positions }),
-        }, { timeoutMs: 60_000 });
-        s.shapeAtRest = true;
-        // The positions on screen become the anchors: wait for the reset revision to arrive.
-        await this.waitForShape(s, all, positions);
-        await this.setHandles(groups);
-      });
-      this.banner.status("Reset to rest");
-    } catch (e) {
-      this.fail("Reset failed", e, "reset");
-      s.shapeAtRest = false;
-      // Put the real groups back if the temporary one is still set.
-      if (!s.gone) await this.setHandles(groups).catch(() => undefined);
-    }
+    }, "Reset failed", "reset");
   }
 
-  /** Resolves once the rendered vertices `vs` are at `target` (bounded: 10 s). */
-  private waitForShape(s: Session, vs: number[], target: number[]): Promise<void> {
-    const scale = this.meshScale();
-    const at = () => vs.every((v, k) => Math.abs(s.state.positions[v * 3] - target[k * 3]) + Math.abs(s.state.positions[v * 3 + 1] - target[k * 3 + 1]) + Math.abs(s.state.positions[v * 3 + 2] - target[k * 3 + 2]) <= 1e-4 * scale);
+  /** Resolves once the frame of `revision` (or a later one) is on screen (bounded: 30 s). */
+  private waitForRevision(s: Session, revision: number): Promise<void> {
     return new Promise((resolve) => {
       const t0 = performance.now();
-      const tick = () => (at() || performance.now() - t0 > 10_000 || s.gone ? resolve() : setTimeout(tick, 30));
+      const tick = () => (s.state.revision >= revision || performance.now() - t0 > 30_000 || s.gone ? resolve() : setTimeout(tick, 20));
       tick();
     });
   }
 
-  private startKeyCommand(key: string): boolean {
-    const cmd = startCommand(key);
-    if (!cmd) return false;
-    if (this.selectedHandle() < 0) {
-      this.banner.message(this.dirty ? "Apply the painted groups first, then select a handle group." : "Select a handle group first (click it, or pick it in the Groups list).");
-      return true;
-    }
-    this.keyCmd = cmd;
-    this.setGizmoMode(cmd.kind);
-    this.showKeyCommand();
-    return true;
-  }
-
-  private feedKeyCommand(key: string): void {
-    if (!this.keyCmd) return;
-    const step = feedKey(this.keyCmd, key);
-    if (step.state === "cancel") {
-      this.cancelKeyCommand();
-      return;
-    }
-    if (step.state === "editing") {
-      this.keyCmd = step.cmd;
-      if (step.cmd.kind !== this.viewer.gizmo.mode) this.setGizmoMode(step.cmd.kind);
-      this.showKeyCommand();
-      return;
-    }
-    this.cancelKeyCommand();
-    const r = step.resolved;
-    const i = this.selectedHandle();
-    if (!r.ok || i < 0) return;
-    // No axis (rotate only): about the line of sight, counter-clockwise as seen on screen.
-    const axis: Vec3 = r.axis ? AXES[r.axis] : (this.viewer.viewDirection().negate().toArray() as Vec3);
-    const st = cloneStates(this.states);
-    st[i] = composeCommand(st[i], r.kind, axis, r.value);
-    this.submitMove(st, performance.now());
-    this.history.push(cloneStates(st));
-    this.updateUndoButtons();
-    this.placeGizmo();
-  }
-
-  private cancelKeyCommand(): void {
-    this.keyCmd = null;
-    $("keycmd").hidden = true;
-  }
-
-  private showKeyCommand(): void {
-    $("keycmd").textContent = this.keyCmd ? describeCommand(this.keyCmd) : "";
-    $("keycmd").hidden = !this.keyCmd;
-  }
-
-  // ---------- gizmo, markers, target ghost ----------
-
-  private wireGizmo(): void {
-    const g = this.viewer.gizmo;
-    g.attach(this.viewer.pivotObject);
-    g.addEventListener("objectChange", () => {
-      const o = this.viewer.pivotObject;
-      const i = this.selectedHandle();
-      const c = i >= 0 ? this.session?.anchors[i]?.centroid : null;
-      if (!c) return;
-      // Uniform scale: take the axis the user pulled (largest change from the current scale).
-      const prev = this.states[i].scale;
-      const axes = [o.scale.x, o.scale.y, o.scale.z];
-      let sc = axes.reduce((a, b) => (Math.abs(b - prev) > Math.abs(a - prev) ? b : a), prev);
-      sc = Math.max(0.05, sc);
-      o.scale.setScalar(sc);
-      const q = o.quaternion;
-      const st = cloneStates(this.states);
-      st[i] = { translation: [o.position.x - c.x, o.position.y - c.y, o.position.z - c.z], rotation: [q.w, q.x, q.y, q.z], scale: sc };
-      // One gizmo drag is one undo step on the server too.
-      this.submitMove(st, performance.now(), false, false, HistoryAction.UNSPECIFIED, this.gizmoGesture);
-      this.placeMarkers();
-    });
-    g.addEventListener("dragging-changed", (e: any) => {
-      if (e.value) {
-        this.gizmoGesture = newGesture();
-        dismissFirstHint();
-      } else {
-        this.gizmoGesture = 0n;
-        this.dragEnd();
-      }
-    });
-  }
-
-  /** Gizmo on the selected handle group, at pivot + translation (the centroid of its moved
-   * anchors) with its R and s; a marker sphere on every other handle group. */
-  private placeGizmo(): void {
-    const s = this.session;
-    const o = this.viewer.pivotObject;
-    const i = this.selectedHandle();
-    const c = i >= 0 ? s?.anchors[i]?.centroid : null;
-    const show = !!c && s!.role === "edit" && !s!.gone && this.tool === "move";
-    this.viewer.gizmo.getHelper().visible = show;
-    this.viewer.gizmo.enabled = show;
-    if (c) {
-      const m = this.states[i];
-      o.position.set(c.x + m.translation[0], c.y + m.translation[1], c.z + m.translation[2]);
-      o.quaternion.set(m.rotation[1], m.rotation[2], m.rotation[3], m.rotation[0]);
-      o.scale.setScalar(m.scale);
-    }
-    this.placeMarkers();
-  }
-
-  private placeMarkers(): void {
-    const s = this.session;
-    if (!s || s.role !== "edit" || s.gone || this.tool !== "move") {
-      this.viewer.setMarkers([]);
-      return;
-    }
-    const sel = this.selectedHandle();
-    const items = [];
-    for (const i of this.handleIndices()) {
-      const c = s.anchors[i]?.centroid;
-      const t = this.states[i]?.translation;
-      if (!c || !t) continue;
-      items.push({ at: [c.x + t[0], c.y + t[1], c.z + t[2]] as [number, number, number], color: groupColor("handle", s.draft.ordinal(i)), selected: i === sel });
-    }
-    this.viewer.setMarkers(items);
-  }
-
-  /** While a move waits on a slow solve, dots show where the handle vertices are headed. */
-  private scheduleTargetGhost(): void {
-    clearTimeout(this.targetTimer);
-    this.targetTimer = setTimeout(() => {
-      const s = this.session;
-      if (!s || !this.coalescer.busy) return;
-      const pts: number[] = [];
-      for (const i of this.handleIndices()) {
-        const a = s.anchors[i];
-        const c = a?.centroid;
-        if (!a || !c) continue;
-        for (let k = 0; k < a.positions.length; k += 3) {
-          pts.push(...applyMove(this.states[i], [c.x, c.y, c.z], [a.positions[k], a.positions[k + 1], a.positions[k + 2]]));
-        }
-      }
-      this.viewer.setTargets(Float32Array.from(pts));
-    }, 250);
-  }
-
-  // ---------- Watch ----------
-
-  private async watchLoop(s: Session, gen: number): Promise<void> {
-    let backoff = 250;
-    while (s.watchGen === gen) {
-      const ac = new AbortController();
-      s.watchAbort = ac;
-      try {
-        const stream = client.watch(
-          { sessionId: s.creds.sessionId, token: s.creds.token, encoding: ENCODING, updates: UPDATES },
-          { signal: ac.signal, contextValues: createContextValues().set(kSessionId, s.creds.sessionId) },
-        );
-        for await (const upd of stream) {
-          if (s.watchGen !== gen) return;
-          backoff = 250;
-          this.onUpdate(s, upd);
-        }
-        if (s.watchGen === gen) {
-          // Ends OK only when the session is closed: nothing to reconnect to, nothing to edit.
-          s.resolveSnapshot();
-          this.markGone(s, "The session was closed by its owner (or an operator). Its link no longer opens it.");
-        }
-        return;
-      } catch (e) {
-        if (s.watchGen !== gen) return;
-        const code = ConnectError.from(e).code;
-        if (code === Code.NotFound) {
-          s.resolveSnapshot();
-          this.markGone(s);
-          return;
-        }
-        if (code === Code.PermissionDenied || code === Code.InvalidArgument) {
-          this.banner.error("Watching the session failed", e, "watch");
-          hooks.ready = false;
-          s.resolveSnapshot();
-          return;
-        }
-        this.banner.status(`Connection lost — reconnecting in ${(backoff / 1000).toFixed(1)} s`);
-        await new Promise((r) => setTimeout(r, backoff));
-        backoff = Math.min(backoff * 2, 10_000);
-      }
-    }
-  }
-
-  private onUpdate(s: Session, upd: DeformUpdate): void {
-    const bytes = updateWireBytes(upd);
-    const r = upd.result!;
-    this.metrics.updateBytes.push(bytes);
-    this.metrics.updateEncodings.push(encodingName(r.encoding));
-    showBytes(bytes, encodingName(r.encoding));
-    let applied;
-    try {
-      applied = s.state.apply(upd);
-    } catch (e) {
-      this.banner.error("Bad update from the server", e);
-      return;
-    }
-    if (!applied.applied) return;
-    const rev = s.state.revision;
-    this.viewer.updatePositions(s.state.positions);
-    if ($in("heatmap").checked) this.recolor();
-    showResult(r, rev, this.interaction.dragging || this.viewer.gizmo.dragging);
-    hooks.revision = rev;
-    this.metrics.updatesRendered++;
-    this.metrics.renderedAt.push(performance.now());
-    this.metrics.renderedRefinement.push(r.refinement);
-    this.metrics.renderedConverged.push(r.converged);
-    if (!this.coalescer.busy) this.viewer.setTargets(null);
-    if (upd.isSnapshot) s.resolveSnapshot();
-    if (!this.viewer.gizmo.dragging) this.placeGizmo();
-    this.viewer.onNextFrame(() => {
-      const now = performance.now();
-      const t0 = this.moveT0.get(rev);
-      if (t0 !== undefined) {
-        this.metrics.dragToFrameMs.push(now - t0);
-        this.moveT0.delete(rev);
-      } else {
-        this.frameAt.set(rev, now);
-      }
-      // Bound the bookkeeping: revisions far behind will never be matched.
-      for (const m of [this.frameAt, this.moveT0]) for (const k of m.keys()) if (k < rev - 64) m.delete(k);
-    });
-  }
-
-  // ---------- colours ----------
-
-  private recolor(): void {
-    const s = this.session;
-    if (!s) return;
-    const n = s.state.vertexCount;
-    const rgb = new Float32Array(n * 3);
-    const heat = $in("heatmap").checked;
-    $("legend").hidden = !heat;
-    if (heat && $sel("heatmap-mode").value === "area") {
-      // |log(area / rest area)|: scale drift, which the angle map hides by design.
-      const signed = vertexAreaLog(s.restAreas2, s.state.positions, s.indices, n);
-      const d = signed.map(Math.abs);
-      const max = scaleMax(d, 0.01);
-      $("legend-min").textContent = "×1";
-      $("legend-max").textContent = `×${Math.exp(max).toFixed(2)} or ÷${Math.exp(max).toFixed(2)}`;
-      $("legend-what").textContent = "face area vs rest (mean |log ratio|)";
-      for (let i = 0; i < n; i++) rgb.set(ramp(d[i] / max), i * 3);
-    } else if (heat) {
-      const d = vertexDistortion(s.restAngles, s.state.positions, s.indices, n);
-      const max = scaleMax(d, THREE.MathUtils.degToRad(0.5));
-      $("legend-min").textContent = "0°";
-      $("legend-max").textContent = `${THREE.MathUtils.radToDeg(max).toFixed(1)}°`;
-      $("legend-what").textContent = "mean |Δ corner angle|";
-      for (let i = 0; i < n; i++) rgb.set(ramp(d[i] / max), i * 3);
-    } else {
-      const g = s.draft;
-      // Per group: its colour, lighter for the selected one.
-      const palette = Array.from({ length: g.size }, (_, k) => {
-        const c = groupColor(g.role(k), g.ordinal(k));
-        return k === g.selected ? c.map((x) => x + (1 - x) * 0.4) : c;
-      });
-      for (let i = 0; i < n; i++) {
-        const k = g.groupOf(i);
-        const c = k >= 0 ? palette[k] : s.selection.magnify[i] ? COLORS.magnify : COLORS.base;
-        rgb[i * 3] = c[0]; rgb[i * 3 + 1] = c[1]; rgb[i * 3 + 2] = c[2];
-      }
-    }
-    this.viewer.setColors(rgb);
-  }
-
-  // ---------- painting ----------
-
-  private paintStart(extend: boolean): void {
-    const s = this.session;
-    const mode = $sel("paint-mode").value as PaintMode;
-    if (!s || (mode !== "fixed" && mode !== "handle")) return;
-    s.draft.beginStroke(mode, extend || $in("extend-group").checked);
-  }
-
-  private paint(ix: number[]): void {
-    const s = this.session;
-    if (!s) return;
-    const mode = $sel("paint-mode").value as PaintMode;
-    if (ix.length === 0) {
-      if (this.tool === "lasso") this.banner.message("The lasso selected no vertex facing the camera.");
-      return;
-    }
-    if (mode === "fixed" || mode === "handle") s.draft.paint(ix);
-    else if (mode === "erase") s.draft.erase(ix);
-    s.selection.paint(ix, mode);
-    if (mode === "magnify" || mode === "erase") {
-      this.updateMethodAvailability();
-      this.resolveWithSettings();
-    }
-    this.recolor();
-  }
-
-  private paintEnd(): void {
-    this.session?.draft.endStroke();
-    this.afterDraftChange();
-  }
-
-  private meshScale(): number {
-    const bb = this.viewer.geometry?.boundingBox;
-    return bb ? bb.getSize(new THREE.Vector3()).length() : 1;
-  }
-
-  // ---------- controls ----------
-
-  private setTool(t: Tool): void {
-    // Back to Move with painted changes: apply them (that is what the user wants to drag).
-    if (t === "move" && this.tool !== "move" && this.dirty && this.session?.draft.validate() === null) {
-      void this.applyHandles();
-      return;
-    }
-    this.tool = t;
-    for (const x of ["move", "brush", "lasso"] as const) $(`tool-${x}`).classList.toggle("on", x === t);
-    $("paint-opts").hidden = t === "move";
-    $("gizmo-modes").hidden = t !== "move";
-    $("brush-radius-row").hidden = t !== "brush";
-    this.viewer.orbit.enabled = true;
-    this.placeGizmo();
-  }
-
-  private setGizmoMode(m: "translate" | "rotate" | "scale"): void {
-    this.viewer.gizmo.setMode(m);
-    for (const x of ["translate", "rotate", "scale"]) $(`gizmo-${x}`).classList.toggle("on", x === m);
-  }
-
-  /** A setting changed: solve again with it (the server also keeps it for the next page that
-   * opens the session; an unchanged state adds no undo step). */
-  private resolveWithSettings(): void {
-    if (this.handleIndices().length > 0) this.submitMove(this.states, performance.now(), true);
-  }
+  // ---------- undo / redo ----------
 
   private updateUndoButtons(): void {
     const edit = this.session?.role === "edit" && !this.session.gone;
-    $btn("undo").disabled = !edit || !this.history.canUndo;
-    $btn("redo").disabled = !edit || !this.history.canRedo;
+    $btn("undo").disabled = !edit || !this.timeline.canUndo;
+    $btn("redo").disabled = !edit || !this.timeline.canRedo;
+    hooks.historyBusy = this.historyBusy;
   }
 
-  private undoRedo(redo: boolean): void {
+  /** A MoveHandles outside the coalescer (history steps, restores), with the controls' settings. */
+  private historyMove(parts: Omit<Partial<MoveHandlesRequest>, "$typeName" | "$unknown">): Promise<MoveHandlesResponse> {
+    const s = this.session!;
+    return client.moveHandles({ sessionId: s.creds.sessionId, token: s.creds.token, ...this.settingsRequest(), ...parts }, { timeoutMs: 60_000 });
+  }
+
+  /** Runs `op` after every queued move and history step, with moves held meanwhile. */
+  private runHistoryOp(op: () => Promise<void>, prefix: string, action: Action): Promise<void> {
+    const run = async () => {
+      const s = this.session;
+      if (!s || s.gone) return;
+      await this.coalescer.idle();
+      this.historyBusy = true;
+      this.updateUndoButtons();
+      try {
+        await op();
+      } catch (e) {
+        this.fail(prefix, e, action);
+      } finally {
+        // The server's state is no longer the last move sent: the same target must be sent again.
+        this.coalescer.reset();
+        this.historyBusy = false;
+        this.updateUndoButtons();
+        this.recolor();
+        this.renderGroups();
+        this.updateReady();
+        this.placeGizmo();
+      }
+    };
+    this.historyChain = this.historyChain.then(run, run);
+    return this.historyChain;
+  }
+
+  undoRedo(redo: boolean): void {
     if (this.session?.role !== "edit" || this.session.gone) return;
-    const st = redo ? this.history.redo() : this.history.undo();
-    if (!st) return;
-    this.submitMove(st, performance.now(), true, false, redo ? HistoryAction.REDO : HistoryAction.UNDO);
-    this.placeGizmo();
-    this.updateUndoButtons();
+    this.closeModal();
+    void this.runHistoryOp(() => this.stepHistory(redo), redo ? "Redo failed" : "Undo failed", "move");
+  }
+
+  /** One step of the page's history (timeline.ts says how it stays exact). */
+  private async stepHistory(redo: boolean): Promise<void> {
+    const s = this.session!;
+    const to = this.timeline.target(redo);
+    const from = this.timeline.current;
+    if (!to || !from) return;
+    let plan = this.timeline.plan(to, s.state.revision, this.appliedSpecs());
+    if (plan.setGroups || plan.shape.kind === "restore" || plan.shape.kind === "solve") {
+      await this.captureRevisions();
+      plan = this.timeline.plan(to, s.state.revision, this.appliedSpecs());
+    }
+    const fromPos = this.serverPos;
+    if (plan.setGroups) await this.setHandlesRaw(plan.setGroups);
+    this.applySettings(to.settings);
+    const live = this.timeline.live;
+    const states = to.epoch === live ? cloneStates(to.states) : plan.setGroups && plan.shape.kind === "none" ? identityStates(s.groups.length) : this.rebase(to);
+    const shape = plan.shape;
+    if (shape.kind === "history") {
+      const r = await this.historyMove({ history: shape.action === "undo" ? HistoryAction.UNDO : HistoryAction.REDO });
+      this.onMoveResult(r, null);
+      to.revision = Number(r.result?.revision ?? -1);
+      if (this.serverPos !== to.serverPos) {
+        // The server's history was not where the page thought (it drops its oldest steps past
+        // 100): put the state back by its positions instead.
+        await this.restoreOrSolve(to, states, fromPos);
+      }
+    } else if (shape.kind === "restore" || shape.kind === "solve") {
+      await this.restoreOrSolve(to, states, plan.setGroups ? 0 : fromPos);
+    } else if (plan.setGroups) {
+      to.epoch = live;
+      to.serverPos = 0;
+      to.revision = s.state.revision;
+    }
+    this.states = states;
+    to.states = cloneStates(states);
+    // The painted groups of that state.
+    s.draft = new GroupSet(s.state.vertexCount, to.draft ?? this.appliedSpecs());
+    s.draft.select(this.handleIndices()[0] ?? -1);
+    this.dirty = !s.draft.equals(this.appliedSpecs());
+    this.timeline.step(redo);
+    if (to.revision !== null) await this.waitForRevision(s, to.revision);
+  }
+
+  /** Commits `to`'s kept positions again (restore_revision) with `states` as its moves, or, when
+   * the server no longer keeps them, solves for those moves. */
+  private async restoreOrSolve(to: Entry, states: GroupStates, fromPos: number): Promise<void> {
+    let r: MoveHandlesResponse | null = null;
+    if (to.revision !== null) {
+      try {
+        r = await this.historyMove({ moves: this.groupMoves(states), restoreRevision: BigInt(to.revision) });
+      } catch (e) {
+        if (errorCode(e) !== Code.FailedPrecondition) throw e;
+        r = null; // no longer kept: solve
+      }
+    }
+    if (!r) {
+      this.banner.status("That step's shape is no longer kept by the server: solved again (close to it, not exact)");
+      r = await this.historyMove({ moves: this.groupMoves(states) });
+    }
+    this.onMoveResult(r, null);
+    this.timeline.recorded(to, this.serverPos, fromPos);
+    to.revision = Number(r.result?.revision ?? -1);
+  }
+
+  /** `e`'s moves re-expressed about the live anchors: each group's targets (its moves applied to
+   * its own epoch's anchors) fitted by a similarity of the live anchors. */
+  private rebase(e: Entry): GroupStates {
+    const s = this.session!;
+    const ep = this.timeline.epoch(e.epoch);
+    return s.groups.map((g, i) => {
+      if (g.role !== HandleRole.HANDLE || !ep || !ep.anchors[i] || !e.states[i]) return identityStates(1)[0];
+      const from = ep.anchors[i];
+      const c = centroidOfRows(from)!;
+      const targets: number[] = [];
+      for (let k = 0; k < from.length; k += 3) targets.push(...applyMove(e.states[i], [c.x, c.y, c.z], [from[k], from[k + 1], from[k + 2]]));
+      return fitSimilarity(s.anchors[i].positions, targets);
+    });
   }
 
   /** Validates the iterations field as typed; a bad value is shown and not used. */
@@ -1149,43 +1228,234 @@ class App {
     return r.ok;
   }
 
+  // ---------- modal transforms (G / R / S) ----------
+
+  private startModal(key: string): boolean {
+    const cmd = startCommand(key);
+    if (!cmd) return false;
+    let i = this.selectedHandle();
+    if (i < 0 && !this.dirty && this.handleIndices().length > 0) {
+      i = this.handleIndices()[0];
+      this.selectGroup(i);
+    }
+    if (i < 0 || this.historyBusy || this.pendingPick) {
+      if (this.dirty) this.updateReady();
+      else if (this.handleIndices().length === 0) this.banner.message("Nothing to move with G, R or S yet: pick a point and drag it (Grab), or paint a handle.");
+      return true;
+    }
+    const p = this.interaction.lastPointer;
+    this.modal = {
+      cmd, group: i, base: cloneStates(this.states), gesture: newGesture(), entry: this.newGestureEntry()!, start: p ? { ...p } : null,
+      now: p ? { ...p } : null, sent: false, label: "",
+    };
+    this.viewer.orbit.enabled = false;
+    this.setGizmoMode(cmd.kind);
+    dismissFirstHint();
+    this.showModal();
+    return true;
+  }
+
+  private modalPointer(x: number, y: number): void {
+    const m = this.modal;
+    if (!m) return;
+    if (!m.start) m.start = { x, y };
+    m.now = { x, y };
+    this.updateModal();
+  }
+
+  /** Sends the group's state for the command as it stands (pointer or typed amount). */
+  private updateModal(): void {
+    const m = this.modal;
+    const s = this.session;
+    if (!m || !s) return;
+    const value = typedValue(m.cmd);
+    if (value === null && (!m.start || !m.now)) {
+      this.showModal();
+      return;
+    }
+    const a = s.anchors[m.group]?.centroid;
+    if (!a) return;
+    const t = m.base[m.group].translation;
+    const centre = new THREE.Vector3(a.x + t[0], a.y + t[1], a.z + t[2]);
+    const cs = this.viewer.toScreen(centre.x, centre.y, centre.z) ?? [0, 0];
+    const start = m.start ?? { x: cs[0], y: cs[1] };
+    const now = m.now ?? start;
+    const plane = new THREE.Plane().setFromNormalAndCoplanarPoint(this.viewer.viewDirection(), centre);
+    const h0 = this.viewer.ray(start.x, start.y).intersectPlane(plane, new THREE.Vector3());
+    const h1 = this.viewer.ray(now.x, now.y).intersectPlane(plane, new THREE.Vector3());
+    const planeDelta: Vec3 = h0 && h1 ? [h1.x - h0.x, h1.y - h0.y, h1.z - h0.z] : [0, 0, 0];
+    const pointer: ModalPointer = {
+      centre: [cs[0], cs[1]], start: [start.x, start.y], now: [now.x, now.y], planeDelta,
+      towardViewer: this.viewer.viewDirection().negate().toArray() as Vec3,
+    };
+    const amount = modalState(m.base[m.group], m.cmd.kind, effectiveAxis(m.cmd), value, pointer);
+    m.label = amount.label;
+    const st = cloneStates(m.base);
+    st[m.group] = amount.state;
+    this.submitMove(st, performance.now(), { gesture: m.gesture, entry: m.entry });
+    m.sent = true;
+    this.placeGizmo();
+    this.showModal();
+  }
+
+  private feedModal(key: string): void {
+    const m = this.modal;
+    if (!m) return;
+    const step = feedKey(m.cmd, key);
+    if (step.state === "cancel") {
+      this.cancelModal();
+      return;
+    }
+    if (step.state === "apply") {
+      m.cmd = step.cmd;
+      this.confirmModal();
+      return;
+    }
+    const restarted = key.length === 1 && /[grs]/i.test(key);
+    m.cmd = step.cmd;
+    if (restarted) {
+      // A new command: from the state the first one started at, the pointer's travel anew.
+      m.start = m.now ? { ...m.now } : m.start;
+      m.label = "";
+      this.setGizmoMode(m.cmd.kind);
+    }
+    this.updateModal();
+  }
+
+  private confirmModal(): void {
+    const m = this.modal;
+    if (!m) return;
+    this.updateModal();
+    this.closeModal();
+    if (m.sent && statesKey(this.states) !== statesKey(m.base)) {
+      m.entry.states = cloneStates(this.states);
+      this.timeline.push(m.entry);
+    } else if (m.sent) {
+      // Nothing changed after all: the moves sent were the state it started at.
+      this.states = cloneStates(m.base);
+    }
+    this.updateUndoButtons();
+    this.placeGizmo();
+  }
+
+  /** Esc or a right-click: the group goes back exactly (the server's undo of the command's step). */
+  private cancelModal(): void {
+    const m = this.modal;
+    if (!m) return;
+    this.closeModal();
+    this.states = cloneStates(m.base);
+    this.placeGizmo();
+    if (!m.sent) return;
+    void this.runHistoryOp(async () => {
+      const cur = this.timeline.current;
+      if (this.serverPos === (cur?.serverPos ?? -1) + 1 && cur && cur.epoch === this.timeline.live) {
+        const r = await this.historyMove({ history: HistoryAction.UNDO });
+        this.onMoveResult(r, null);
+      } else if (cur?.revision !== null && cur) {
+        const r = await this.historyMove({ moves: this.groupMoves(m.base), restoreRevision: BigInt(cur.revision) });
+        this.onMoveResult(r, null);
+        this.timeline.recorded(cur, this.serverPos, this.serverPos - 1);
+        cur.revision = Number(r.result?.revision ?? -1);
+      }
+      this.states = cloneStates(m.base);
+    }, "Cancel failed", "move");
+  }
+
+  private closeModal(): void {
+    if (!this.modal) return;
+    this.modal = null;
+    this.viewer.orbit.enabled = true;
+    $("keycmd").hidden = true;
+    hooks.modal = "";
+  }
+
+  private showModal(): void {
+    const m = this.modal;
+    const text = m ? describeCommand(m.cmd, m.label) : "";
+    $("keycmd").textContent = text;
+    $("keycmd").hidden = !m;
+    hooks.modal = text;
+  }
+
+  // ---------- keys ----------
+
   private onKey(e: KeyboardEvent): void {
     const el = e.target as HTMLElement | null;
     const typing = (el?.tagName === "INPUT" && (el as HTMLInputElement).type !== "range" && (el as HTMLInputElement).type !== "checkbox") || el?.tagName === "SELECT" || el?.tagName === "TEXTAREA";
     if (typing) return;
-    if (this.keyCmd && !e.ctrlKey && !e.metaKey && !e.altKey) {
+    if (this.modal && !e.ctrlKey && !e.metaKey && !e.altKey) {
       e.preventDefault();
-      this.feedKeyCommand(e.key);
+      this.feedModal(e.key);
       return;
     }
     if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "z") {
       e.preventDefault();
       this.undoRedo(e.shiftKey);
-    } else if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "y") {
+      return;
+    }
+    if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "y") {
       e.preventDefault();
       this.undoRedo(true);
-    } else if (!e.ctrlKey && !e.metaKey && !e.altKey && this.canEdit()) {
+      return;
+    }
+    const view = !e.altKey && !e.metaKey ? viewForKey(e.code, e.key, e.ctrlKey) : null;
+    if (view) {
+      e.preventDefault();
+      this.viewer.setView(view);
+      return;
+    }
+    if (!e.ctrlKey && !e.metaKey && !e.altKey && (e.key === "Home" || e.key === "f" || e.key === "F")) {
+      e.preventDefault();
+      this.viewer.frame();
+      return;
+    }
+    if (!e.ctrlKey && !e.metaKey && !e.altKey && this.canEdit()) {
       if (e.key === "Delete") {
         const i = this.session!.draft.selected;
         if (i >= 0) {
           e.preventDefault();
           void this.deleteGroup(i);
         }
-      } else if (this.startKeyCommand(e.key)) {
+      } else if (this.startModal(e.key)) {
         e.preventDefault();
       }
     }
   }
 
+  // ---------- controls ----------
+
+  private setTool(t: Tool): void {
+    // Back to Move with painted changes: apply them (that is what the user wants to drag).
+    if ((t === "move" || t === "grab") && this.tool !== "move" && this.tool !== "grab" && this.dirty && this.session?.draft.validate() === null) {
+      this.tool = t;
+      void this.applyHandles();
+    }
+    this.tool = t;
+    hooks.tool = t;
+    for (const x of ["move", "grab", "brush", "lasso"] as const) $(`tool-${x}`).classList.toggle("on", x === t);
+    $("paint-opts").hidden = t === "move" || t === "grab";
+    $("gizmo-modes").hidden = t !== "move";
+    $("brush-radius-row").hidden = t !== "brush";
+    $("grab-radius-row").hidden = t !== "grab";
+    this.viewer.orbit.enabled = true;
+    if (t !== "grab") this.viewer.setGrabPreview(null, 0);
+    this.placeGizmo();
+    this.updateReady();
+  }
+
+  private setGizmoMode(m: "translate" | "rotate" | "scale"): void {
+    this.viewer.gizmo.setMode(m);
+    for (const x of ["translate", "rotate", "scale"]) $(`gizmo-${x}`).classList.toggle("on", x === m);
+  }
+
   private wireControls(): void {
-    $("tool-move").addEventListener("click", () => this.setTool("move"));
-    $("tool-brush").addEventListener("click", () => this.setTool("brush"));
-    $("tool-lasso").addEventListener("click", () => this.setTool("lasso"));
+    for (const t of ["move", "grab", "brush", "lasso"] as const) $(`tool-${t}`).addEventListener("click", () => this.setTool(t));
     $("gizmo-translate").addEventListener("click", () => this.setGizmoMode("translate"));
     $("gizmo-rotate").addEventListener("click", () => this.setGizmoMode("rotate"));
     $("gizmo-scale").addEventListener("click", () => this.setGizmoMode("scale"));
     $("apply-handles").addEventListener("click", () => void this.applyHandles());
     $("clear-selection").addEventListener("click", () => {
+      this.banner.clearError();
       this.session?.selection.clear();
       this.session?.draft.clear();
       this.updateMethodAvailability();
@@ -1196,6 +1466,8 @@ class App {
     const radius = () => ($("brush-radius-val").textContent = `${(Number($in("brush-radius").value) * 100).toFixed(1)}% of size`);
     $in("brush-radius").addEventListener("input", radius);
     radius();
+    $in("grab-radius").addEventListener("input", () => this.showGrabRadius());
+    this.showGrabRadius();
     $in("iterations").addEventListener("input", () => this.checkIterations());
     $in("iterations").addEventListener("change", () => {
       if (this.checkIterations()) this.resolveWithSettings();
@@ -1218,17 +1490,49 @@ class App {
     $sel("heatmap-mode").value = prefs.heatmapMode;
     $in("wireframe").checked = prefs.wireframe;
     $in("ghost-rest").checked = prefs.ghost;
+    this.heatScale = { angleDeg: prefs.heatScaleAngle, areaRatio: prefs.heatScaleArea };
     this.viewer.setWireframe(prefs.wireframe);
     const keepPrefs = () => savePrefs(storage(), {
       heatmap: $in("heatmap").checked, heatmapMode: $sel("heatmap-mode").value === "area" ? "area" : "angle",
       wireframe: $in("wireframe").checked, ghost: $in("ghost-rest").checked,
+      heatScaleAngle: this.heatScale.angleDeg, heatScaleArea: this.heatScale.areaRatio,
     });
     for (const id of ["heatmap", "heatmap-mode", "wireframe", "ghost-rest"]) $(id).addEventListener("change", keepPrefs);
-    $in("heatmap").addEventListener("change", () => this.recolor());
-    $sel("heatmap-mode").addEventListener("change", () => this.recolor());
+    const heatChanged = () => {
+      this.showHeatScale();
+      this.session?.worker?.postMessage({ type: "heat", metric: this.heatMetric() } satisfies ToWorker);
+      this.recolor();
+    };
+    $in("heatmap").addEventListener("change", heatChanged);
+    $sel("heatmap-mode").addEventListener("change", heatChanged);
+    $in("heat-scale").addEventListener("change", () => {
+      const metric = this.heatMode();
+      const r = parseScale(metric, $in("heat-scale").value);
+      $in("heat-scale").classList.toggle("invalid", !r.ok);
+      $("heat-scale-note").textContent = r.ok ? "" : `${r.reason} The map keeps its scale.`;
+      $("heat-scale-note").hidden = r.ok;
+      if (!r.ok) return;
+      this.heatScale = withScale(this.heatScale, metric, r.value);
+      keepPrefs();
+      this.showHeatScale();
+      this.recolor();
+    });
+    $("heat-auto").addEventListener("click", () => {
+      const s = this.session;
+      const metric = this.heatMode();
+      if (!s?.heat || s.heatMetric !== metric) return;
+      this.heatScale = withScale(this.heatScale, metric, autoScale(metric, s.heat));
+      keepPrefs();
+      this.showHeatScale();
+      this.recolor();
+    });
+    this.showHeatScale();
     $in("wireframe").addEventListener("change", () => this.viewer.setWireframe($in("wireframe").checked));
     $in("ghost-rest").addEventListener("change", () => this.viewer.setGhost($in("ghost-rest").checked, this.session?.rest ?? null));
     $("reset-view").addEventListener("click", () => this.viewer.frame());
+    $("view-front").addEventListener("click", () => this.viewer.setView("front"));
+    $("view-side").addEventListener("click", () => this.viewer.setView("right"));
+    $("view-top").addEventListener("click", () => this.viewer.setView("top"));
     $("undo").addEventListener("click", () => this.undoRedo(false));
     $("redo").addEventListener("click", () => this.undoRedo(true));
     window.addEventListener("keydown", (e) => this.onKey(e));
@@ -1293,6 +1597,7 @@ class App {
         );
         const creds = { sessionId: r.sessionId, token: r.editToken };
         await this.load(creds, "edit", r.info!, r.viewToken, r.editToken);
+        this.startTool();
         history.replaceState(null, "", location.pathname + location.search + formatHash(creds));
         this.setStatus(`Uploaded ${file.name}: ${r.info!.vertices.toLocaleString("en")} vertices${r.weldedVertices ? `, ${r.weldedVertices} welded` : ""}`);
       });
@@ -1324,6 +1629,266 @@ class App {
     } catch (e) {
       this.fail("Download failed", e, "download");
     }
+  }
+
+  // ---------- gizmo, markers, target ghost ----------
+
+  private wireGizmo(): void {
+    const g = this.viewer.gizmo;
+    g.attach(this.viewer.pivotObject);
+    g.addEventListener("objectChange", () => {
+      const o = this.viewer.pivotObject;
+      const i = this.selectedHandle();
+      const c = i >= 0 ? this.session?.anchors[i]?.centroid : null;
+      if (!c) return;
+      // Uniform scale: take the axis the user pulled (largest change from the current scale).
+      const prev = this.states[i].scale;
+      const axes = [o.scale.x, o.scale.y, o.scale.z];
+      let sc = axes.reduce((a, b) => (Math.abs(b - prev) > Math.abs(a - prev) ? b : a), prev);
+      sc = Math.max(0.05, sc);
+      o.scale.setScalar(sc);
+      const q = o.quaternion;
+      const st = cloneStates(this.states);
+      st[i] = { translation: [o.position.x - c.x, o.position.y - c.y, o.position.z - c.z], rotation: [q.w, q.x, q.y, q.z], scale: sc };
+      // One gizmo drag is one undo step on the server too.
+      this.submitMove(st, performance.now(), { gesture: this.gizmoGesture, entry: this.dragEntry });
+      this.dragSent = true;
+      this.placeMarkers();
+    });
+    g.addEventListener("dragging-changed", (e: any) => {
+      if (e.value) {
+        this.gizmoGesture = newGesture();
+        this.dragEntry = this.newGestureEntry();
+        this.dragSent = false;
+        dismissFirstHint();
+      } else {
+        this.gizmoGesture = 0n;
+        this.finishGesture();
+      }
+    });
+  }
+
+  /** Gizmo on the selected handle group, at pivot + translation (the centroid of its moved
+   * anchors) with its R and s; a marker sphere on every other handle group. */
+  private placeGizmo(): void {
+    const s = this.session;
+    const o = this.viewer.pivotObject;
+    const i = this.selectedHandle();
+    const c = i >= 0 ? s?.anchors[i]?.centroid : null;
+    const show = !!c && s!.role === "edit" && !s!.gone && this.tool === "move" && !this.modal;
+    this.viewer.gizmo.getHelper().visible = show;
+    this.viewer.gizmo.enabled = show;
+    if (c && this.states[i]) {
+      const m = this.states[i];
+      o.position.set(c.x + m.translation[0], c.y + m.translation[1], c.z + m.translation[2]);
+      o.quaternion.set(m.rotation[1], m.rotation[2], m.rotation[3], m.rotation[0]);
+      o.scale.setScalar(m.scale);
+    }
+    this.placeMarkers();
+  }
+
+  private placeMarkers(): void {
+    const s = this.session;
+    if (!s || s.role !== "edit" || s.gone || (this.tool !== "move" && this.tool !== "grab")) {
+      this.viewer.setMarkers([]);
+      return;
+    }
+    const sel = this.selectedHandle();
+    const items = [];
+    for (const i of this.handleIndices()) {
+      const c = s.anchors[i]?.centroid;
+      const t = this.states[i]?.translation;
+      if (!c || !t) continue;
+      items.push({ at: [c.x + t[0], c.y + t[1], c.z + t[2]] as [number, number, number], color: groupColor("handle", s.draft.ordinal(i)), selected: i === sel });
+    }
+    this.viewer.setMarkers(items);
+  }
+
+  /** While a move waits on a slow solve, dots show where the handle vertices are headed. */
+  private scheduleTargetGhost(): void {
+    clearTimeout(this.targetTimer);
+    this.targetTimer = setTimeout(() => {
+      const s = this.session;
+      if (!s || !this.coalescer.busy) return;
+      const pts: number[] = [];
+      for (const i of this.handleIndices()) {
+        const a = s.anchors[i];
+        const c = a?.centroid;
+        if (!a || !c || !this.states[i]) continue;
+        for (let k = 0; k < a.positions.length; k += 3) {
+          pts.push(...applyMove(this.states[i], [c.x, c.y, c.z], [a.positions[k], a.positions[k + 1], a.positions[k + 2]]));
+        }
+      }
+      this.viewer.setTargets(Float32Array.from(pts));
+    }, 250);
+  }
+
+  // ---------- Watch (in a worker) ----------
+
+  private heatMode(): HeatMetric {
+    return $sel("heatmap-mode").value === "area" ? "area" : "angle";
+  }
+
+  private heatMetric(): HeatMetric | null {
+    return $in("heatmap").checked ? this.heatMode() : null;
+  }
+
+  private startStream(s: Session, indices: Uint32Array): void {
+    const w = new Worker(new URL("./mesh_worker.ts", import.meta.url), { type: "module" });
+    s.worker = w;
+    w.onmessage = (ev: MessageEvent<FromWorker>) => {
+      if (this.session !== s || s.gone) return;
+      const m = ev.data;
+      if (m.type === "frame") this.onFrame(s, m);
+      else if (m.type === "status") this.banner.status(m.text);
+      else if (m.type === "bad") this.banner.error("Bad update from the server", new Error(m.message));
+      else if (m.type === "end") {
+        s.resolveSnapshot();
+        this.markGone(s, "The session was closed by its owner (or an operator). Its link no longer opens it.");
+      } else if (m.type === "error") {
+        s.resolveSnapshot();
+        const e = new ConnectError(m.rawMessage, m.code);
+        if (m.code === Code.NotFound) this.markGone(s);
+        else {
+          this.banner.error("Watching the session failed", e, "watch");
+          hooks.ready = false;
+        }
+      }
+    };
+    w.onerror = (ev) => this.banner.error("The viewer's update worker failed", new Error(ev.message));
+    const open: ToWorker = {
+      type: "open", origin: location.origin, sessionId: s.creds.sessionId, token: s.creds.token, encoding: ENCODING, updates: LINK_SIZED, vertexCount: s.state.vertexCount,
+      indices: Uint32Array.from(indices), rest: Float32Array.from(s.rest), heat: this.heatMetric(), pageTimeOrigin: performance.timeOrigin,
+    };
+    w.postMessage(open, [open.indices.buffer, open.rest.buffer]);
+  }
+
+  /** A frame from the worker: the newest positions (with the updates since the last frame). */
+  private onFrame(s: Session, f: Extract<FromWorker, { type: "frame" }>): void {
+    const last = f.updates[f.updates.length - 1] as UpdateInfo | undefined;
+    for (const u of f.updates) {
+      this.metrics.updateBytes.push(u.bytes);
+      this.metrics.updateEncodings.push(u.encoding);
+    }
+    this.metrics.updatesDropped += Math.max(0, f.updates.length - 1);
+    this.metrics.workerMs.push(f.workMs);
+    s.state.positions.set(f.positions);
+    s.state.revision = f.revision;
+    // Kept (Auto, recolouring): a copy, the frame's own buffer goes back to the worker.
+    s.heat = f.heat ? (s.heat && s.heat.length === f.heat.length ? s.heat : new Float32Array(f.heat.length)) : null;
+    if (s.heat && f.heat) s.heat.set(f.heat);
+    s.heatMetric = f.heatMetric;
+    this.viewer.setFrame(f.positions, f.normals, f.sphere);
+    if (last) {
+      showBytes(last.bytes, last.encoding);
+      showResult({
+        revision: BigInt(last.revision), eTheta: last.eTheta, ePhi: last.ePhi, areaLogRms: last.areaLogRms, iterations: last.iterations,
+        pcgIterations: last.pcgIterations, solveSeconds: last.solveSeconds, converged: last.converged,
+      }, f.revision, this.interaction.dragging || this.viewer.gizmo.dragging || !!this.modal);
+    }
+    if (this.heatMetric()) this.recolor(); // group colours do not change with the positions
+    hooks.revision = f.revision;
+    this.metrics.updatesRendered++;
+    const rendered = performance.now();
+    this.metrics.renderedAt.push(rendered);
+    this.metrics.renderedRefinement.push(!!last?.refinement);
+    this.metrics.renderedConverged.push(!!last?.converged);
+    if (!this.coalescer.busy) this.viewer.setTargets(null);
+    s.resolveSnapshot();
+    if (!this.viewer.gizmo.dragging) this.placeGizmo();
+    const rev = f.revision;
+    this.viewer.onNextFrame(() => {
+      const now = performance.now();
+      const t0 = this.moveT0.get(rev);
+      if (t0 !== undefined) {
+        this.metrics.dragToFrameMs.push(now - t0);
+        this.moveT0.delete(rev);
+      } else {
+        this.frameAt.set(rev, now);
+      }
+      // Bound the bookkeeping: revisions far behind will never be matched.
+      for (const m of [this.frameAt, this.moveT0]) for (const k of m.keys()) if (k < rev - 64) m.delete(k);
+      // The frame is drawn: the worker may fill its buffers again (the newest update next).
+      if (s.worker && this.session === s) {
+        const ack: ToWorker = { type: "ack", positions: f.positions, normals: f.normals, heat: f.heat };
+        s.worker.postMessage(ack, [f.positions.buffer, f.normals.buffer, ...(f.heat ? [f.heat.buffer] : [])]);
+      }
+    });
+  }
+
+  // ---------- colours ----------
+
+  private showHeatScale(): void {
+    const metric = this.heatMode();
+    $in("heat-scale").value = String(scaleValue(metric, this.heatScale));
+    $("heat-scale-unit").textContent = metric === "angle" ? "°" : "× area";
+    const l = legend(metric, this.heatScale);
+    $("legend-min").textContent = l.ticks[0];
+    $("legend-mid").textContent = l.ticks[1];
+    $("legend-max").textContent = l.ticks[2];
+    $("legend-what").textContent = l.what;
+    $("legend").hidden = !$in("heatmap").checked;
+    $("heat-scale-row").hidden = !$in("heatmap").checked;
+  }
+
+  /** Group colours over everything, then the heat map (fixed scale) or the base colours. */
+  private recolor(): void {
+    const s = this.session;
+    if (!s) return;
+    const metric = this.heatMetric();
+    const heat = metric && s.heat && s.heatMetric === metric ? s.heat : null;
+    this.colors.paint(s.draft, s.selection.magnify, heat, metric ? heatMax(metric, this.heatScale) : 1);
+  }
+
+  // ---------- painting ----------
+
+  private paintStart(extend: boolean): void {
+    const s = this.session;
+    const mode = $sel("paint-mode").value as PaintMode;
+    if (!s || (mode !== "fixed" && mode !== "handle")) return;
+    s.draft.beginStroke(mode, extend || $in("extend-group").checked);
+  }
+
+  private magnifyPainted = false;
+
+  private paint(ix: number[]): void {
+    const s = this.session;
+    if (!s) return;
+    const mode = $sel("paint-mode").value as PaintMode;
+    if (ix.length === 0) {
+      if (this.tool === "lasso") this.banner.message("The lasso selected no vertex facing the camera.");
+      return;
+    }
+    if (mode === "fixed" || mode === "handle") s.draft.paint(ix);
+    else if (mode === "erase") s.draft.erase(ix);
+    s.selection.paint(ix, mode);
+    if (mode === "magnify" || mode === "erase") this.magnifyPainted = true;
+    this.recolor();
+  }
+
+  private paintEnd(): void {
+    const s = this.session;
+    if (!s) return;
+    s.draft.endStroke();
+    if (this.magnifyPainted) {
+      // The magnify region is a setting: one re-solve (one step) per stroke.
+      this.magnifyPainted = false;
+      this.updateMethodAvailability();
+      this.dirty = !s.draft.equals(this.appliedSpecs());
+      if (!this.dirty) {
+        this.resolveWithSettings();
+        this.renderGroups();
+        this.recolor();
+        this.updateReady();
+        return;
+      }
+    }
+    this.afterDraftChange();
+  }
+
+  private meshScale(): number {
+    const bb = this.viewer.geometry?.boundingBox;
+    return bb ? bb.getSize(new THREE.Vector3()).length() : 1;
   }
 
   // ---------- test hooks ----------
@@ -1359,6 +1924,10 @@ const hooks: Hooks = {
   lastError: "",
   gone: false,
   selectedGroup: -1,
+  modal: "",
+  historyBusy: false,
+  tool: "move",
+  hovering: false,
   handleScreenPoint: () => app.hookHandlePoint(),
   groupScreenPoint: (i) => app.hookGroupPoint(i),
   vertexScreenPoint: (v) => app.hookVertexPoint(v),
@@ -1374,7 +1943,7 @@ const hooks: Hooks = {
     return {
       dragToFrameMs: [...m.dragToFrameMs], updateBytes: [...m.updateBytes], updateEncodings: [...m.updateEncodings], updatesRendered: m.updatesRendered,
       frameWorkMs: [...app.viewer.frameWorkMs], renderedAt: [...m.renderedAt], renderedRefinement: [...m.renderedRefinement],
-      renderedConverged: [...m.renderedConverged],
+      renderedConverged: [...m.renderedConverged], inputDelayMs: [...m.inputDelayMs], workerMs: [...m.workerMs], updatesDropped: m.updatesDropped,
     };
   },
   moveStates() {
@@ -1383,14 +1952,29 @@ const hooks: Hooks = {
   groups() {
     return (app.session?.groups ?? []).map((g) => ({ role: g.role === HandleRole.FIXED ? "fixed" as const : "handle" as const, vertices: [...g.vertices] }));
   },
+  draftGroups() {
+    return app.session?.draft.specs().map((g) => ({ role: g.role, vertices: [...g.vertices] })) ?? [];
+  },
+  history() {
+    return { position: app.timeline.position, size: app.timeline.size, canUndo: app.timeline.canUndo, canRedo: app.timeline.canRedo };
+  },
+  notice() {
+    return app.noticeText;
+  },
+  legend() {
+    return ["legend-min", "legend-mid", "legend-max", "legend-what"].map((id) => $(id).textContent ?? "");
+  },
+  vertexColor(v: number) {
+    return app.colors.srgbOf(v);
+  },
+  viewDirection() {
+    return app.viewer.viewDirection().toArray();
+  },
   resetMetrics() {
-    app.metrics.dragToFrameMs.length = 0;
-    app.metrics.updateBytes.length = 0;
-    app.metrics.updateEncodings.length = 0;
-    app.metrics.updatesRendered = 0;
-    app.metrics.renderedAt.length = 0;
-    app.metrics.renderedRefinement.length = 0;
-    app.metrics.renderedConverged.length = 0;
+    const m = app.metrics;
+    for (const a of [m.dragToFrameMs, m.updateBytes, m.updateEncodings, m.renderedAt, m.renderedRefinement, m.renderedConverged, m.inputDelayMs, m.workerMs]) a.length = 0;
+    m.updatesRendered = 0;
+    m.updatesDropped = 0;
     app.viewer.frameWorkMs.length = 0;
   },
 };

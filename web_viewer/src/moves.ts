@@ -119,3 +119,90 @@ export function planReset(restKnown: boolean, anchorsAtRest: boolean): "identity
   if (anchorsAtRest) return "identity";
   return restKnown ? "rest-targets" : "unavailable";
 }
+
+/** Eigen-decomposition of a symmetric 4 x 4 matrix (cyclic Jacobi): the eigenvector of the
+ * largest eigenvalue. */
+function largestEigenvector4(m: number[][]): Quat {
+  const a = m.map((r) => [...r]);
+  const v = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]];
+  for (let sweep = 0; sweep < 50; sweep++) {
+    let off = 0;
+    for (let p = 0; p < 4; p++) for (let q = p + 1; q < 4; q++) off += a[p][q] * a[p][q];
+    if (off < 1e-30) break;
+    for (let p = 0; p < 4; p++) {
+      for (let q = p + 1; q < 4; q++) {
+        if (Math.abs(a[p][q]) < 1e-300) continue;
+        const theta = (a[q][q] - a[p][p]) / (2 * a[p][q]);
+        const t = Math.sign(theta || 1) / (Math.abs(theta) + Math.sqrt(theta * theta + 1));
+        const c = 1 / Math.sqrt(t * t + 1), s = t * c;
+        for (let k = 0; k < 4; k++) {
+          const akp = a[k][p], akq = a[k][q];
+          a[k][p] = c * akp - s * akq;
+          a[k][q] = s * akp + c * akq;
+        }
+        for (let k = 0; k < 4; k++) {
+          const apk = a[p][k], aqk = a[q][k];
+          a[p][k] = c * apk - s * aqk;
+          a[q][k] = s * apk + c * aqk;
+        }
+        for (let k = 0; k < 4; k++) {
+          const vkp = v[k][p], vkq = v[k][q];
+          v[k][p] = c * vkp - s * vkq;
+          v[k][q] = s * vkp + c * vkq;
+        }
+      }
+    }
+  }
+  let best = 0;
+  for (let i = 1; i < 4; i++) if (a[i][i] > a[best][best]) best = i;
+  const q: Quat = [v[0][best], v[1][best], v[2][best], v[3][best]];
+  const n = Math.hypot(...q) || 1;
+  const sign = q[0] < 0 ? -1 : 1;
+  return [(sign * q[0]) / n, (sign * q[1]) / n, (sign * q[2]) / n, (sign * q[3]) / n];
+}
+
+/**
+ * The similarity about the centroid of `from` that takes `from` closest to `to` (least squares;
+ * Horn's quaternion method with Umeyama's scale): rows of 3, the same count. Re-expresses a
+ * group's targets on other anchors (an undo across a handle change: the groups were set again
+ * on another shape). One point: a translation only.
+ */
+export function fitSimilarity(from: ArrayLike<number>, to: ArrayLike<number>): MoveState {
+  const n = Math.min(from.length, to.length) / 3;
+  if (n === 0) return cloneMove(IDENTITY);
+  const ca: Vec3 = [0, 0, 0], cb: Vec3 = [0, 0, 0];
+  for (let i = 0; i < n; i++) for (let c = 0; c < 3; c++) { ca[c] += from[i * 3 + c] / n; cb[c] += to[i * 3 + c] / n; }
+  const translation: Vec3 = [cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2]];
+  if (n === 1) return { translation, rotation: [1, 0, 0, 0], scale: 1 };
+  const S = [[0, 0, 0], [0, 0, 0], [0, 0, 0]];
+  let normA = 0;
+  for (let i = 0; i < n; i++) {
+    const a = [from[i * 3] - ca[0], from[i * 3 + 1] - ca[1], from[i * 3 + 2] - ca[2]];
+    const b = [to[i * 3] - cb[0], to[i * 3 + 1] - cb[1], to[i * 3 + 2] - cb[2]];
+    normA += a[0] * a[0] + a[1] * a[1] + a[2] * a[2];
+    for (let r = 0; r < 3; r++) for (let c = 0; c < 3; c++) S[r][c] += a[r] * b[c];
+  }
+  if (normA < 1e-30) return { translation, rotation: [1, 0, 0, 0], scale: 1 };
+  const [[xx, xy, xz], [yx, yy, yz], [zx, zy, zz]] = S;
+  const N = [
+    [xx + yy + zz, yz - zy, zx - xz, xy - yx],
+    [yz - zy, xx - yy - zz, xy + yx, zx + xz],
+    [zx - xz, xy + yx, -xx + yy - zz, yz + zy],
+    [xy - yx, zx + xz, yz + zy, -xx - yy + zz],
+  ];
+  const rotation = largestEigenvector4(N);
+  let dot = 0;
+  for (let i = 0; i < n; i++) {
+    const ra = rotate(rotation, [from[i * 3] - ca[0], from[i * 3 + 1] - ca[1], from[i * 3 + 2] - ca[2]]);
+    dot += ra[0] * (to[i * 3] - cb[0]) + ra[1] * (to[i * 3 + 1] - cb[1]) + ra[2] * (to[i * 3 + 2] - cb[2]);
+  }
+  const scale = dot > 0 ? dot / normA : 1;
+  return { translation, rotation, scale };
+}
+
+/** Translation by `delta` composed with a group's state (about its current centre). */
+export function translateBy(s: MoveState, delta: Vec3): MoveState {
+  const out = cloneMove(s);
+  out.translation = [s.translation[0] + delta[0], s.translation[1] + delta[1], s.translation[2] + delta[2]];
+  return out;
+}

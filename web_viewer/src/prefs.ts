@@ -1,3 +1,5 @@
+import { DEFAULT_HEAT_SCALE, parseScale } from "./heatscale";
+
 // View preferences that belong to the person, not the session (a watcher's heat-map mode is not
 // the editor's): kept in the browser's localStorage and restored on every page load.
 
@@ -6,9 +8,15 @@ export interface ViewPrefs {
   heatmapMode: "angle" | "area";
   wireframe: boolean;
   ghost: boolean;
+  /** The heat map's fixed scale tops (src/heatscale.ts): degrees, and an area ratio. */
+  heatScaleAngle: number;
+  heatScaleArea: number;
 }
 
-export const DEFAULT_PREFS: ViewPrefs = { heatmap: false, heatmapMode: "angle", wireframe: false, ghost: false };
+export const DEFAULT_PREFS: ViewPrefs = {
+  heatmap: false, heatmapMode: "angle", wireframe: false, ghost: false,
+  heatScaleAngle: DEFAULT_HEAT_SCALE.angleDeg, heatScaleArea: DEFAULT_HEAT_SCALE.areaRatio,
+};
 const KEY = "meshdeform.viewPrefs.v1";
 
 /** The stored preferences; defaults for anything missing, malformed or unreadable. */
@@ -26,6 +34,8 @@ export function loadPrefs(storage: Pick<Storage, "getItem"> | null): ViewPrefs {
     heatmapMode: o.heatmapMode === "area" || o.heatmapMode === "angle" ? o.heatmapMode : DEFAULT_PREFS.heatmapMode,
     wireframe: bool("wireframe"),
     ghost: bool("ghost"),
+    heatScaleAngle: parseScale("angle", String(o.heatScaleAngle ?? "")).ok ? Number(o.heatScaleAngle) : DEFAULT_PREFS.heatScaleAngle,
+    heatScaleArea: parseScale("area", String(o.heatScaleArea ?? "")).ok ? Number(o.heatScaleArea) : DEFAULT_PREFS.heatScaleArea,
   };
 }
 

@@ -3,6 +3,7 @@
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { TransformControls } from "three/addons/controls/TransformControls.js";
+import { defaultView, namedView, type ViewDir, type ViewName } from "./views";
 
 export class Viewer3D {
   readonly renderer: THREE.WebGLRenderer;
@@ -24,6 +25,11 @@ export class Viewer3D {
   private readonly markers = new THREE.Group();
   /** Where the pending move puts the handle vertices, while a slow solve runs. */
   private targets: THREE.Points | null = null;
+  /** Grab tool: the sphere a press would take as the handle. */
+  private readonly grabPreview = new THREE.Mesh(
+    new THREE.SphereGeometry(1, 24, 16),
+    new THREE.MeshBasicMaterial({ color: 0xf58024, transparent: true, opacity: 0.28, depthWrite: false }),
+  );
   private frameQueued = false;
   private afterFrame: (() => void)[] = [];
   /** Milliseconds each frame spent on normals + drawing (bench: is the browser the bottleneck?). */
@@ -54,6 +60,9 @@ export class Viewer3D {
     this.scene.add(this.pivotObject);
     this.scene.add(this.markers);
     this.scene.add(this.gizmo.getHelper());
+    this.grabPreview.visible = false;
+    this.grabPreview.renderOrder = 3;
+    this.scene.add(this.grabPreview);
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
   }
@@ -82,6 +91,7 @@ export class Viewer3D {
     g.setAttribute("color", col);
     g.setIndex(new THREE.BufferAttribute(indices, 1));
     g.computeVertexNormals();
+    (g.getAttribute("normal") as THREE.BufferAttribute).setUsage(THREE.DynamicDrawUsage);
     g.computeBoundingSphere();
     g.computeBoundingBox();
     // Pushed back a little so that the wireframe overlay draws on top without z-fighting.
@@ -92,7 +102,27 @@ export class Viewer3D {
     this.wire = new THREE.Mesh(g, new THREE.MeshBasicMaterial({ color: 0x1d2430, wireframe: true, transparent: true, opacity: 0.35 }));
     this.wire.visible = this.wireOn;
     this.scene.add(this.wire);
+    const size = g.boundingBox!.getSize(new THREE.Vector3());
+    this.homeView = defaultView([size.x, size.y, size.z]);
     this.frame();
+  }
+
+  /** The view a mesh opens with (views.ts: across its longest axis); Frame returns to it. */
+  private homeView: ViewDir = { eye: [0.6, 0.45, 1], up: [0, 1, 0] };
+
+  /** Front / side / top (or their opposites), framing the mesh. */
+  setView(name: ViewName): void {
+    this.frame(namedView(name));
+  }
+
+  /** Grab tool: shows the sphere of `radius` about `center` (null hides it). */
+  setGrabPreview(center: THREE.Vector3 | null, radius: number): void {
+    this.grabPreview.visible = !!center;
+    if (center) {
+      this.grabPreview.position.copy(center);
+      this.grabPreview.scale.setScalar(Math.max(radius, 1e-9));
+    }
+    this.requestRender();
   }
 
   setWireframe(on: boolean): void {
@@ -163,14 +193,15 @@ export class Viewer3D {
     this.requestRender();
   }
 
-  /** Frames the camera on the mesh bounding box. */
-  frame(): void {
+  /** Frames the camera on the mesh bounding box, from `view` (default: the mesh's home view). */
+  frame(view: ViewDir = this.homeView): void {
     const bb = this.geometry?.boundingBox;
     if (!bb) return;
     const c = bb.getCenter(new THREE.Vector3());
     const r = Math.max(1e-6, bb.getSize(new THREE.Vector3()).length() / 2);
-    const dist = r / Math.sin(THREE.MathUtils.degToRad(this.camera.fov / 2)) * 1.1;
-    this.camera.position.copy(c).add(new THREE.Vector3(0.6, 0.45, 1).normalize().multiplyScalar(dist));
+    const fov = Math.min(this.camera.fov, this.camera.fov * this.camera.aspect);
+    const dist = r / Math.sin(THREE.MathUtils.degToRad(fov / 2)) * 1.05;
+    this.camera.position.copy(c).add(new THREE.Vector3(...view.eye).normalize().multiplyScalar(dist));
     this.camera.near = dist / 100;
     this.camera.far = dist * 100;
     this.camera.updateProjectionMatrix();
@@ -179,26 +210,43 @@ export class Viewer3D {
     this.requestRender();
   }
 
-  /** Positions changed: re-upload, fix normals and bounds for picking — once per frame, however
-   * many updates arrive in between (a burst of revisions costs one normal pass, not one each). */
-  updatePositions(positions: Float32Array): void {
+  /** New positions with their normals and bounding sphere (made off the main thread, see
+   * frames.ts): uploaded at the next animation frame, the newest only. */
+  setFrame(positions: Float32Array, normals: Float32Array, sphere: { center: [number, number, number]; radius: number }): void {
     if (!this.geometry) return;
-    this.pendingPositions = positions;
+    this.pendingFrame = { positions, normals, sphere };
     this.requestRender();
   }
 
-  private pendingPositions: Float32Array | null = null;
+  private pendingFrame: { positions: Float32Array; normals: Float32Array; sphere: { center: [number, number, number]; radius: number } } | null = null;
 
   private flushPositions(): void {
     const g = this.geometry;
-    const positions = this.pendingPositions;
-    this.pendingPositions = null;
-    if (!g || !positions) return;
+    const f = this.pendingFrame;
+    this.pendingFrame = null;
+    if (!g || !f) return;
     const attr = g.getAttribute("position") as THREE.BufferAttribute;
-    (attr.array as Float32Array).set(positions);
+    if ((attr.array as Float32Array).length !== f.positions.length) return;
+    (attr.array as Float32Array).set(f.positions);
     attr.needsUpdate = true;
-    g.computeVertexNormals();
-    g.computeBoundingSphere();
+    const normals = g.getAttribute("normal") as THREE.BufferAttribute;
+    (normals.array as Float32Array).set(f.normals);
+    normals.needsUpdate = true;
+    g.boundingSphere ??= new THREE.Sphere();
+    g.boundingSphere.center.set(...f.sphere.center);
+    g.boundingSphere.radius = f.sphere.radius;
+  }
+
+  /** The vertex colour array (linear RGB) to fill in place; call colorsChanged() after. */
+  colorArray(): Float32Array | null {
+    const attr = this.geometry?.getAttribute("color") as THREE.BufferAttribute | undefined;
+    return attr ? (attr.array as Float32Array) : null;
+  }
+
+  colorsChanged(): void {
+    const attr = this.geometry?.getAttribute("color") as THREE.BufferAttribute | undefined;
+    if (attr) attr.needsUpdate = true;
+    this.requestRender();
   }
 
   /** Per-vertex sRGB colours; stored linear, as three's vertex colours are. */
@@ -232,11 +280,11 @@ export class Viewer3D {
     this.requestRender();
   }
 
-  /** Page CSS pixels of a world point, or null if it is behind the camera. */
-  toScreen(x: number, y: number, z: number, out = new THREE.Vector3()): [number, number] | null {
+  /** Page CSS pixels of a world point, or null if it is behind the camera. Pass the canvas's
+   * rectangle when projecting many points (reading it forces a layout). */
+  toScreen(x: number, y: number, z: number, out = new THREE.Vector3(), r: DOMRect = this.canvas.getBoundingClientRect()): [number, number] | null {
     out.set(x, y, z).project(this.camera);
     if (out.z > 1 || out.z < -1) return null;
-    const r = this.canvas.getBoundingClientRect();
     return [r.left + ((out.x + 1) / 2) * r.width, r.top + ((1 - out.y) / 2) * r.height];
   }
 
@@ -260,7 +308,7 @@ export class Viewer3D {
   }
 }
 
-function srgbToLinear(c: number): number {
+export function srgbToLinear(c: number): number {
   return c < 0.04045 ? c * 0.0773993808 : Math.pow(c * 0.9478672986 + 0.0521327014, 2.4);
 }
 

@@ -9,8 +9,16 @@ function memory() {
 describe("view preferences", () => {
   it("round-trip through storage", () => {
     const s = memory();
-    savePrefs(s, { heatmap: true, heatmapMode: "area", wireframe: true, ghost: false });
-    expect(loadPrefs(s)).toEqual({ heatmap: true, heatmapMode: "area", wireframe: true, ghost: false });
+    const p = { heatmap: true, heatmapMode: "area" as const, wireframe: true, ghost: false, heatScaleAngle: 2.5, heatScaleArea: 1.1 };
+    savePrefs(s, p);
+    expect(loadPrefs(s)).toEqual(p);
+  });
+  it("keep only valid heat map scales", () => {
+    const s = memory();
+    s.setItem("meshdeform.viewPrefs.v1", JSON.stringify({ heatScaleAngle: -3, heatScaleArea: 0.5 }));
+    expect(loadPrefs(s)).toEqual(DEFAULT_PREFS);
+    s.setItem("meshdeform.viewPrefs.v1", JSON.stringify({ heatScaleAngle: 12, heatScaleArea: 2 }));
+    expect(loadPrefs(s)).toMatchObject({ heatScaleAngle: 12, heatScaleArea: 2 });
   });
   it("fall back to the defaults for missing, malformed or foreign values", () => {
     expect(loadPrefs(null)).toEqual(DEFAULT_PREFS);

@@ -41,7 +41,8 @@ export function renderGroupList(groups: GroupSet | null, dirty: boolean, editabl
   if (dirty) {
     const li = document.createElement("li");
     li.className = "empty";
-    li.textContent = "Not applied yet: Apply handles (or switch to Move).";
+    // What to do about it is the state notice's (it knows the tool and what is missing).
+    li.textContent = "Not applied yet.";
     ul.append(li);
   }
 }

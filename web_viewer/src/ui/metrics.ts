@@ -5,7 +5,9 @@ import { $ } from "./dom";
 const fmt = (x: number, d = 4) => (Number.isFinite(x) ? x.toFixed(d) : "–");
 
 /** `dragging`: a drag is under way, so "refining…" (the server resting between drags) is not shown. */
-export function showResult(r: DeformResult, shownRevision: number, dragging = false): void {
+export type ResultSummary = Pick<DeformResult, "revision" | "eTheta" | "ePhi" | "areaLogRms" | "iterations" | "pcgIterations" | "solveSeconds" | "converged">;
+
+export function showResult(r: ResultSummary, shownRevision: number, dragging = false): void {
   $("metric-etheta").textContent = fmt(r.eTheta, 5);
   $("metric-ephi").textContent = fmt(r.ePhi, 5);
   $("metric-area").textContent = fmt(r.areaLogRms, 5);
