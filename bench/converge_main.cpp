@@ -68,6 +68,8 @@ struct Options {
   bool variants = false;
   std::vector<std::string> variant_models = {"bumpy_plane_irregular", "cactus_irregular",
                                              "spot47k_bend", "spot47k_twist", "spot188k_bend"};
+  /// Only the study's variants whose name contains this (and the default); empty: all.
+  std::string variant_filter;
   std::string out_dir = MESHDEFORM_BENCH_RESULTS_DIR;
   std::string stem = "multilevel_time_to_result";
   std::string spot_path = std::string(MESHDEFORM_BENCH_SOURCE_DIR) + "/tests/data/spot.obj";
@@ -90,6 +92,7 @@ void print_usage(std::ostream& out) {
          "  --variants            also the multilevel study (docs/multilevel.md)\n"
          "  --variant-models a,b  models of the study (bumpy_plane_irregular, cactus_irregular,\n"
          "                        spot47k_bend, spot47k_twist, spot188k_bend)\n"
+         "  --variant-filter TEXT only the variants whose name contains TEXT, and the default\n"
          "  --out-dir DIR         (default "
       << MESHDEFORM_BENCH_RESULTS_DIR
       << ")\n"
@@ -134,6 +137,7 @@ Result<Options> parse_options(int argc, char** argv) {
     o.variant_models = split_commas(value);
     return Status::success();
   });
+  flags.text("--variant-filter", o.variant_filter);
   flags.text("--out-dir", o.out_dir);
   flags.text("--stem", o.stem);
   flags.text("--spot", o.spot_path);
@@ -680,6 +684,11 @@ Status run(int argc, char** argv) {
         v.fine_corrections = 2;
         variants.push_back({"+ 2 coarse-grid corrections in the fine iteration", v});
       }
+      for (const int its : {5, 15, 40}) {
+        core::MultilevelSettings v = base;
+        v.fine_start_max_iterations = its;
+        variants.push_back({"full-resolution start: at most " + std::to_string(its) + " ARAP its", v});
+      }
       {
         core::MultilevelSettings v = base;
         v.coarsest_vertices = 4000;
@@ -696,6 +705,10 @@ Status run(int argc, char** argv) {
         variants.push_back({"two levels apart: ratio 16", v});
       }
       for (const auto& [name, settings] : variants) {
+        if (!options.variant_filter.empty() && &name != &variants.front().first &&
+            name.find(options.variant_filter) == std::string::npos) {
+          continue;
+        }
         std::cerr << "[" << spec.name << "] variant: " << name << "\n";
         Result<json> result = run_in_child([&] { return run_variant(model, options, settings); });
         row.variants.push_back(

@@ -39,6 +39,11 @@ Status check_settings(const MultilevelSettings& s) {
   if (!std::isfinite(s.level_tolerance)) {
     return Error(ErrorCode::InvalidArgument, "multilevel level_tolerance must be finite");
   }
+  if (s.fine_start_max_iterations < 1) {
+    return Error(ErrorCode::InvalidArgument,
+                 "multilevel fine_start_max_iterations must be >= 1, got " +
+                     std::to_string(s.fine_start_max_iterations));
+  }
   if (s.start_max_iterations < 1) {
     return Error(ErrorCode::InvalidArgument, "multilevel start_max_iterations must be >= 1, got " +
                                                  std::to_string(s.start_max_iterations));
@@ -370,6 +375,10 @@ Result<SolveReport> MultilevelSolver::solve(const Positions& targets, const Solv
     } else {
       arap_options.max_iterations =
           std::min(options.rigid_start_iterations, s.settings.start_max_iterations);
+      if (i == 0) {
+        arap_options.max_iterations =
+            std::min(arap_options.max_iterations, s.settings.fine_start_max_iterations);
+      }
       MD_ASSIGN_OR_RETURN(const Positions prolonged,
                           s.prolongation[static_cast<size_t>(i)].apply(
                               arap[static_cast<size_t>(i + 1)]));

@@ -82,6 +82,11 @@ struct MultilevelSettings {
   /// converged level below, ARAP meets the rigid start's tolerance in tens of iterations, or
   /// creeps along a flat valley where more iterations change nothing the transfer uses. >= 1.
   int start_max_iterations = 200;
+  /// Budget of the start's ARAP iterations at full resolution (level 0), at most
+  /// start_max_iterations. The transfer to level 0 needs this level's own details, which the
+  /// first iterations from the prolonged level 1 fix; the smooth remainder is the prolonged
+  /// level's already. >= 1.
+  int fine_start_max_iterations = 200;
   LevelTransfer transfer = LevelTransfer::Correction;
   /// Coarse-grid corrections during the full-resolution iteration (a study variant, off by
   /// default: measured slower, docs/multilevel.md): after every fine_correction_interval fine

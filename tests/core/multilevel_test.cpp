@@ -99,6 +99,30 @@ TEST(MultilevelSolver, BuildsSeveralLevelsAndReportsEveryPhase) {
   EXPECT_EQ(solver->fine().positions(), report->V);
 }
 
+TEST(MultilevelSolver, TheFullResolutionStartKeepsToItsOwnBudget) {
+  MultilevelSettings settings = three_levels();
+  settings.fine_start_max_iterations = 3;
+  auto solver = MultilevelSolver::create(cactus().mesh.V, cactus().mesh.F,
+                                         cactus().setup.constrained, settings);
+  ASSERT_TRUE(solver.ok()) << solver.status().to_string();
+  std::map<int, int> start_reports;  // level -> the start's progress reports
+  auto report = solver->solve(cactus().setup.targets, {}, [&](const IterationInfo& info) {
+    if (info.phase == SolvePhase::Start) ++start_reports[info.level];
+  });
+  ASSERT_TRUE(report.ok()) << report.status().to_string();
+  ASSERT_EQ(report->levels.size(), 3u);
+  EXPECT_EQ(report->levels.back().level, 0);
+  EXPECT_GE(report->levels.back().start_iterations, 1);
+  EXPECT_LE(report->levels.back().start_iterations, 3);
+  // The coarse levels keep start_max_iterations: from the Laplacian guess the coarsest needs
+  // more than three.
+  EXPECT_GT(report->levels.front().start_iterations, 3);
+  EXPECT_LE(start_reports[0], 4);  // the starting energy and at most three iterations
+  // Still a deformation that reaches its handles and folds nothing.
+  EXPECT_LT(report->levels.back().handle_error, 1e-3);
+  EXPECT_EQ(report->folded_edges, 0);
+}
+
 TEST(MultilevelSolver, RigidMotionsAndUniformScalingsAreExactThroughEveryLevel) {
   const Edit& edit = cactus();
   const double diagonal = bbox_diagonal(edit.mesh);
@@ -277,6 +301,11 @@ TEST(MultilevelSolver, RejectsBadSettingsAndTargets) {
   bad = three_levels();
   bad.level_ratio = 1;
   EXPECT_FALSE(MultilevelSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained, bad).ok());
+  bad = three_levels();
+  bad.fine_start_max_iterations = 0;
+  made = MultilevelSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained, bad);
+  ASSERT_FALSE(made.ok());
+  EXPECT_NE(made.status().message().find("fine_start_max_iterations"), std::string::npos);
 
   auto solver = MultilevelSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained,
                                          three_levels());
