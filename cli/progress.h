@@ -6,8 +6,8 @@
 /// Phases, in order: "setup" (the precompute: the hierarchy's decimation, prolongations,
 /// factorizations), then for a multilevel solve (core/multires/multilevel.h) "start" (the rigid start's
 /// ARAP on every level), "levels" (the scale-aware iteration on the coarse levels) and "fine"
-/// (full resolution); a single-level solve shows "setup" and "fine" (its start's ARAP
-/// iterations are not reported one by one). On a terminal each phase redraws one line and
+/// (full resolution); a single-level solve shows "setup", "start" when it has a rigid start
+/// (its ARAP iterations on the one level) and "fine". On a terminal each phase redraws one line and
 /// leaves it complete when the next phase begins, so a finished run shows one line per phase.
 
 #include <chrono>

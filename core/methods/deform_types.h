@@ -198,11 +198,13 @@ struct IterationInfo {
   double normals_seconds = 0;   ///< step one (normals on the Gauss map)
   double assemble_seconds = 0;  ///< filling step two's matrix
   double linear_seconds = 0;    ///< refactorization and PCG
-  /// A multilevel solve's progress (core/multires/multilevel.h) also reports its start's ARAP iterations
-  /// and its coarse levels' iterations: their phase, the level (0 = full resolution) and its
-  /// vertex count; elapsed_seconds then counts from the start of the whole solve. A
-  /// single-level solve reports Fine, level 0, vertices 0. SolveReport::history holds the
-  /// full-resolution iterations only.
+  /// A multilevel solve's progress (core/multires/multilevel.h) also reports its start's ARAP
+  /// iterations and its coarse levels' iterations: their phase, the level (0 = full resolution)
+  /// and its vertex count; elapsed_seconds then counts from the start of the whole solve. A
+  /// single-level solve reports its rigid start's ARAP iterations (StartFrom::Rigid, and Auto's
+  /// cold start) as Start, level 0, with the mesh's vertex count, and its outer iterations as
+  /// Fine, level 0, vertices 0. SolveReport::history holds the full-resolution outer iterations
+  /// only: count Fine reports to follow it.
   SolvePhase phase = SolvePhase::Fine;
   int level = 0;
   int level_vertices = 0;

@@ -124,7 +124,22 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
     arap_options.track_metrics = false;
     // rigid_start_tolerance is a relative change (its documented meaning, measured so).
     arap_options.stopping_rule = StoppingRule::Change;
-    MD_ASSIGN_OR_RETURN(const SolveReport guess, s.rigid_start->solve(targets, arap_options, {}, stop));
+    // Its iterations are reported as the Start phase (level 0, this mesh): a progress display
+    // sees the start, and a caller whose callback yields (the server's worker pool) yields
+    // during it too, not only between the outer iterations after it.
+    ProgressCallback start_progress;
+    if (progress) {
+      start_progress = [&progress, nv = s.nv, start](const IterationInfo& arap) {
+        IterationInfo info = arap;
+        info.phase = SolvePhase::Start;
+        info.level = 0;
+        info.level_vertices = nv;
+        info.elapsed_seconds = seconds_since(start);
+        progress(info);
+      };
+    }
+    MD_ASSIGN_OR_RETURN(const SolveReport guess,
+                        s.rigid_start->solve(targets, arap_options, start_progress, stop));
     // Auto's cold start: the cold solve releases the ARAP solver at its end anyway (solve());
     // free it now, so that its factor and arrays (Spot 47k: 32 MB) are not held beside the
     // scale-aware iterations and the other start candidates.

@@ -334,6 +334,9 @@ Result<SolveReport> MultilevelSolver::solve(const Positions& targets, const Solv
     if (!progress) return {};
     const int vertices = s.vertices(i);
     return [&progress, phase, i, vertices, start](const IterationInfo& info) {
+      // A coarse level's Auto solve reports its own rigid start as Start: this cascade's start
+      // phase has reported that level's ARAP already, so it is not shown twice.
+      if (info.phase == SolvePhase::Start && phase != SolvePhase::Start) return;
       IterationInfo out = info;
       out.phase = phase;
       out.level = i;

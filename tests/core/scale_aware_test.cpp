@@ -217,11 +217,50 @@ TEST(ScaleAwareSolver, ProgressReportsEveryIteration) {
   Positions targets = rows_of(m.V, constrained);
   targets.row(0) *= 1.5;
   std::vector<int> seen;
+  std::vector<int> start_seen;  // the rigid start's ARAP iterations (Auto's cold start)
+  bool start_after_fine = false;
   auto report = deform_scale_aware(m.V, m.F, constrained, targets, {},
-                                   [&](const IterationInfo& info) { seen.push_back(info.iteration); });
+                                   [&](const IterationInfo& info) {
+                                     if (info.phase == SolvePhase::Start) {
+                                       start_after_fine = start_after_fine || !seen.empty();
+                                       EXPECT_EQ(info.level, 0);
+                                       EXPECT_EQ(info.level_vertices, m.V.rows());
+                                       start_seen.push_back(info.iteration);
+                                     } else {
+                                       EXPECT_EQ(info.phase, SolvePhase::Fine);
+                                       seen.push_back(info.iteration);
+                                     }
+                                   });
   ASSERT_TRUE(report.ok());
   ASSERT_EQ(seen.size(), report->history.size());
   for (size_t i = 0; i < seen.size(); ++i) EXPECT_EQ(seen[i], int(i));
+  // The start is reported too, before the outer iterations, so that a caller whose callback
+  // yields (the server) yields during it as well.
+  ASSERT_GE(start_seen.size(), 2u);
+  for (size_t i = 0; i < start_seen.size(); ++i) EXPECT_EQ(start_seen[i], int(i));
+  EXPECT_FALSE(start_after_fine);
+}
+
+TEST(ScaleAwareSolver, AStopDuringTheRigidStartCancelsAndKeepsTheState) {
+  MeshData m = test::make_icosphere(2);
+  Eigen::VectorXi constrained(3);
+  constrained << 0, 3, 7;
+  auto solver = ScaleAwareSolver::create(m.V, m.F, constrained);
+  ASSERT_TRUE(solver.ok());
+  Positions targets = rows_of(m.V, constrained);
+  targets.row(1) += Eigen::RowVector3d(0, 0, 1);
+  std::stop_source source;
+  int fine_calls = 0;
+  auto report = solver->solve(targets, {}, [&](const IterationInfo& info) {
+    if (info.phase == SolvePhase::Fine) ++fine_calls;
+    if (info.phase == SolvePhase::Start && info.iteration == 1) source.request_stop();
+  }, source.get_token());
+  ASSERT_FALSE(report.ok());
+  EXPECT_EQ(report.status().code(), ErrorCode::Cancelled);
+  EXPECT_EQ(fine_calls, 0);
+  EXPECT_EQ(solver->positions(), m.V);
+  // Nothing lost: the next solve runs whole.
+  EXPECT_TRUE(solver->solve(targets).ok());
 }
 
 TEST(ScaleAwareSolver, CancellationStopsAndKeepsThePreviousState) {
@@ -235,6 +274,7 @@ TEST(ScaleAwareSolver, CancellationStopsAndKeepsThePreviousState) {
   targets.row(1) += Eigen::RowVector3d(0, 0, 1);
   int calls = 0;
   auto report = solver->solve(targets, {}, [&](const IterationInfo& info) {
+    if (info.phase != SolvePhase::Fine) return;  // the rigid start's ARAP iterations
     ++calls;
     if (info.iteration == 1) source.request_stop();
   }, source.get_token());
