@@ -99,8 +99,10 @@ std::unique_ptr<NginxProcess> NginxProcess::start(const std::string& binary, con
   std::vector<std::string> words = {
       binary, "-p", prefix.string() + "/", "-c", conf.string(), "-e",
       (prefix / "error.log").string(), "-g",
-      "daemon off; pid " + (prefix / "nginx.pid").string() + ";"};
-  ChildStreams streams;  // the master dies with the test (PR_SET_PDEATHSIG)
+      // One process, no workers: PR_SET_PDEATHSIG reaches the only process, so a test binary
+      // that crashes leaves no nginx worker behind (they would outlive a killed master).
+      "daemon off; master_process off; pid " + (prefix / "nginx.pid").string() + ";"};
+  ChildStreams streams;  // nginx dies with the test (PR_SET_PDEATHSIG)
   streams.stdout_path = out.string();
   streams.stderr_path = (prefix / "nginx.err").string();
   std::string spawn_error;
