@@ -222,7 +222,7 @@ void ScaleControl::update_rotations(const Eigen::VectorXd& x, const RowPositions
   }
 }
 
-void ScaleControl::update_scales(const Eigen::VectorXd& x) {
+void ScaleControl::couple_with_frames(const Eigen::VectorXd& x, double* out) const {
   const bool parallel = nf_ > 4000 && threads_ > 1;
 #pragma omp parallel for schedule(static) num_threads(threads_) if (parallel)
   for (int f = 0; f < nf_; ++f) {
@@ -232,8 +232,12 @@ void ScaleControl::update_scales(const Eigen::VectorXd& x) {
       const Eigen::Vector3d e = edge(x, f, k);
       b += weight_[c] * e.dot(frame_edge_[c]);
     }
-    fit_b_(f) = b;
+    out[f] = b;
   }
+}
+
+void ScaleControl::update_scales(const Eigen::VectorXd& x) {
+  couple_with_frames(x, fit_b_.data());
   if (free_reference_) {
     Eigen::VectorXd rhs = Eigen::VectorXd::Zero(nf_ + 1);
     rhs.head(nf_) = fit_b_;
@@ -266,17 +270,7 @@ Eigen::VectorXd ScaleControl::scale_rhs() const {
 void ScaleControl::multiply_coupling(const Eigen::VectorXd& x, Eigen::VectorXd& out) const {
   MD_ASSERT(!frame_edge_.empty());  // reset() comes first
   out.setZero(scale_unknowns());
-  const bool parallel = nf_ > 4000 && threads_ > 1;
-#pragma omp parallel for schedule(static) num_threads(threads_) if (parallel)
-  for (int f = 0; f < nf_; ++f) {
-    double b = 0;
-    for (int k = 0; k < 3; ++k) {
-      const size_t c = 3 * static_cast<size_t>(f) + k;
-      const Eigen::Vector3d e = edge(x, f, k);
-      b += weight_[c] * e.dot(frame_edge_[c]);
-    }
-    out(f) = b;
-  }
+  couple_with_frames(x, out.data());
 }
 
 void ScaleControl::add_coupling_transpose(const Eigen::VectorXd& s, double alpha,

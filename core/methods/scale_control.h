@@ -136,6 +136,9 @@ class ScaleControl {
   void reset_scales();
   /// Stores face f's frame R as its rotated rest edges.
   void set_frame(int f, const Eigen::Matrix3d& R);
+  /// out[f] = sum_k w_k e_k(x) . (R_f e0_k) for every face: the coupling of x with the frames
+  /// (update_scales' fit and multiply_coupling). `out` holds at least #F values.
+  void couple_with_frames(const Eigen::VectorXd& x, double* out) const;
   /// e_k(x): the edge of face f opposite corner k, from corner k+1 to corner k+2.
   Eigen::Vector3d edge(const Eigen::VectorXd& x, int f, int k) const {
     return x.segment<3>(3 * F_(f, (k + 2) % 3)) - x.segment<3>(3 * F_(f, (k + 1) % 3));
