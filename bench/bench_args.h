@@ -84,6 +84,25 @@ class BenchFlags {
       return Status::success();
     });
   }
+  /// "--name a,b,c" stored as its comma-separated items (split_commas).
+  void list(const std::string& name, std::vector<std::string>& out) {
+    value(name, [&out](const std::string& text) {
+      out = split_commas(text);
+      return Status::success();
+    });
+  }
+  /// "--name 2,3": comma-separated integers, each >= min_value (parse_integer).
+  template <typename Integer>
+  void integer_list(const std::string& name, std::vector<Integer>& out, Integer min_value) {
+    value(name, [name, &out, min_value](const std::string& text) -> Status {
+      out.clear();
+      for (const std::string& item : split_commas(text)) {
+        MD_ASSIGN_OR_RETURN(const Integer parsed, parse_integer<Integer>(name, item, min_value));
+        out.push_back(parsed);
+      }
+      return Status::success();
+    });
+  }
   /// "--name" without a value: runs `on`.
   void flag(const std::string& name, std::function<void()> on) {
     app_.add_flag_callback(name, std::move(on))->disable_flag_override();

@@ -103,19 +103,9 @@ void print_usage(std::ostream& out) {
 Result<Options> parse_options(int argc, char** argv) {
   Options o;
   BenchFlags flags;
-  flags.value("--models", [&](const std::string& value) {
-    o.models = split_commas(value);
-    return Status::success();
-  });
+  flags.list("--models", o.models);
   flags.integer("--max-vertices", o.max_vertices, 1L);
-  flags.value("--spot-levels", [&](const std::string& value) -> Status {
-    o.spot_levels.clear();
-    for (const auto& item : split_commas(value)) {
-      MD_ASSIGN_OR_RETURN(const long level, parse_integer<long>("--spot-levels", item, 0));
-      o.spot_levels.push_back(static_cast<int>(level));
-    }
-    return Status::success();
-  });
+  flags.integer_list("--spot-levels", o.spot_levels, 0);
   flags.integer("--threads", o.threads, 0);
   flags.integer("--converge-iterations", o.converge_iterations, 1);
   flags.integer("--single-converge-max-vertices", o.single_converge_max_vertices, 0L);
@@ -133,10 +123,7 @@ Result<Options> parse_options(int argc, char** argv) {
     return Status::success();
   });
   flags.flag("--variants", [&] { o.variants = true; });
-  flags.value("--variant-models", [&](const std::string& value) {
-    o.variant_models = split_commas(value);
-    return Status::success();
-  });
+  flags.list("--variant-models", o.variant_models);
   flags.text("--variant-filter", o.variant_filter);
   flags.text("--out-dir", o.out_dir);
   flags.text("--stem", o.stem);

@@ -100,14 +100,7 @@ void print_usage(std::ostream& out) {
 Result<Options> parse_options(int argc, char** argv) {
   Options o;
   BenchFlags flags;
-  flags.value("--spot-levels", [&](const std::string& value) -> Status {
-    o.spot_levels.clear();
-    for (const auto& item : split_commas(value)) {
-      MD_ASSIGN_OR_RETURN(const int level, parse_integer<int>("--spot-levels", item, 0));
-      o.spot_levels.push_back(level);
-    }
-    return Status::success();
-  });
+  flags.integer_list("--spot-levels", o.spot_levels, 0);
   flags.value("--edit", [&](const std::string& value) -> Status {
     o.edit = value;
     if (o.edit != "bend" && o.edit != "stretch" && o.edit != "twist") {

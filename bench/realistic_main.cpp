@@ -107,24 +107,11 @@ void print_usage(std::ostream& out) {
 Result<Options> parse_options(int argc, char** argv) {
   Options o;
   BenchFlags flags;
-  flags.value("--models", [&](const std::string& value) {
-    o.models = split_commas(value);
-    return Status::success();
-  });
+  flags.list("--models", o.models);
   flags.integer("--max-vertices", o.max_vertices, 1L);
-  flags.value("--spot-levels", [&](const std::string& value) -> Status {
-    o.spot_levels.clear();
-    for (const auto& item : split_commas(value)) {
-      MD_ASSIGN_OR_RETURN(const long level, parse_integer<long>("--spot-levels", item, 0));
-      o.spot_levels.push_back(static_cast<int>(level));
-    }
-    return Status::success();
-  });
+  flags.integer_list("--spot-levels", o.spot_levels, 0);
   flags.flag("--regular", [&] { o.include_regular = true; });
-  flags.value("--methods", [&](const std::string& value) {
-    o.methods = split_commas(value);
-    return Status::success();
-  });
+  flags.list("--methods", o.methods);
   flags.integer("--iterations", o.iterations, 1);
   flags.integer("--repeat", o.repeat, 1);
   flags.integer("--repeat-max-vertices", o.repeat_max_vertices, 1L);

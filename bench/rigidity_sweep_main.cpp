@@ -673,10 +673,7 @@ Result<Options> parse_options(int argc, char** argv) {
       return Status::success();
     });
   };
-  flags.value("--models", [&](const std::string& value) {
-    options.models = split_commas(value);
-    return Status::success();
-  });
+  flags.list("--models", options.models);
   flags.flag("--small", [&] { options.small = true; });
   flags.text("--out-dir", options.out_dir);
   flags.value("--rigidities", [&](const std::string& value) -> Status {

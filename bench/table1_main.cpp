@@ -105,10 +105,7 @@ void print_usage(std::ostream& out) {
 Result<Options> parse_options(int argc, char** argv) {
   Options options;
   BenchFlags flags;
-  flags.value("--models", [&](const std::string& value) {
-    options.models = split_commas(value);
-    return Status::success();
-  });
+  flags.list("--models", options.models);
   flags.flag("--small", [&] { options.small = true; });
   flags.text("--out-dir", options.out_dir);
   flags.integer("--iterations", options.iterations, 1);
