@@ -4,8 +4,10 @@
 /// baselines added later), so callers switch methods without changing code.
 
 #include <cmath>
+#include <cstdint>
 #include <functional>
 #include <limits>
+#include <memory>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -249,6 +251,26 @@ struct StitchReport {
   double seconds = 0;
 };
 
+/// The coarse level a multiresolution move solved on (core/multires/multires.h): its triangles
+/// and which full-resolution vertex each of its vertices is, shared by every move of one
+/// deformer. A client can draw it during a drag (issue 44) instead of the full mesh.
+struct CoarseLevelMesh {
+  Triangles F;              ///< #Fc x 3 triangles on the coarse vertices
+  Eigen::VectorXi to_fine;  ///< #Vc full-resolution vertex of each coarse vertex, ascending
+  /// A hash of F and to_fine (FNV-1a, 64 bits): equal meshes have equal keys, on every server.
+  std::uint64_t key = 0;
+};
+
+/// A multiresolution move's positions on its coarse level. The prolongation keeps coarse
+/// vertices where the coarse solve put them: V.row(i) equals the full result's row to_fine(i).
+struct CoarseLevelPositions {
+  std::shared_ptr<const CoarseLevelMesh> mesh;
+  Positions V;  ///< #Vc x 3
+};
+
+/// The key of CoarseLevelMesh: FNV-1a over the vertex count, to_fine and F.
+std::uint64_t coarse_level_key(const Triangles& F, const Eigen::VectorXi& to_fine);
+
 /// The outcome of a solve.
 struct SolveReport {
   Positions V;                          ///< #V x 3 deformed positions
@@ -282,6 +304,9 @@ struct SolveReport {
   /// A multilevel solve's levels, coarsest first, full resolution last; empty for a
   /// single-level solve.
   std::vector<LevelReport> levels;
+  /// A move a multiresolution deformer solved on its coarse level and prolonged: that level's
+  /// positions. Null for every full-resolution solve.
+  std::shared_ptr<const CoarseLevelPositions> coarse;
 };
 
 }  // namespace meshdeform::core

@@ -19,6 +19,23 @@
 #include "core/multires/multires.h"
 
 namespace meshdeform::core {
+
+std::uint64_t coarse_level_key(const Triangles& F, const Eigen::VectorXi& to_fine) {
+  std::uint64_t hash = 14695981039346656037ull;  // FNV-1a offset basis
+  const auto mix = [&hash](std::int64_t value) {
+    for (int byte = 0; byte < 8; ++byte) {
+      hash ^= static_cast<std::uint64_t>(value >> (8 * byte)) & 0xffu;
+      hash *= 1099511628211ull;  // FNV prime
+    }
+  };
+  mix(to_fine.size());
+  for (Eigen::Index i = 0; i < to_fine.size(); ++i) mix(to_fine(i));
+  for (Eigen::Index f = 0; f < F.rows(); ++f) {
+    for (int c = 0; c < 3; ++c) mix(F(f, c));
+  }
+  return hash;
+}
+
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -69,6 +86,16 @@ class MultiresScaleAwareDeformer final : public Deformer {
     }
     MD_ASSIGN_OR_RETURN(MultiresMove move, multires_.move(targets, options, progress, std::move(stop)));
     SolveReport report = std::move(move.coarse);
+    if (!coarse_mesh_) {
+      const MeshLevel& level = multires_.hierarchy().level(multires_.coarse_level());
+      auto mesh = std::make_shared<CoarseLevelMesh>();
+      mesh->F = level.F;
+      mesh->to_fine = level.to_fine;
+      mesh->key = coarse_level_key(mesh->F, mesh->to_fine);
+      coarse_mesh_ = std::move(mesh);
+    }
+    report.coarse = std::make_shared<const CoarseLevelPositions>(
+        CoarseLevelPositions{coarse_mesh_, std::move(report.V)});
     report.V = std::move(move.V);
     report.seconds += move.prolong_seconds;
     report.converged = false;  // the full resolution has not been solved
@@ -100,6 +127,7 @@ class MultiresScaleAwareDeformer final : public Deformer {
  private:
   MultiresDeformer multires_;
   Eigen::VectorXi constrained_;
+  std::shared_ptr<const CoarseLevelMesh> coarse_mesh_;  // made with the first move
   // Tells a background build's installer which deformer it was built for (addresses get reused).
   const std::uint64_t id_ = next_id();
   static std::uint64_t next_id() {

@@ -762,6 +762,7 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
   result->editor = editor;
   result->refinement = refinement;
   result->pcg_iterations = report.pcg_iterations;
+  result->coarse = std::move(report.coarse);
   counters_->pcg_iterations.fetch_add(static_cast<std::uint64_t>(std::max(report.pcg_iterations, 0)));
   counters_->outer_iterations.fetch_add(static_cast<std::uint64_t>(std::max(report.iterations, 0)));
   counters_->metrics.record_solve(refinement, report.seconds);

@@ -164,6 +164,11 @@ struct DeformResult {
   /// revision's targets, not by a move; editor is "refinement".
   bool refinement = false;
   int pcg_iterations = 0;       ///< conjugate-gradient iterations of step two in this solve
+  /// A multiresolution session's move solved on its coarse level (then prolonged into
+  /// `positions`): that level's mesh and positions, for watchers that draw the coarse level
+  /// during a drag (issue 44). Null for full-resolution solves and refinements, and in results
+  /// relayed from another replica.
+  std::shared_ptr<const core::CoarseLevelPositions> coarse;
   /// A move's own result only (not the watchers' copy): the session's undo-history position
   /// (EditState::position) after the move.
   std::optional<int> history_position{};

@@ -146,13 +146,15 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
  public:
   /// @param[in] deltas    link-sized updates (UpdateOptions), encoded on `executor`; nullopt:
   ///                      positions as `encoding` says, encoded where the update is taken.
+  /// @param[in] coarse_preview  WatchRequest.coarse_preview: add each coarse move's level.
   static WatchReactor* start(service::Subscription subscription, v1::PositionEncoding encoding,
                              CallRecord call,
                              std::optional<codec::StreamSettings> deltas = std::nullopt,
-                             SerialExecutor* executor = nullptr) {
+                             SerialExecutor* executor = nullptr, bool coarse_preview = false) {
     auto reactor = std::shared_ptr<WatchReactor>(
         new WatchReactor(std::move(subscription), encoding, std::move(call)));
     reactor->deltas_ = std::move(deltas);
+    reactor->coarse_preview_ = coarse_preview;
     reactor->executor_ = executor;
     reactor->self_ = reactor;
     std::weak_ptr<WatchReactor> weak = reactor;
@@ -233,6 +235,9 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
         }
       } else if (std::optional<service::DeformUpdate> update = subscription_->try_take()) {
         update_to_proto(*update, encoding_, &message_);
+        if (coarse_preview_ && update->result) {
+          coarse_to_proto(*update->result, &coarse_key_sent_, &message_);
+        }
         next = Next::Write;
       } else if (subscription_->closed()) {
         // OK when the session was closed; otherwise what ended the watch (shutdown: UNAVAILABLE).
@@ -310,6 +315,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
         last_revision_at_ = std::chrono::steady_clock::now();
         message_.set_skipped_revisions(update->skipped_revisions);
         wire::delta_to_proto(delta, message_.mutable_delta());
+        if (coarse_preview_) coarse_to_proto(*update->result, &coarse_key_sent_, &message_);
       } else {
         MD_ASSIGN_OR_RETURN(codec::EncodedUpdate delta, encoder_->encode_pending());
         message_.set_continuation(true);
@@ -353,6 +359,10 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
   std::optional<codec::StreamSettings> deltas_;
   std::optional<codec::StreamEncoder> encoder_;
   std::shared_ptr<const service::DeformResult> last_result_;
+  // WatchRequest.coarse_preview, and the key of the coarse level whose mesh this stream sent
+  // last (read and written where updates are made: under mutex_, or by the one encoding task).
+  bool coarse_preview_ = false;
+  std::optional<std::uint64_t> coarse_key_sent_;
   SerialExecutor* executor_ = nullptr;
   // When the last new revision was encoded: written while encoding, read by pump() after.
   std::chrono::steady_clock::time_point last_revision_at_{};
@@ -724,7 +734,8 @@ grpc::ServerWriteReactor<v1::DeformUpdate>* DeformServiceImpl::Watch(
     deltas = *settings;
   }
   return WatchReactor::start(std::move(subscription).value(), *encoding, std::move(call),
-                             std::move(deltas), deltas ? &encode_executor() : nullptr);
+                             std::move(deltas), deltas ? &encode_executor() : nullptr,
+                             request->coarse_preview());
 }
 
 SerialExecutor& DeformServiceImpl::encode_executor() {

@@ -377,6 +377,27 @@ void update_to_proto(const service::DeformUpdate& update, v1::PositionEncoding e
   }
 }
 
+void coarse_to_proto(const service::DeformResult& result, std::optional<std::uint64_t>* sent_key,
+                     v1::DeformUpdate* out) {
+  if (!result.coarse || !result.coarse->mesh) return;
+  const core::CoarseLevelMesh& mesh = *result.coarse->mesh;
+  v1::CoarseLevel* coarse = out->mutable_coarse();
+  coarse->set_key(mesh.key);
+  coarse->set_vertex_count(static_cast<std::uint32_t>(result.coarse->V.rows()));
+  pack_positions(result.coarse->V, v1::POSITION_ENCODING_FLOAT32, coarse->mutable_positions());
+  if (*sent_key == mesh.key) return;
+  // Indices of a level are >= 0 (a level's triangles and its subset of the fine vertices).
+  coarse->mutable_triangles()->Reserve(static_cast<int>(mesh.F.size()));
+  for (Eigen::Index f = 0; f < mesh.F.rows(); ++f) {
+    for (int c = 0; c < 3; ++c) coarse->add_triangles(static_cast<std::uint32_t>(mesh.F(f, c)));
+  }
+  coarse->mutable_to_fine()->Reserve(static_cast<int>(mesh.to_fine.size()));
+  for (Eigen::Index i = 0; i < mesh.to_fine.size(); ++i) {
+    coarse->add_to_fine(static_cast<std::uint32_t>(mesh.to_fine(i)));
+  }
+  *sent_key = mesh.key;
+}
+
 void server_stats_to_proto(const service::ServiceStats& stats, double uptime_seconds,
                            v1::GetServerStatsResponse* out) {
   out->set_sessions(static_cast<std::uint32_t>(stats.sessions));

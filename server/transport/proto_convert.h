@@ -64,6 +64,12 @@ void result_figures_to_proto(const service::DeformResult& result, v1::DeformResu
 /// Snapshots carry all positions and no changed lists; deltas the changed lists only.
 void update_to_proto(const service::DeformUpdate& update, v1::PositionEncoding encoding,
                      v1::DeformUpdate* out);
+/// DeformUpdate.coarse for a result solved on a coarse level (WatchRequest.coarse_preview):
+/// its float32 positions, and its triangles and to_fine when the level's key differs from
+/// `*sent_key` (what the stream sent last), which then becomes that key. Nothing for a result
+/// without a coarse level.
+void coarse_to_proto(const service::DeformResult& result, std::optional<std::uint64_t>* sent_key,
+                     v1::DeformUpdate* out);
 void server_stats_to_proto(const service::ServiceStats& stats, double uptime_seconds,
                            v1::GetServerStatsResponse* out);
 

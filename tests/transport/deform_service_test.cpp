@@ -1181,9 +1181,6 @@ TEST_F(DeformServiceTest, SessionInfoTellsWhatTheTokenAllows) {
   }
 }
 
-}  // namespace
-}  // namespace meshdeform::transport
-
 namespace meshdeform::transport {
 namespace {
 
@@ -1409,6 +1406,115 @@ TEST_F(DeformServiceTest, ExactUndoFieldsOverTheWire) {
   v1::MoveHandlesRequest both = undo;
   both.set_restore_revision(0);
   EXPECT_EQ(move(both, &response).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+}
+
+}  // namespace
+}  // namespace meshdeform::transport
+
+// Issue 44: a watcher asking for coarse_preview gets, with each move a multiresolution session
+// solved on its coarse level, that level's positions (its mesh once per stream), which are the
+// prolonged full result's at the coarse vertices; full-resolution solves carry none, and a
+// watcher that did not ask gets none. The same in plain and in link-sized (delta) streams.
+TEST_F(DeformServiceTest, CoarsePreviewCarriesTheCoarseLevelOfMultiresolutionMoves) {
+  stop();
+  service::ServiceOptions options;
+  options.multires_above = 1000;
+  options.multires_coarse_vertices = 1000;
+  options.refine_delay = milliseconds(600'000);  // no refinement revision during the test
+  start(options);
+  const v1::CreateSessionResponse s = create_with_handles("cylinder");
+  const std::uint32_t vertex_count = s.info().vertices();
+  ASSERT_GT(vertex_count, 2000u) << "the sample must be above the multiresolution threshold";
+
+  struct Stream {
+    grpc::ClientContext context;
+    std::unique_ptr<grpc::ClientReader<v1::DeformUpdate>> reader;
+    bool coarse_preview = false;
+    bool link_sized = false;
+  };
+  std::vector<std::unique_ptr<Stream>> streams;
+  for (const auto& [preview, link_sized] :
+       {std::pair{true, false}, std::pair{true, true}, std::pair{false, false}}) {
+    auto stream = std::make_unique<Stream>();
+    stream->coarse_preview = preview;
+    stream->link_sized = link_sized;
+    bound(stream->context);
+    v1::WatchRequest request;
+    request.set_session_id(s.session_id());
+    request.set_token(s.view_token());
+    request.set_coarse_preview(preview);
+    if (link_sized) request.mutable_updates()->set_mode(v1::DELTA_MODE_QUANTIZED);
+    stream->reader = stub_->Watch(&stream->context, request);
+    v1::DeformUpdate join;
+    ASSERT_TRUE(stream->reader->Read(&join));
+    EXPECT_EQ(join.result().revision(), 0u);
+    EXPECT_FALSE(join.has_coarse()) << "the rest mesh was not solved on a coarse level";
+    streams.push_back(std::move(stream));
+  }
+
+  std::uint64_t key = 0;
+  std::vector<std::uint32_t> to_fine;
+  for (int step = 1; step <= 3; ++step) {
+    // Steps 1 and 2 move on the coarse level; step 3 asks for ORA, solved at full resolution.
+    v1::MoveHandlesRequest request = bend_request(s, 15.0 * step);
+    request.set_full_positions(true);
+    request.set_ora(step == 3);
+    v1::MoveHandlesResponse response;
+    const grpc::Status status = move(request, &response);
+    ASSERT_TRUE(status.ok()) << describe(status);
+    const Positions full = positions_of(response.result().positions());
+    for (const auto& stream : streams) {
+      SCOPED_TRACE("step " + std::to_string(step) + (stream->coarse_preview ? " preview" : "") +
+                   (stream->link_sized ? " link-sized" : ""));
+      v1::DeformUpdate update;
+      ASSERT_TRUE(stream->reader->Read(&update));
+      ASSERT_EQ(update.result().revision(), response.result().revision());
+      if (!stream->coarse_preview || step == 3) {
+        EXPECT_FALSE(update.has_coarse());
+        continue;
+      }
+      ASSERT_TRUE(update.has_coarse());
+      const v1::CoarseLevel& coarse = update.coarse();
+      const std::uint32_t nc = coarse.vertex_count();
+      EXPECT_GE(nc, 3u);
+      EXPECT_LT(nc, vertex_count / 2);
+      ASSERT_EQ(coarse.positions().size(), 12u * nc);
+      if (step == 1) {
+        // The stream's first update of the level brings its mesh.
+        ASSERT_EQ(static_cast<std::uint32_t>(coarse.to_fine_size()), nc);
+        ASSERT_GT(coarse.triangles_size(), 0);
+        EXPECT_EQ(coarse.triangles_size() % 3, 0);
+        for (const std::uint32_t t : coarse.triangles()) EXPECT_LT(t, nc);
+        for (int i = 0; i < coarse.to_fine_size(); ++i) {
+          EXPECT_LT(coarse.to_fine(i), vertex_count);
+          if (i > 0) EXPECT_LT(coarse.to_fine(i - 1), coarse.to_fine(i)) << "ascending, distinct";
+        }
+        if (key == 0) {
+          key = coarse.key();
+          to_fine.assign(coarse.to_fine().begin(), coarse.to_fine().end());
+        }
+        EXPECT_EQ(coarse.key(), key) << "one level, one key on every stream";
+        EXPECT_TRUE(std::equal(to_fine.begin(), to_fine.end(), coarse.to_fine().begin()));
+      } else {
+        // Known to the stream: positions only.
+        EXPECT_EQ(coarse.key(), key);
+        EXPECT_EQ(coarse.to_fine_size(), 0);
+        EXPECT_EQ(coarse.triangles_size(), 0);
+      }
+      ASSERT_EQ(to_fine.size(), nc);
+      std::vector<float> xyz(3u * nc);
+      std::memcpy(xyz.data(), coarse.positions().data(), coarse.positions().size());
+      // The prolongation keeps coarse vertices where the coarse solve put them.
+      int mismatches = 0;
+      for (std::uint32_t i = 0; i < nc; ++i) {
+        for (int c = 0; c < 3; ++c) {
+          if (xyz[3 * i + c] != static_cast<float>(full(to_fine[i], c))) ++mismatches;
+        }
+      }
+      EXPECT_EQ(mismatches, 0);
+    }
+  }
+  for (const auto& stream : streams) stream->context.TryCancel();
 }
 
 }  // namespace
