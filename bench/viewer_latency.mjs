@@ -7,6 +7,10 @@
 //   node bench/viewer_latency.mjs [--build build] [--moves 90] [--out bench/results] [--model NAME]
 //       [--baseline-dist DIR] [--name viewer]
 //
+// The coarse level (issue 44): on the multiresolution model the viewer draws the level the moves
+// solved on while the button is down; "this, ?coarse=off" is the same build drawing the full mesh
+// every frame, in the same run.
+//
 // Input delay (issue 44): for every pointer event of the drag, how long it waited before the
 // page's main thread ran its first handler (performance.now() - event.timeStamp, measured by a
 // listener the bench adds, so any build of the viewer can be measured), how many of the drag's
@@ -51,7 +55,9 @@ for (const f of [serverPath, path.join(dist, "index.html"), ...(baselineDist ? [
 const models = [
   { sample: "cylinder", vertices: 4802, encodings: ["double", "float32", "meshopt"], settleMs: 1500 },
   { sample: "bumpy_plane", vertices: 40401, encodings: ["double", "float32", "meshopt"], settleMs: 1500 },
-  { sample: "bumpy_plane_large", vertices: 187489, encodings: ["float32", "meshopt"], settleMs: Number(args.settle ?? 20_000) },
+  // multires: the server moves it on a coarse level; the viewer draws that level during a drag
+  // (issue 44), measured beside ?coarse=off (the full mesh drawn every frame).
+  { sample: "bumpy_plane_large", vertices: 187489, encodings: ["float32", "meshopt"], settleMs: Number(args.settle ?? 20_000), multires: true },
 ].filter((m) => !args.model || m.sample === args.model);
 
 function startServer(webRoot = dist) {
@@ -87,12 +93,12 @@ function inputProbe() {
   }, { capture: true });
 }
 
-async function measure(browser, url, model, encoding, viewer = "this") {
+async function measure(browser, url, model, encoding, viewer = "this", query = "") {
   const ctx = await browser.newContext({ viewport: { width: Number(args.width ?? 1200), height: Number(args.height ?? 800) } });
   await ctx.addInitScript(inputProbe);
   const page = await ctx.newPage();
   page.setDefaultTimeout(300_000);
-  await page.goto(`${url}/?sample=${model.sample}&encoding=${encoding}`);
+  await page.goto(`${url}/?sample=${model.sample}&encoding=${encoding}${query}`);
   await page.waitForFunction(() => window.__meshdeform?.ready, null, { timeout: 300_000, polling: 100 });
   await page.waitForTimeout(1500);  // let the first refinement of nothing settle
   await page.evaluate(() => window.__meshdeform.resetMetrics());
@@ -177,8 +183,10 @@ try {
   for (const model of models) {
     for (const encoding of model.encodings) {
       // This build and the baseline build side by side, model by model (the machine is noisy).
-      for (const [viewer, at] of [["this", url], ...(baseline ? [["baseline", baseline.url]] : [])]) {
-        const r = await measure(browser, at, model, encoding, viewer);
+      const variants = [["this", url, ""], ...(model.multires ? [["this, ?coarse=off", url, "&coarse=off"]] : []),
+        ...(baseline ? [["baseline", baseline.url, ""]] : [])];
+      for (const [viewer, at, query] of variants) {
+        const r = await measure(browser, at, model, encoding, viewer, query);
         rows.push(r);
         console.log(`${r.model} ${r.encoding} (${viewer}): ${r.updates_per_second.toFixed(1)} updates/s, drag->frame p50 ${r.drag_to_frame_ms.p50.toFixed(0)} ms, ` +
           `frame work p50 ${r.frame_work_ms.p50.toFixed(1)} ms, drag took ${r.drag_seconds.toFixed(1)} s (nominal ${r.nominal_drag_seconds.toFixed(1)}), ` +

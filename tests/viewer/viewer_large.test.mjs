@@ -1,5 +1,6 @@
 // End-to-end (issue 44, point 6): on the 187,489-vertex plane the page keeps taking pointer input
-// during a drag. Updates are decoded and applied in a worker and at most one frame waits for the
+// during a drag, drawing the coarse level of the multiresolution session while the button is
+// down and the full mesh after the release. Updates are decoded and applied in a worker and at most one frame waits for the
 // page, so every pointer event of the drag reaches the page's handler while frames arrive, and
 // none of them waits for an update to be decoded. Conditions and counters only (no timings: the
 // bench, bench/viewer_latency.mjs, measures the delays). Env and run: see harness.mjs.
@@ -49,11 +50,17 @@ test("a 187k-vertex drag keeps taking pointer input", { timeout: 290_000 }, asyn
     last = [Math.round(p.x + 2 * i), Math.round(p.y - 1.5 * i)];
     await page.mouse.move(last[0], last[1]);
   }
-  // While the button is still down: the page has seen the drag's revisions.
+  // While the button is still down: the page has seen the drag's revisions, and draws the
+  // coarse level they were solved on (a multiresolution session), not the 187k vertices.
   await poll(page, (r) => window.__meshdeform.revision > r, rev0, "a revision of the drag on screen while dragging");
-  const during = await hook(page, () => ({ pointer: { ...window.__pointer }, m: window.__meshdeform.metrics() }));
+  await poll(page, () => window.__meshdeform.drawn().coarse, null, "the coarse level drawn while dragging");
+  const during = await hook(page, () => ({ pointer: { ...window.__pointer }, m: window.__meshdeform.metrics(), drawn: window.__meshdeform.drawn() }));
+  assert.ok(during.drawn.vertices > 0 && during.drawn.vertices < 187489 / 4, `coarse level of ${during.drawn.vertices} vertices`);
+  await shot(page, "large-drag-coarse.png");
   await page.mouse.up();
   await settle(page, "after the drag");
+  // Released: the full mesh again, at once (whether or not a refinement revision came yet).
+  assert.deepEqual(await hook(page, () => window.__meshdeform.drawn()), { coarse: false, vertices: 187489 });
   const m = await hook(page, () => window.__meshdeform.metrics());
   console.log(`187k drag: ${during.pointer.events} pointer events handled of ${moves}; ${m.inputDelayMs.length} drag handler runs, ` +
     `input delay p50 ${median(m.inputDelayMs).toFixed(1)} ms max ${Math.max(...m.inputDelayMs).toFixed(1)} ms; ` +

@@ -5,6 +5,7 @@
 // page's pointer input never waits on a 187k-vertex update. This file: the messages, and the
 // gate that decides when a frame goes out (pure, tested).
 
+import type { CoarseFrame } from "./coarse";
 import type { LinkSizedChoice } from "./update_codec";
 
 export type HeatMetric = "angle" | "area";
@@ -33,6 +34,8 @@ export type ToWorker =
     type: "open"; origin: string; sessionId: string; token: string; encoding: number; vertexCount: number;
     /** Link-sized updates (issue 45; the page's ?updates=): the worker asks the Watch for them. */
     updates: LinkSizedChoice;
+    /** Ask the Watch for the coarse level of multiresolution moves (drawn during a drag). */
+    coarse: boolean;
     indices: Uint32Array; rest: Float32Array; heat: HeatMetric | null; pageTimeOrigin: number;
   }
   /** The page drew the last frame: these buffers may be filled again. */
@@ -44,6 +47,8 @@ export type FromWorker =
   | {
     type: "frame"; revision: number; positions: Float32Array; normals: Float32Array; sphere: { center: [number, number, number]; radius: number };
     heat: Float32Array | null; heatMetric: HeatMetric | null; updates: UpdateInfo[]; workMs: number;
+    /** The newest update's coarse level (a multiresolution move), else null (src/coarse.ts). */
+    coarse: CoarseFrame | null;
   }
   | { type: "status"; text: string }
   | { type: "bad"; message: string }

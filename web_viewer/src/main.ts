@@ -41,60 +41,9 @@ import type { FromWorker, HeatMetric, ToWorker, UpdateInfo } from "./frames";
 import { autoScale, DEFAULT_HEAT_SCALE, heatMax, legend, parseScale, scaleValue, withScale, type HeatScale } from "./heatscale";
 import { viewForKey } from "./views";
 import { linkSizedOptions, parseLinkSized } from "./update_codec";
+import { DragToFrame } from "./frame_latency";
+import { makeHooks, newPageMetrics, type Hooks, type PageMetrics, type Role } from "./test_hooks";
 import "./style.css";
-
-type Role = "edit" | "view";
-
-interface Hooks {
-  ready: boolean;
-  revision: number;
-  sessionId: string;
-  role: Role;
-  vertexCount: number;
-  lastError: string;
-  /** True after the session turned out to be gone (NOT_FOUND) or the link could not be opened. */
-  gone: boolean;
-  /** Index of the selected group (into groups()), -1 for none. */
-  selectedGroup: number;
-  /** The open modal transform's overlay text ("" when none), and whether undo/redo is running. */
-  modal: string;
-  historyBusy: boolean;
-  tool: Tool;
-  /** Grab tool: the pointer is over the mesh (the radius preview shows). */
-  hovering: boolean;
-  /** Screen point of the selected handle group's centre (else the first handle group's). */
-  handleScreenPoint(): { x: number; y: number } | null;
-  /** Screen point of group i's centre as rendered, or of vertex v. */
-  groupScreenPoint(i: number): { x: number; y: number } | null;
-  vertexScreenPoint(v: number): { x: number; y: number } | null;
-  worldScreenPoint(x: number, y: number, z: number): { x: number; y: number } | null;
-  positions(): number[];
-  /** The rest mesh (revision 0) as loaded. */
-  restPositions(): number[];
-  /** Per rendered frame and update: see metrics in App. inputDelayMs: per pointer event during a
-   * drag, how long it waited before the page's handler ran. */
-  metrics(): {
-    dragToFrameMs: number[]; updateBytes: number[]; updateEncodings: string[]; updatesRendered: number; frameWorkMs: number[];
-    renderedAt: number[]; renderedRefinement: boolean[]; renderedConverged: boolean[]; inputDelayMs: number[]; workerMs: number[];
-    updatesDropped: number;
-  };
-  resetMetrics(): void;
-  /** Every applied group's move as the page holds it (translation, rotation w x y z, scale). */
-  moveStates(): { translation: number[]; rotation: number[]; scale: number }[];
-  /** The session's handle groups as applied (role 'fixed' | 'handle'), for tests. */
-  groups(): { role: "fixed" | "handle"; vertices: number[] }[];
-  /** The painted groups (applied or not). */
-  draftGroups(): { role: "fixed" | "handle"; vertices: number[] }[];
-  /** The undo history: position and size. */
-  history(): { position: number; size: number; canUndo: boolean; canRedo: boolean };
-  /** The state notice shown (what is missing and the way out), "" for none. */
-  notice(): string;
-  /** The heat map's legend as shown, and the sRGB colour of vertex v on screen. */
-  legend(): string[];
-  vertexColor(v: number): number[];
-  /** The view direction (unit, from the camera). */
-  viewDirection(): number[];
-}
 
 interface MoveTarget {
   states: GroupStates;
@@ -157,6 +106,9 @@ const ENCODING = parseEncoding(query.get("encoding"));
 // ?updates=quantized|lossless[&tolerance=X][&budget=BYTES]: link-sized Watch updates (issue 45).
 const LINK_SIZED = parseLinkSized(query);
 const UPDATES = linkSizedOptions(LINK_SIZED);
+// ?coarse=off: draw the full mesh during a multiresolution drag too (default: its coarse level;
+// an editor's page only: a watcher draws the full mesh, so its stream does not carry the level).
+const COARSE = query.get("coarse") !== "off";
 const client = makeClient(location.origin);
 // ?lambda= soft handle weight for new sessions (server default 100 lets fixed vertices drift ~1e-4).
 const LAMBDA = Number(query.get("lambda")) > 0 ? Number(query.get("lambda")) : undefined;
@@ -220,13 +172,8 @@ class App {
   private targetTimer: ReturnType<typeof setTimeout> | undefined;
   private heatScale: HeatScale = { ...DEFAULT_HEAT_SCALE };
   noticeText = "";
-  private readonly moveT0 = new Map<number, number>(); // revision -> pointer time
-  private readonly frameAt = new Map<number, number>(); // revision -> end of its first frame
-  readonly metrics = {
-    dragToFrameMs: [] as number[], updateBytes: [] as number[], updateEncodings: [] as string[], updatesRendered: 0,
-    renderedAt: [] as number[], renderedRefinement: [] as boolean[], renderedConverged: [] as boolean[],
-    inputDelayMs: [] as number[], workerMs: [] as number[], updatesDropped: 0,
-  };
+  readonly metrics: PageMetrics = newPageMetrics();
+  private readonly dragToFrame = new DragToFrame(this.metrics.dragToFrameMs);
 
   readonly coalescer = new MoveCoalescer<MoveTarget, MoveHandlesResponse>({
     key: (t) => statesKey(t.states) + "|" + t.opts,
@@ -908,13 +855,7 @@ class App {
     }
     if (rev < 0 || !t) return;
     // Geometry comes from Watch only (in order); the response is for flow control and latency.
-    const done = this.frameAt.get(rev);
-    if (done !== undefined) {
-      this.metrics.dragToFrameMs.push(done - t.t0);
-      this.frameAt.delete(rev);
-    } else if (rev > (this.session?.state.revision ?? -1)) {
-      this.moveT0.set(rev, t.t0);
-    }
+    this.dragToFrame.answered(rev, t.t0, this.session?.state.revision ?? -1);
   }
 
   private dragBase: GroupStates = [];
@@ -965,6 +906,7 @@ class App {
   }
   private finishGesture(): void {
     this.pendingPick = null;
+    this.endCoarse();
     if (this.dragSent && this.dragEntry) {
       this.dragEntry.states = cloneStates(this.states);
       this.timeline.push(this.dragEntry);
@@ -1364,6 +1306,7 @@ class App {
   private closeModal(): void {
     if (!this.modal) return;
     this.modal = null;
+    this.endCoarse();
     this.viewer.orbit.enabled = true;
     $("keycmd").hidden = true;
     hooks.modal = "";
@@ -1757,10 +1700,21 @@ class App {
     };
     w.onerror = (ev) => this.banner.error("The viewer's update worker failed", new Error(ev.message));
     const open: ToWorker = {
-      type: "open", origin: location.origin, sessionId: s.creds.sessionId, token: s.creds.token, encoding: ENCODING, updates: LINK_SIZED, vertexCount: s.state.vertexCount,
+      type: "open", origin: location.origin, sessionId: s.creds.sessionId, token: s.creds.token, encoding: ENCODING, updates: LINK_SIZED, coarse: COARSE && s.role === "edit", vertexCount: s.state.vertexCount,
       indices: Uint32Array.from(indices), rest: Float32Array.from(s.rest), heat: this.heatMetric(), pageTimeOrigin: performance.timeOrigin,
     };
     w.postMessage(open, [open.indices.buffer, open.rest.buffer]);
+  }
+
+  /** A drag, gizmo drag or modal transform is under way. */
+  private gesturing(): boolean {
+    return this.interaction.dragging || this.viewer.gizmo.dragging || !!this.modal;
+  }
+
+  /** The gesture ended: the full mesh again, if its coarse level was drawn. */
+  private endCoarse(): void {
+    const p = this.session?.state.positions;
+    if (p && this.viewer.coarsePending) this.viewer.showFull(p);
   }
 
   /** A frame from the worker: the newest positions (with the updates since the last frame). */
@@ -1778,13 +1732,17 @@ class App {
     s.heat = f.heat ? (s.heat && s.heat.length === f.heat.length ? s.heat : new Float32Array(f.heat.length)) : null;
     if (s.heat && f.heat) s.heat.set(f.heat);
     s.heatMetric = f.heatMetric;
-    this.viewer.setFrame(f.positions, f.normals, f.sphere);
+    // During a drag of a multiresolution session: the coarse level the move solved on (a
+    // fraction of the vertices to upload and draw); the full mesh otherwise and after release.
+    if (!(f.coarse && this.gesturing() && this.viewer.setCoarseFrame(f.coarse))) {
+      this.viewer.setFrame(f.positions, f.normals, f.sphere);
+    }
     if (last) {
       showBytes(last.bytes, last.encoding);
       showResult({
         revision: BigInt(last.revision), eTheta: last.eTheta, ePhi: last.ePhi, areaLogRms: last.areaLogRms, iterations: last.iterations,
         pcgIterations: last.pcgIterations, solveSeconds: last.solveSeconds, converged: last.converged,
-      }, f.revision, this.interaction.dragging || this.viewer.gizmo.dragging || !!this.modal);
+      }, f.revision, this.gesturing());
     }
     if (this.heatMetric()) this.recolor(); // group colours do not change with the positions
     hooks.revision = f.revision;
@@ -1798,16 +1756,7 @@ class App {
     if (!this.viewer.gizmo.dragging) this.placeGizmo();
     const rev = f.revision;
     this.viewer.onNextFrame(() => {
-      const now = performance.now();
-      const t0 = this.moveT0.get(rev);
-      if (t0 !== undefined) {
-        this.metrics.dragToFrameMs.push(now - t0);
-        this.moveT0.delete(rev);
-      } else {
-        this.frameAt.set(rev, now);
-      }
-      // Bound the bookkeeping: revisions far behind will never be matched.
-      for (const m of [this.frameAt, this.moveT0]) for (const k of m.keys()) if (k < rev - 64) m.delete(k);
+      this.dragToFrame.drawn(rev, performance.now());
       // The frame is drawn: the worker may fill its buffers again (the newest update next).
       if (s.worker && this.session === s) {
         const ack: ToWorker = { type: "ack", positions: f.positions, normals: f.normals, heat: f.heat };
@@ -1915,68 +1864,6 @@ class App {
 }
 
 const app = new App();
-const hooks: Hooks = {
-  ready: false,
-  revision: -1,
-  sessionId: "",
-  role: "edit",
-  vertexCount: 0,
-  lastError: "",
-  gone: false,
-  selectedGroup: -1,
-  modal: "",
-  historyBusy: false,
-  tool: "move",
-  hovering: false,
-  handleScreenPoint: () => app.hookHandlePoint(),
-  groupScreenPoint: (i) => app.hookGroupPoint(i),
-  vertexScreenPoint: (v) => app.hookVertexPoint(v),
-  worldScreenPoint: (x, y, z) => app.screenPoint(new THREE.Vector3(x, y, z)),
-  positions() {
-    return Array.from(app.session?.state.positions ?? []);
-  },
-  restPositions() {
-    return Array.from(app.session?.rest ?? []);
-  },
-  metrics() {
-    const m = app.metrics;
-    return {
-      dragToFrameMs: [...m.dragToFrameMs], updateBytes: [...m.updateBytes], updateEncodings: [...m.updateEncodings], updatesRendered: m.updatesRendered,
-      frameWorkMs: [...app.viewer.frameWorkMs], renderedAt: [...m.renderedAt], renderedRefinement: [...m.renderedRefinement],
-      renderedConverged: [...m.renderedConverged], inputDelayMs: [...m.inputDelayMs], workerMs: [...m.workerMs], updatesDropped: m.updatesDropped,
-    };
-  },
-  moveStates() {
-    return app.states.map((m) => ({ translation: [...m.translation], rotation: [...m.rotation], scale: m.scale }));
-  },
-  groups() {
-    return (app.session?.groups ?? []).map((g) => ({ role: g.role === HandleRole.FIXED ? "fixed" as const : "handle" as const, vertices: [...g.vertices] }));
-  },
-  draftGroups() {
-    return app.session?.draft.specs().map((g) => ({ role: g.role, vertices: [...g.vertices] })) ?? [];
-  },
-  history() {
-    return { position: app.timeline.position, size: app.timeline.size, canUndo: app.timeline.canUndo, canRedo: app.timeline.canRedo };
-  },
-  notice() {
-    return app.noticeText;
-  },
-  legend() {
-    return ["legend-min", "legend-mid", "legend-max", "legend-what"].map((id) => $(id).textContent ?? "");
-  },
-  vertexColor(v: number) {
-    return app.colors.srgbOf(v);
-  },
-  viewDirection() {
-    return app.viewer.viewDirection().toArray();
-  },
-  resetMetrics() {
-    const m = app.metrics;
-    for (const a of [m.dragToFrameMs, m.updateBytes, m.updateEncodings, m.renderedAt, m.renderedRefinement, m.renderedConverged, m.inputDelayMs, m.workerMs]) a.length = 0;
-    m.updatesRendered = 0;
-    m.updatesDropped = 0;
-    app.viewer.frameWorkMs.length = 0;
-  },
-};
+const hooks: Hooks = makeHooks(app);
 (window as unknown as { __meshdeform: Hooks }).__meshdeform = hooks;
 app.start();

@@ -3,6 +3,7 @@
 // normals and bounding sphere, and the heat map's per-vertex values when the map is on.
 import { Code, ConnectError, createContextValues } from "@connectrpc/connect";
 import { kSessionId, makeClient } from "./client";
+import { CoarseLevelState } from "./coarse";
 import { cornerAngles, faceAreas2, vertexAreaLog, vertexDistortion } from "./distortion";
 import { FrameGate, type FromWorker, type HeatMetric, type ToWorker, type UpdateInfo } from "./frames";
 import { boundingSphere, vertexNormals } from "./geometry";
@@ -21,6 +22,9 @@ interface Open {
   restAreas2: Float64Array | null;
   rest: Float32Array;
   state: PositionState;
+  /** Watch coarse_preview, and the newest update's coarse level. */
+  coarsePreview: boolean;
+  coarse: CoarseLevelState;
   /** Page clock = worker clock + offset. */
   offset: number;
 }
@@ -67,11 +71,13 @@ function flush(): void {
   vertexNormals(positions, o.indices, normals);
   const heat = heatValues(o, spare?.heat ?? null);
   spare = null;
+  const coarse = o.coarse.frame();
   const transfer: Transferable[] = [positions.buffer, normals.buffer];
   if (heat) transfer.push(heat.buffer);
+  if (coarse) transfer.push(coarse.positions.buffer, coarse.normals.buffer);
   post({
     type: "frame", revision: o.state.revision, positions, normals, sphere: boundingSphere(positions), heat, heatMetric,
-    updates, workMs: performance.now() - t0,
+    updates, workMs: performance.now() - t0, coarse,
   }, transfer);
 }
 
@@ -83,7 +89,7 @@ async function watch(o: Open): Promise<void> {
     if (open !== o) return;
     try {
       const stream = client.watch(
-        { sessionId: o.sessionId, token: o.token, encoding: o.encoding, updates: o.updates },
+        { sessionId: o.sessionId, token: o.token, encoding: o.encoding, updates: o.updates, coarsePreview: o.coarsePreview },
         { contextValues: createContextValues().set(kSessionId, o.sessionId) },
       );
       for await (const upd of stream) {
@@ -100,6 +106,14 @@ async function watch(o: Open): Promise<void> {
           continue;
         }
         if (!applied.applied) continue;
+        try {
+          // A continuation carries more of the same revision: its coarse level stands.
+          if (!upd.continuation) o.coarse.apply(upd.coarse);
+        } catch (e) {
+          // The full positions stand; only the preview of this update is lost.
+          o.coarse.apply(undefined);
+          post({ type: "bad", message: String((e as Error)?.message ?? e) });
+        }
         const info: UpdateInfo = {
           revision: Number(r.revision), bytes, isSnapshot: upd.isSnapshot,
           // Link-sized updates (issue 45) name their delta mode instead of a position encoding.
@@ -135,7 +149,7 @@ self.onmessage = (ev: MessageEvent<ToWorker>) => {
     const state = new PositionState(m.vertexCount);
     open = {
       sessionId: m.sessionId, token: m.token, encoding: m.encoding, updates: linkSizedOptions(m.updates), indices: m.indices, rest: m.rest,
-      restAngles: null, restAreas2: null, state, offset: performance.timeOrigin - m.pageTimeOrigin,
+      restAngles: null, restAreas2: null, state, coarsePreview: m.coarse, coarse: new CoarseLevelState(m.vertexCount), offset: performance.timeOrigin - m.pageTimeOrigin,
     };
     void watch(open);
   } else if (m.type === "ack") {

@@ -3,6 +3,8 @@
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { TransformControls } from "three/addons/controls/TransformControls.js";
+import type { CoarseFrame } from "./coarse";
+import { vertexNormals } from "./geometry";
 import { defaultView, namedView, type ViewDir, type ViewName } from "./views";
 
 export class Viewer3D {
@@ -30,6 +32,12 @@ export class Viewer3D {
     new THREE.SphereGeometry(1, 24, 16),
     new THREE.MeshBasicMaterial({ color: 0xf58024, transparent: true, opacity: 0.28, depthWrite: false }),
   );
+  /** The coarse level of a multiresolution drag (src/coarse.ts): drawn instead of the mesh
+   * while shown (setCoarseFrame until showFull), coloured as the mesh at its vertices. */
+  private coarse: { key: string; mesh: THREE.Mesh; toFine: Uint32Array } | null = null;
+  private coarseShown = false;
+  private pendingCoarse: CoarseFrame | null = null;
+  private coarseColorsStale = false;
   private frameQueued = false;
   private afterFrame: (() => void)[] = [];
   /** Milliseconds each frame spent on normals + drawing (bench: is the browser the bottleneck?). */
@@ -80,6 +88,7 @@ export class Viewer3D {
       this.scene.remove(this.mesh);
       this.geometry?.dispose();
     }
+    this.dropCoarse();
     for (const o of [this.wire, this.ghost, this.targets]) if (o) { this.scene.remove(o); if (o !== this.wire) o.geometry.dispose(); }
     this.wire = this.ghost = this.targets = null;
     const g = new THREE.BufferGeometry();
@@ -127,7 +136,7 @@ export class Viewer3D {
 
   setWireframe(on: boolean): void {
     this.wireOn = on;
-    if (this.wire) this.wire.visible = on;
+    if (this.wire) this.wire.visible = on && !this.coarseShown;
     this.requestRender();
   }
 
@@ -214,8 +223,114 @@ export class Viewer3D {
    * frames.ts): uploaded at the next animation frame, the newest only. */
   setFrame(positions: Float32Array, normals: Float32Array, sphere: { center: [number, number, number]; radius: number }): void {
     if (!this.geometry) return;
+    this.pendingCoarse = null;
     this.pendingFrame = { positions, normals, sphere };
     this.requestRender();
+  }
+
+  /** Draws the coarse level instead of the full mesh, from this frame on until showFull. False
+   * (nothing changes) when the frame's level is not the one whose mesh came last. */
+  setCoarseFrame(f: CoarseFrame): boolean {
+    if (!this.geometry) return false;
+    if (f.mesh) {
+      this.dropCoarse();
+      const g = new THREE.BufferGeometry();
+      for (const name of ["position", "normal", "color"]) {
+        const a = new THREE.BufferAttribute(new Float32Array(f.positions.length), 3);
+        a.setUsage(THREE.DynamicDrawUsage);
+        g.setAttribute(name, a);
+      }
+      g.setIndex(new THREE.BufferAttribute(f.mesh.indices, 1));
+      const mesh = new THREE.Mesh(g, this.mesh!.material);
+      mesh.visible = false;
+      this.scene.add(mesh);
+      this.coarse = { key: f.key, mesh, toFine: f.mesh.toFine };
+    }
+    if (!this.coarse || this.coarse.key !== f.key || f.positions.length !== 3 * this.coarse.toFine.length) return false;
+    this.pendingCoarse = f;
+    this.coarseColorsStale = true;
+    this.requestRender();
+    return true;
+  }
+
+  /** Back to the full mesh at `positions` (its normals computed here), if the coarse level is
+   * shown or about to be. */
+  showFull(positions: Float32Array): void {
+    const had = this.coarseShown || this.pendingCoarse !== null;
+    this.pendingCoarse = null;
+    if (!had || !this.geometry || !this.mesh) return;
+    this.coarseShown = false;
+    this.pendingFrame = null;
+    const g = this.geometry;
+    const attr = g.getAttribute("position") as THREE.BufferAttribute;
+    if ((attr.array as Float32Array).length === positions.length) {
+      (attr.array as Float32Array).set(positions);
+      attr.needsUpdate = true;
+      const normals = g.getAttribute("normal") as THREE.BufferAttribute;
+      vertexNormals(positions, g.getIndex()!.array, normals.array as Float32Array);
+      normals.needsUpdate = true;
+      g.computeBoundingSphere();
+    }
+    this.mesh.visible = true;
+    if (this.wire) this.wire.visible = this.wireOn;
+    if (this.coarse) this.coarse.mesh.visible = false;
+    this.requestRender();
+  }
+
+  /** Whether the coarse level is drawn, and how many vertices the drawn mesh has (tests). */
+  get showingCoarse(): boolean {
+    return this.coarseShown;
+  }
+  /** The coarse level is drawn or will be at the next frame. */
+  get coarsePending(): boolean {
+    return this.coarseShown || this.pendingCoarse !== null;
+  }
+  drawnVertexCount(): number {
+    const g = this.coarseShown ? this.coarse?.mesh.geometry : this.geometry;
+    return g ? g.getAttribute("position").count : 0;
+  }
+
+  private dropCoarse(): void {
+    if (this.coarse) {
+      this.scene.remove(this.coarse.mesh);
+      this.coarse.mesh.geometry.dispose();
+    }
+    this.coarse = null;
+    this.coarseShown = false;
+    this.pendingCoarse = null;
+  }
+
+  private flushCoarse(): void {
+    const c = this.coarse, f = this.pendingCoarse;
+    this.pendingCoarse = null;
+    if (!c || !this.mesh) return;
+    const g = c.mesh.geometry;
+    if (f) {
+      const pos = g.getAttribute("position") as THREE.BufferAttribute;
+      (pos.array as Float32Array).set(f.positions);
+      pos.needsUpdate = true;
+      const nrm = g.getAttribute("normal") as THREE.BufferAttribute;
+      (nrm.array as Float32Array).set(f.normals);
+      nrm.needsUpdate = true;
+      g.computeBoundingSphere();
+      this.coarseShown = true;
+      this.mesh.visible = false;
+      if (this.wire) this.wire.visible = false;
+      c.mesh.visible = true;
+    }
+    const full = this.colorArray();
+    if (this.coarseShown && this.coarseColorsStale && full) {
+      const col = g.getAttribute("color") as THREE.BufferAttribute;
+      const dst = col.array as Float32Array;
+      for (let i = 0; i < c.toFine.length; i++) {
+        const v = c.toFine[i] * 3;
+        dst[3 * i] = full[v];
+        dst[3 * i + 1] = full[v + 1];
+        dst[3 * i + 2] = full[v + 2];
+      }
+      col.needsUpdate = true;
+      this.coarseColorsStale = false;
+    }
   }
 
   private pendingFrame: { positions: Float32Array; normals: Float32Array; sphere: { center: [number, number, number]; radius: number } } | null = null;
@@ -227,6 +342,13 @@ export class Viewer3D {
     if (!g || !f) return;
     const attr = g.getAttribute("position") as THREE.BufferAttribute;
     if ((attr.array as Float32Array).length !== f.positions.length) return;
+    if (this.coarseShown && this.mesh) {
+      // A full frame ends the coarse level's drawing.
+      this.coarseShown = false;
+      this.mesh.visible = true;
+      if (this.wire) this.wire.visible = this.wireOn;
+      if (this.coarse) this.coarse.mesh.visible = false;
+    }
     (attr.array as Float32Array).set(f.positions);
     attr.needsUpdate = true;
     const normals = g.getAttribute("normal") as THREE.BufferAttribute;
@@ -246,6 +368,7 @@ export class Viewer3D {
   colorsChanged(): void {
     const attr = this.geometry?.getAttribute("color") as THREE.BufferAttribute | undefined;
     if (attr) attr.needsUpdate = true;
+    this.coarseColorsStale = true;
     this.requestRender();
   }
 
@@ -256,6 +379,7 @@ export class Viewer3D {
     const dst = attr.array as Float32Array;
     for (let i = 0; i < rgb.length; i++) dst[i] = srgbToLinear(rgb[i]);
     attr.needsUpdate = true;
+    this.coarseColorsStale = true;
     this.requestRender();
   }
 
@@ -266,6 +390,7 @@ export class Viewer3D {
       this.frameQueued = false;
       const start = performance.now();
       this.flushPositions();
+      this.flushCoarse();
       this.renderer.render(this.scene, this.camera);
       if (this.frameWorkMs.length < 10_000) this.frameWorkMs.push(performance.now() - start);
       const cbs = this.afterFrame;
