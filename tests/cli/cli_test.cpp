@@ -1,12 +1,8 @@
 // End-to-end tests of the meshdeform-cli binary (MESHDEFORM_CLI_PATH): each test runs the real
 // executable in its own temporary directory and checks exit codes, messages and written files.
-#include <sys/wait.h>
-#include <unistd.h>
-
-#include <cstdlib>
+#include <chrono>
 #include <filesystem>
 #include <fstream>
-#include <sstream>
 #include <string>
 #include <vector>
 
@@ -14,76 +10,34 @@
 #include <nlohmann/json.hpp>
 
 #include "core/io/mesh_io.h"
+#include "tests/support/child_process.h"
 
 namespace meshdeform::cli {
 namespace {
 
 namespace fs = std::filesystem;
 
-struct RunResult {
-  int exit_code = -1;
-  std::string out;
-  std::string err;
-};
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream buffer;
-  buffer << in.rdbuf();
-  return buffer.str();
-}
+using RunResult = test::CapturedRun;
+using test::read_text;
 
 void write_text(const fs::path& path, const std::string& text) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   out << text;
 }
 
-/// Single-quotes a word for /bin/sh.
-std::string shell_quote(const std::string& word) {
-  std::string quoted = "'";
-  for (const char c : word) {
-    if (c == '\'') {
-      quoted += "'\\''";
-    } else {
-      quoted += c;
-    }
-  }
-  return quoted + "'";
-}
-
 class CliTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() /
-           ("meshdeform_cli_test_" + std::to_string(::getpid()) + "_" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    if (!HasFailure()) fs::remove_all(dir_);
-  }
+  void SetUp() override { dir_ = test::make_test_dir("meshdeform_cli_test"); }
+  void TearDown() override { test::remove_test_dir(dir_, HasFailure()); }
 
-  /// Runs the CLI with `args` in the test directory (stdin closed, stdout/stderr captured).
+  /// Runs the CLI with `args` in the test directory (stdin closed, stdout/stderr captured; a
+  /// CLI still running after 10 minutes is killed).
   RunResult run(const std::vector<std::string>& args) const {
-    // Built with += only: GCC 12 warns falsely (-Wrestrict) on "literal" + std::string&&.
-    std::string command = "cd ";
-    command += shell_quote(dir_.string());
-    command += " && ";
-    command += shell_quote(MESHDEFORM_CLI_PATH);
-    for (const auto& arg : args) {
-      command += ' ';
-      command += shell_quote(arg);
-    }
-    command += " </dev/null >";
-    command += shell_quote((dir_ / "stdout.txt").string());
-    command += " 2>";
-    command += shell_quote((dir_ / "stderr.txt").string());
-    const int status = std::system(command.c_str());
-    RunResult result;
-    result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    result.out = read_text(dir_ / "stdout.txt");
-    result.err = read_text(dir_ / "stderr.txt");
+    std::vector<std::string> words = {MESHDEFORM_CLI_PATH};
+    words.insert(words.end(), args.begin(), args.end());
+    RunResult result = test::run_captured(words, dir_, std::chrono::minutes(10));
+    EXPECT_EQ(result.spawn_error, "");
+    EXPECT_FALSE(result.is_timed_out);
     return result;
   }
 

@@ -1,46 +1,22 @@
 // End-to-end tests of `meshdeform-cli curve` (MESHDEFORM_CLI_PATH): the Fig. 9 Koch edit writes
 // an SVG with the original and three results, a JSON report, and usage errors exit 2.
 #include <gtest/gtest.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
-#include <cstdlib>
+#include <chrono>
 #include <filesystem>
-#include <fstream>
 #include <nlohmann/json.hpp>
-#include <sstream>
 #include <string>
 #include <vector>
+
+#include "tests/support/child_process.h"
 
 namespace meshdeform::cli {
 namespace {
 
 namespace fs = std::filesystem;
 
-struct CurveRun {
-  int exit_code = -1;
-  std::string out;
-  std::string err;
-};
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream buffer;
-  buffer << in.rdbuf();
-  return buffer.str();
-}
-
-std::string shell_quote(const std::string& word) {
-  std::string quoted = "'";
-  for (const char c : word) {
-    if (c == '\'') {
-      quoted += "'\\''";
-    } else {
-      quoted += c;
-    }
-  }
-  return quoted + "'";
-}
+using CurveRun = test::CapturedRun;
+using test::read_text;
 
 size_t count(const std::string& text, const std::string& word) {
   size_t n = 0;
@@ -50,37 +26,17 @@ size_t count(const std::string& text, const std::string& word) {
 
 class CurveCliTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() /
-           ("meshdeform_curve_cli_test_" + std::to_string(::getpid()) + "_" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    if (!HasFailure()) fs::remove_all(dir_);
-  }
+  void SetUp() override { dir_ = test::make_test_dir("meshdeform_curve_cli_test"); }
+  void TearDown() override { test::remove_test_dir(dir_, HasFailure()); }
 
-  /// Runs `meshdeform-cli curve ARGS...` in the test directory, capturing stdout and stderr.
+  /// Runs `meshdeform-cli curve ARGS...` in the test directory, capturing stdout and stderr (a
+  /// CLI still running after 10 minutes is killed).
   CurveRun run(const std::vector<std::string>& args) const {
-    std::string command = "cd ";
-    command += shell_quote(dir_.string());
-    command += " && ";
-    command += shell_quote(MESHDEFORM_CLI_PATH);
-    command += " curve";
-    for (const auto& arg : args) {
-      command += ' ';
-      command += shell_quote(arg);
-    }
-    command += " </dev/null >";
-    command += shell_quote((dir_ / "stdout.txt").string());
-    command += " 2>";
-    command += shell_quote((dir_ / "stderr.txt").string());
-    const int status = std::system(command.c_str());
-    CurveRun result;
-    result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    result.out = read_text(dir_ / "stdout.txt");
-    result.err = read_text(dir_ / "stderr.txt");
+    std::vector<std::string> words = {MESHDEFORM_CLI_PATH, "curve"};
+    words.insert(words.end(), args.begin(), args.end());
+    CurveRun result = test::run_captured(words, dir_, std::chrono::minutes(10));
+    EXPECT_EQ(result.spawn_error, "");
+    EXPECT_FALSE(result.is_timed_out);
     return result;
   }
 

@@ -1,8 +1,7 @@
 // The method switch, ORA and magnification through the real meshdeform-cli binary.
 #include <gtest/gtest.h>
-#include <sys/wait.h>
 
-#include <cstdlib>
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -14,6 +13,7 @@
 #include "core/methods/deform_types.h"
 #include "core/io/mesh_io.h"
 #include "core/samples/samples.h"
+#include "tests/support/child_process.h"
 #include "tests/support/mesh_factories.h"
 
 namespace meshdeform {
@@ -21,35 +21,27 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct CliRun {
-  int exit_code = -1;
-  std::string err;
-};
+using CliRun = test::CapturedRun;
 
 class MethodCliTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("meshdeform_method_cli_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
+    dir_ = test::make_test_dir("meshdeform_method_cli");
     // A 13 x 13 bumpy grid: left column fixed, right column lifted.
     const MeshData grid = test::make_grid(12, 0.05);
     ASSERT_TRUE(io::write_mesh(dir_ / "grid.obj", grid).ok());
   }
-  void TearDown() override { fs::remove_all(dir_); }
+  void TearDown() override { test::remove_test_dir(dir_, HasFailure()); }
 
+  /// Runs the CLI in the test directory with `arguments` split at spaces (no quoting needed
+  /// here); a CLI still running after 10 minutes is killed.
   CliRun run(const std::string& arguments) const {
-    const std::string command = "cd '" + dir_.string() + "' && '" MESHDEFORM_CLI_PATH "' " +
-                                arguments + " >/dev/null 2>stderr.txt";
-    const int status = std::system(command.c_str());
-    CliRun r;
-    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    std::ifstream in(dir_ / "stderr.txt");
-    std::stringstream text;
-    text << in.rdbuf();
-    r.err = text.str();
+    std::vector<std::string> words = {MESHDEFORM_CLI_PATH};
+    std::istringstream in(arguments);
+    for (std::string word; in >> word;) words.push_back(word);
+    CliRun r = test::run_captured(words, dir_, std::chrono::minutes(10));
+    EXPECT_EQ(r.spawn_error, "");
+    EXPECT_FALSE(r.is_timed_out);
     return r;
   }
 

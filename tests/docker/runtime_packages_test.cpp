@@ -35,18 +35,8 @@ const fs::path kList = kSourceDir / "docker" / "runtime-packages.txt";
 const fs::path kDockerfile = kSourceDir / "docker" / "Dockerfile";
 constexpr const char* kServer = MESHDEFORM_SERVER_PATH;
 
-struct ScriptRun {
-  int exit_code = -1;  // -1: killed, or still running at the bound
-  std::string out;
-  std::string err;
-};
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream buffer;
-  buffer << in.rdbuf();
-  return buffer.str();
-}
+using ScriptRun = test::CapturedRun;
+using test::read_text;
 
 std::vector<std::string> lines_of(const std::string& text) {
   std::vector<std::string> lines;
@@ -69,43 +59,21 @@ std::vector<std::string> packages_in(const std::string& text) {
 class RuntimePackagesTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() /
-           ("meshdeform_runtime_packages_" + std::to_string(::getpid()) + "_" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
+    dir_ = test::make_test_dir("meshdeform_runtime_packages");
     ASSERT_TRUE(fs::exists(kScript)) << kScript;
     ASSERT_TRUE(fs::exists(kList)) << kList;
     ASSERT_TRUE(fs::exists(kServer)) << kServer;
   }
-  void TearDown() override {
-    if (!HasFailure()) fs::remove_all(dir_);
-  }
+  void TearDown() override { test::remove_test_dir(dir_, HasFailure()); }
 
   // Runs scripts/runtime-packages.sh with `args` under bash; waits at most two minutes (it takes
   // seconds: one ldd and one dpkg-query).
   ScriptRun run_script(const std::vector<std::string>& args) const {
-    ScriptRun run;
-    test::ChildStreams streams;
-    streams.stdout_path = (dir_ / "stdout.txt").string();
-    streams.stderr_path = (dir_ / "stderr.txt").string();
     std::vector<std::string> words = {"/bin/bash", kScript.string()};
     words.insert(words.end(), args.begin(), args.end());
-    std::string error;
-    std::optional<test::ChildProcess> child = test::ChildProcess::spawn(words, streams, error);
-    if (!child) {
-      ADD_FAILURE() << "cannot run " << kScript << ": " << error;
-      return run;
-    }
-    const std::optional<int> status = child->wait(std::chrono::minutes(2));
-    if (!status) {
-      ADD_FAILURE() << kScript << " still running after 2 minutes";
-      child->kill_and_reap();
-    } else if (WIFEXITED(*status)) {
-      run.exit_code = WEXITSTATUS(*status);
-    }
-    run.out = read_text(streams.stdout_path);
-    run.err = read_text(streams.stderr_path);
+    ScriptRun run = test::run_captured(words, dir_, std::chrono::minutes(2));
+    EXPECT_EQ(run.spawn_error, "") << "cannot run " << kScript;
+    EXPECT_FALSE(run.is_timed_out) << kScript << " still running after 2 minutes";
     return run;
   }
 

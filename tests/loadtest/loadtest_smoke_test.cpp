@@ -33,60 +33,22 @@ constexpr int kExitOk = 0;
 constexpr int kExitRunFailed = 1;
 constexpr int kExitUsage = 2;
 
-struct ChildResult {
-  int exit_code = -1;  // -1: killed by a signal or timed out
-  bool is_timed_out = false;
-  std::string out;
-  std::string err;
-};
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream buffer;
-  buffer << in.rdbuf();
-  return buffer.str();
-}
+using ChildResult = test::CapturedRun;
+using test::read_text;
 
 class LoadtestTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() /
-           ("meshdeform_loadtest_test_" + std::to_string(::getpid()) + "_" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    if (!HasFailure()) fs::remove_all(dir_);
-  }
+  void SetUp() override { dir_ = test::make_test_dir("meshdeform_loadtest_test"); }
+  void TearDown() override { test::remove_test_dir(dir_, HasFailure()); }
 
-  // Runs the load tester with `args` (stdin /dev/null, stdout/stderr to files in the test
-  // directory) and waits at most `timeout`; a child still running then is killed.
+  // Runs the load tester with `args` in the test directory (stdin /dev/null, stdout/stderr
+  // captured) and waits at most `timeout`; a child still running then is killed.
   ChildResult run_loadtest(const std::vector<std::string>& args,
                            std::chrono::seconds timeout = std::chrono::seconds(120)) const {
-    ChildResult result;
-    const std::string out_path = (dir_ / "stdout.txt").string();
-    const std::string err_path = (dir_ / "stderr.txt").string();
     std::vector<std::string> words = {MESHDEFORM_LOADTEST_PATH};
     words.insert(words.end(), args.begin(), args.end());
-    test::ChildStreams streams;
-    streams.stdout_path = out_path;
-    streams.stderr_path = err_path;
-    std::string error;
-    std::optional<test::ChildProcess> child = test::ChildProcess::spawn(words, streams, error);
-    if (!child) {
-      ADD_FAILURE() << "cannot spawn " << MESHDEFORM_LOADTEST_PATH << ": " << error;
-      return result;
-    }
-    const std::optional<int> status = child->wait(timeout);
-    if (!status) {
-      result.is_timed_out = true;
-      child->kill_and_reap();
-    } else if (WIFEXITED(*status)) {
-      result.exit_code = WEXITSTATUS(*status);
-    }
-    result.out = read_text(out_path);
-    result.err = read_text(err_path);
+    ChildResult result = test::run_captured(words, dir_, timeout);
+    EXPECT_EQ(result.spawn_error, "") << "cannot spawn " << MESHDEFORM_LOADTEST_PATH;
     return result;
   }
 

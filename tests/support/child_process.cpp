@@ -11,10 +11,14 @@
 #include <condition_variable>
 #include <cstring>
 #include <deque>
+#include <fstream>
 #include <functional>
 #include <future>
 #include <mutex>
+#include <sstream>
 #include <thread>
+
+#include <gtest/gtest.h>
 
 extern char** environ;
 
@@ -31,6 +35,7 @@ struct SpawnPlan {
   std::string stderr_path;
   int stderr_fd = -1;
   long max_open_files = -1;
+  std::string working_dir;
 };
 
 pid_t fork_and_exec(const SpawnPlan& plan, std::string& error) {
@@ -74,6 +79,7 @@ pid_t fork_and_exec(const SpawnPlan& plan, std::string& error) {
         dup2(err_fd, STDERR_FILENO) < 0) {
       _exit(126);
     }
+    if (!plan.working_dir.empty() && chdir(plan.working_dir.c_str()) != 0) _exit(126);
     if (plan.max_open_files >= 0) {
       const struct rlimit limit {
         static_cast<rlim_t>(plan.max_open_files), static_cast<rlim_t>(plan.max_open_files)
@@ -151,7 +157,8 @@ std::optional<ChildProcess> ChildProcess::spawn(const std::vector<std::string>& 
                  streams.stdout_path,
                  streams.stderr_path,
                  streams.stderr_fd,
-                 streams.max_open_files};
+                 streams.max_open_files,
+                 streams.working_dir};
   const pid_t pid = Spawner::instance().spawn(std::move(plan), error);
   if (pid <= 0) return std::nullopt;
   return ChildProcess(pid);
@@ -194,6 +201,52 @@ void ChildProcess::kill_and_reap() {
   while (waitpid(pid_, &status, 0) < 0 && errno == EINTR) {
   }
   pid_ = -1;
+}
+
+CapturedRun run_captured(const std::vector<std::string>& args, const std::filesystem::path& dir,
+                         std::chrono::milliseconds timeout) {
+  CapturedRun result;
+  ChildStreams streams;
+  streams.stdout_path = (dir / "stdout.txt").string();
+  streams.stderr_path = (dir / "stderr.txt").string();
+  streams.working_dir = dir.string();
+  std::optional<ChildProcess> child = ChildProcess::spawn(args, streams, result.spawn_error);
+  if (!child) {
+    if (result.spawn_error.empty()) result.spawn_error = "cannot start " + args.front();
+    return result;
+  }
+  const std::optional<int> status = child->wait(timeout);
+  if (!status) {
+    result.is_timed_out = true;
+    child->kill_and_reap();
+  } else if (WIFEXITED(*status)) {
+    result.exit_code = WEXITSTATUS(*status);
+  }
+  result.out = read_text(streams.stdout_path);
+  result.err = read_text(streams.stderr_path);
+  return result;
+}
+
+std::string read_text(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream buffer;
+  buffer << in.rdbuf();
+  return buffer.str();
+}
+
+std::filesystem::path make_test_dir(const std::string& prefix) {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  const std::string test = info != nullptr ? info->name() : "no_test";
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() /
+                                    (prefix + "_" + std::to_string(::getpid()) + "_" + test);
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  return dir;
+}
+
+void remove_test_dir(const std::filesystem::path& dir, bool test_failed) {
+  std::error_code ignored;
+  if (!test_failed) std::filesystem::remove_all(dir, ignored);
 }
 
 }  // namespace meshdeform::test

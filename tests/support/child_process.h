@@ -9,6 +9,7 @@
 #include <sys/types.h>
 
 #include <chrono>
+#include <filesystem>
 #include <optional>
 #include <string>
 #include <vector>
@@ -24,6 +25,8 @@ struct ChildStreams {
   std::vector<std::string> unset_env;  ///< names removed from the inherited environment
   /// Set: the child's RLIMIT_NOFILE (soft and hard), e.g. to run a server short of descriptors.
   long max_open_files = -1;
+  /// The child's working directory (after its streams are opened); empty: the test's.
+  std::string working_dir;
 };
 
 /// A running child, killed (SIGKILL) and reaped when destroyed unless already waited for.
@@ -53,5 +56,29 @@ class ChildProcess {
   explicit ChildProcess(pid_t pid) : pid_(pid) {}
   pid_t pid_ = -1;
 };
+
+/// How a child run to its end went (run_captured).
+struct CapturedRun {
+  int exit_code = -1;         ///< -1: ended by a signal, timed out, or never started
+  bool is_timed_out = false;  ///< still running after the timeout: killed
+  std::string spawn_error;    ///< why it did not start (empty: it did)
+  std::string out;            ///< what it wrote on stdout
+  std::string err;            ///< and on stderr
+};
+
+/// Runs `args` (args[0] a path) in directory `dir` (stdin /dev/null, stdout and stderr to
+/// dir/stdout.txt and dir/stderr.txt, read back into the result) and waits at most `timeout`;
+/// a child still running then is killed. Like every ChildProcess it dies with the test.
+CapturedRun run_captured(const std::vector<std::string>& args, const std::filesystem::path& dir,
+                         std::chrono::milliseconds timeout);
+
+/// The whole file as bytes ("" when it cannot be read).
+std::string read_text(const std::filesystem::path& path);
+
+/// A directory of the running test's own: <temp>/<prefix>_<pid>_<test name>, created empty.
+/// Pass it to remove_test_dir at the end.
+std::filesystem::path make_test_dir(const std::string& prefix);
+/// Removes a make_test_dir directory, unless the test failed (it is kept to look at).
+void remove_test_dir(const std::filesystem::path& dir, bool test_failed);
 
 }  // namespace meshdeform::test

@@ -47,17 +47,10 @@ bool answers_ping(int port, std::chrono::milliseconds timeout) {
   return ok;
 }
 
-std::string read_file(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream out;
-  out << in.rdbuf();
-  return out.str();
-}
-
 /// A TLS redis-server cannot be PINGed without a TLS client: it is ready once its log says so
 /// and its port accepts a TCP connection.
 bool tls_ready(int port, const std::string& log_path) {
-  return read_file(log_path).find("Ready to accept connections") != std::string::npos &&
+  return read_text(log_path).find("Ready to accept connections") != std::string::npos &&
          accepts_connections(port);
 }
 
@@ -150,7 +143,7 @@ std::unique_ptr<RedisProcess> RedisProcess::start(const RedisOptions& options, s
     }
     child->kill_and_reap();
     error = "redis-server did not answer on port " + std::to_string(port) + ":\n" +
-            read_file(streams.stdout_path);
+            read_text(streams.stdout_path);
     if (options.port != 0) break;
   }
   return nullptr;
@@ -175,6 +168,6 @@ bool RedisProcess::stop(int signal, std::chrono::milliseconds timeout) {
   return exited;
 }
 
-std::string RedisProcess::log() const { return read_file(dir_ + "/redis.log"); }
+std::string RedisProcess::log() const { return read_text(dir_ + "/redis.log"); }
 
 }  // namespace meshdeform::test
