@@ -106,9 +106,11 @@ const ENCODING = parseEncoding(query.get("encoding"));
 // ?updates=quantized|lossless[&tolerance=X][&budget=BYTES]: link-sized Watch updates (issue 45).
 const LINK_SIZED = parseLinkSized(query);
 const UPDATES = linkSizedOptions(LINK_SIZED);
-// ?coarse=off: draw the full mesh during a multiresolution drag too (default: its coarse level;
-// an editor's page only: a watcher draws the full mesh, so its stream does not carry the level).
-const COARSE = query.get("coarse") !== "off";
+// ?coarse=on|off: draw the coarse level during a multiresolution drag (an editor's page only: a
+// watcher draws the full mesh, so its stream does not carry the level). Default on, except with
+// link-sized updates: the level's float32 positions (12 bytes per coarse vertex) would come on
+// top of their byte budget.
+const COARSE = query.get("coarse") === "on" || (query.get("coarse") !== "off" && UPDATES === undefined);
 const client = makeClient(location.origin);
 // ?lambda= soft handle weight for new sessions (server default 100 lets fixed vertices drift ~1e-4).
 const LAMBDA = Number(query.get("lambda")) > 0 ? Number(query.get("lambda")) : undefined;
