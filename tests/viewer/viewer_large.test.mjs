@@ -24,6 +24,17 @@ test("a 187k-vertex drag keeps taking pointer input", { timeout: 290_000 }, asyn
   await poll(page, () => window.__meshdeform?.ready === true, null, "large session ready", 200_000);
   assert.equal(await hook(page, () => window.__meshdeform.vertexCount), 187489);
   await settle(page, "refinement of nothing");
+  // A coarse move outside a drag first (a scale-control change re-solves): its update brings the
+  // coarse level's mesh, which the page must keep for the drags that follow.
+  const revSlider = await hook(page, () => window.__meshdeform.revision);
+  await page.locator('[data-testid="rigidity"]').evaluate((el) => {
+    el.value = String(Number(el.value) - 1);
+    el.dispatchEvent(new Event("input", { bubbles: true }));
+    el.dispatchEvent(new Event("change", { bubbles: true }));
+  });
+  await poll(page, (r) => window.__meshdeform.revision > r, revSlider, "the re-solve of a scale-control change");
+  await settle(page, "after the re-solve");
+  assert.equal((await hook(page, () => window.__meshdeform.drawn())).coarse, false, "no coarse level outside a drag");
   // Every pointer event the browser delivers, counted before the page's own handlers (which stop
   // the event during a drag); coalesced events count as the events they stand for.
   await page.evaluate(() => {

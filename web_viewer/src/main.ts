@@ -1736,7 +1736,7 @@ class App {
     s.heatMetric = f.heatMetric;
     // During a drag of a multiresolution session: the coarse level the move solved on (a
     // fraction of the vertices to upload and draw); the full mesh otherwise and after release.
-    if (!(f.coarse && this.gesturing() && this.viewer.setCoarseFrame(f.coarse))) {
+    if (!(f.coarse && this.viewer.setCoarseFrame(f.coarse, this.gesturing()))) {
       this.viewer.setFrame(f.positions, f.normals, f.sphere);
     }
     if (last) {

@@ -228,9 +228,11 @@ export class Viewer3D {
     this.requestRender();
   }
 
-  /** Draws the coarse level instead of the full mesh, from this frame on until showFull. False
-   * (nothing changes) when the frame's level is not the one whose mesh came last. */
-  setCoarseFrame(f: CoarseFrame): boolean {
+  /** Takes the coarse level's mesh when the frame brings one (always: the worker sends it once)
+   * and, with `show`, draws the level instead of the full mesh from this frame on until
+   * showFull. False (nothing drawn) without `show` or when the frame's level is not the one
+   * whose mesh came last. */
+  setCoarseFrame(f: CoarseFrame, show: boolean): boolean {
     if (!this.geometry) return false;
     if (f.mesh) {
       this.dropCoarse();
@@ -246,7 +248,7 @@ export class Viewer3D {
       this.scene.add(mesh);
       this.coarse = { key: f.key, mesh, toFine: f.mesh.toFine };
     }
-    if (!this.coarse || this.coarse.key !== f.key || f.positions.length !== 3 * this.coarse.toFine.length) return false;
+    if (!show || !this.coarse || this.coarse.key !== f.key || f.positions.length !== 3 * this.coarse.toFine.length) return false;
     this.pendingCoarse = f;
     this.coarseColorsStale = true;
     this.requestRender();
@@ -294,6 +296,10 @@ export class Viewer3D {
     if (this.coarse) {
       this.scene.remove(this.coarse.mesh);
       this.coarse.mesh.geometry.dispose();
+    }
+    if (this.coarseShown && this.mesh) {
+      this.mesh.visible = true;
+      if (this.wire) this.wire.visible = this.wireOn;
     }
     this.coarse = null;
     this.coarseShown = false;
