@@ -301,16 +301,19 @@ void result_metrics_to_proto(const service::DeformResult& result, v1::DeformResu
   }
 }
 
-// Which of a result's position arrays to send.
-enum class Rows { Positions = 0, Changed = 1 };
+// Which of a result's position arrays to send (Coarse: its coarse level's, result.coarse).
+enum class Rows { Positions = 0, Changed = 1, Coarse = 2 };
 
-// A result's positions or changed positions: doubles in `doubles` for UNSPECIFIED, else packed
-// into `packed`, once per result and encoding (service::DeformResult::encoded): the move's
-// response and every watcher's update of a revision share the bytes.
+// A result's positions, changed positions or coarse-level positions: doubles in `doubles` for
+// UNSPECIFIED, else packed into `packed`, once per result, rows and encoding
+// (service::DeformResult::encoded): the move's response and every watcher's update of a
+// revision share the bytes.
 void positions_to_proto(const service::DeformResult& result, Rows rows,
                         v1::PositionEncoding encoding,
                         google::protobuf::RepeatedField<double>* doubles, std::string* packed) {
-  const Positions& values = rows == Rows::Positions ? *result.positions : result.changed_positions;
+  const Positions& values = rows == Rows::Positions ? *result.positions
+                            : rows == Rows::Changed ? result.changed_positions
+                                                    : result.coarse->V;
   if (encoding == v1::POSITION_ENCODING_UNSPECIFIED) {
     wire::rows_to_proto(values, doubles);
     return;
@@ -319,7 +322,7 @@ void positions_to_proto(const service::DeformResult& result, Rows rows,
     pack_positions(values, encoding, packed);
     return;
   }
-  const int key = 2 * static_cast<int>(encoding) + static_cast<int>(rows);
+  const int key = 3 * static_cast<int>(encoding) + static_cast<int>(rows);
   const std::shared_ptr<const std::string> bytes = result.encoded->get(key, [&] {
     std::string out;
     pack_positions(values, encoding, &out);
@@ -384,7 +387,8 @@ void coarse_to_proto(const service::DeformResult& result, std::optional<std::uin
   v1::CoarseLevel* coarse = out->mutable_coarse();
   coarse->set_key(mesh.key);
   coarse->set_vertex_count(static_cast<std::uint32_t>(result.coarse->V.rows()));
-  pack_positions(result.coarse->V, v1::POSITION_ENCODING_FLOAT32, coarse->mutable_positions());
+  positions_to_proto(result, Rows::Coarse, v1::POSITION_ENCODING_FLOAT32, nullptr,
+                     coarse->mutable_positions());
   if (*sent_key == mesh.key) return;
   // Indices of a level are >= 0 (a level's triangles and its subset of the fine vertices).
   coarse->mutable_triangles()->Reserve(static_cast<int>(mesh.F.size()));

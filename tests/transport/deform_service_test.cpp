@@ -880,6 +880,27 @@ TEST(ProtoConvertTest, ARevisionIsEncodedOnceForItsResponseAndEveryWatcher) {
   transport::result_to_proto(moved, false, v1::POSITION_ENCODING_MESHOPT, &moved_response);
   EXPECT_EQ(unpack(moved_response.packed_positions(), v1::POSITION_ENCODING_MESHOPT, 50)[3],
             static_cast<float>(2.0 * V(1, 0)));
+  // A coarse level's positions are one more entry, shared by every stream that asks for them:
+  // two streams (each sent its own mesh) carry the same bytes, made once.
+  auto mesh = std::make_shared<core::CoarseLevelMesh>();
+  mesh->F = Triangles(1, 3);
+  mesh->F << 0, 1, 2;
+  mesh->to_fine = Eigen::Vector3i(0, 10, 20);
+  mesh->key = core::coarse_level_key(mesh->F, mesh->to_fine);
+  Positions coarse_rows(3, 3);
+  for (int i = 0; i < 3; ++i) coarse_rows.row(i) = V.row(mesh->to_fine(i));
+  result.coarse = std::make_shared<const core::CoarseLevelPositions>(
+      core::CoarseLevelPositions{mesh, coarse_rows});
+  const std::size_t before_coarse = result.encoded->bytes();
+  std::optional<std::uint64_t> sent_a, sent_b;
+  v1::DeformUpdate coarse_a, coarse_b;
+  transport::coarse_to_proto(result, &sent_a, &coarse_a);
+  transport::coarse_to_proto(result, &sent_b, &coarse_b);
+  EXPECT_EQ(coarse_a.coarse().positions(), coarse_b.coarse().positions());
+  EXPECT_EQ(coarse_b.coarse().triangles_size(), 3);
+  EXPECT_EQ(result.encoded->bytes(), before_coarse + 3 * 12) << "coarse positions encoded twice";
+  EXPECT_EQ(unpack(coarse_a.coarse().positions(), v1::POSITION_ENCODING_FLOAT32, 3)[3],
+            static_cast<float>(V(10, 0)));
 }
 
 TEST_F(DeformServiceTest, WatchSnapshotsAndDeltasInMeshopt) {
