@@ -258,10 +258,10 @@ export class Viewer3D {
   /** Back to the full mesh at `positions` (its normals computed here), if the coarse level is
    * shown or about to be. */
   showFull(positions: Float32Array): void {
-    const had = this.coarseShown || this.pendingCoarse !== null;
+    const had = this.coarsePending;
     this.pendingCoarse = null;
     if (!had || !this.geometry || !this.mesh) return;
-    this.coarseShown = false;
+    this.drawCoarse(false);
     this.pendingFrame = null;
     const g = this.geometry;
     const attr = g.getAttribute("position") as THREE.BufferAttribute;
@@ -273,9 +273,6 @@ export class Viewer3D {
       normals.needsUpdate = true;
       g.computeBoundingSphere();
     }
-    this.mesh.visible = true;
-    if (this.wire) this.wire.visible = this.wireOn;
-    if (this.coarse) this.coarse.mesh.visible = false;
     this.requestRender();
   }
 
@@ -292,17 +289,21 @@ export class Viewer3D {
     return g ? g.getAttribute("position").count : 0;
   }
 
+  /** Draws the coarse level (on) or the full mesh with its wireframe, if on (off). */
+  private drawCoarse(on: boolean): void {
+    this.coarseShown = on;
+    if (this.mesh) this.mesh.visible = !on;
+    if (this.wire) this.wire.visible = this.wireOn && !on;
+    if (this.coarse) this.coarse.mesh.visible = on;
+  }
+
   private dropCoarse(): void {
+    if (this.coarseShown) this.drawCoarse(false);
     if (this.coarse) {
       this.scene.remove(this.coarse.mesh);
       this.coarse.mesh.geometry.dispose();
     }
-    if (this.coarseShown && this.mesh) {
-      this.mesh.visible = true;
-      if (this.wire) this.wire.visible = this.wireOn;
-    }
     this.coarse = null;
-    this.coarseShown = false;
     this.pendingCoarse = null;
   }
 
@@ -319,10 +320,7 @@ export class Viewer3D {
       (nrm.array as Float32Array).set(f.normals);
       nrm.needsUpdate = true;
       g.computeBoundingSphere();
-      this.coarseShown = true;
-      this.mesh.visible = false;
-      if (this.wire) this.wire.visible = false;
-      c.mesh.visible = true;
+      this.drawCoarse(true);
     }
     const full = this.colorArray();
     if (this.coarseShown && this.coarseColorsStale && full) {
@@ -348,13 +346,7 @@ export class Viewer3D {
     if (!g || !f) return;
     const attr = g.getAttribute("position") as THREE.BufferAttribute;
     if ((attr.array as Float32Array).length !== f.positions.length) return;
-    if (this.coarseShown && this.mesh) {
-      // A full frame ends the coarse level's drawing.
-      this.coarseShown = false;
-      this.mesh.visible = true;
-      if (this.wire) this.wire.visible = this.wireOn;
-      if (this.coarse) this.coarse.mesh.visible = false;
-    }
+    if (this.coarseShown) this.drawCoarse(false);  // a full frame ends the coarse level's drawing
     (attr.array as Float32Array).set(f.positions);
     attr.needsUpdate = true;
     const normals = g.getAttribute("normal") as THREE.BufferAttribute;
