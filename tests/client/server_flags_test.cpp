@@ -3,13 +3,10 @@
 // incomplete flag). Every run exits on its own; a child still running after 60 s is killed, and
 // every child dies with the test (tests/support/child_process.h).
 #include <gtest/gtest.h>
-#include <sys/wait.h>
 #include <unistd.h>
 
 #include <chrono>
 #include <filesystem>
-#include <fstream>
-#include <iterator>
 #include <optional>
 #include <string>
 #include <vector>
@@ -26,42 +23,23 @@ struct ServerRun {
   std::string out, err;
 };
 
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-}
+using test::read_text;
 
 class ServerFlagsTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("meshdeform_server_flags_test_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
+  void SetUp() override { dir_ = test::make_test_dir("meshdeform_server_flags_test"); }
+  void TearDown() override { test::remove_test_dir(dir_, HasFailure()); }
 
   /// meshdeform-server with exactly `args` (no --listen added: every case here exits first).
   ServerRun run(const std::vector<std::string>& args) const {
     std::vector<std::string> words = {MESHDEFORM_SERVER_PATH};
     words.insert(words.end(), args.begin(), args.end());
-    test::ChildStreams streams;
-    streams.stdout_path = (dir_ / "stdout.txt").string();
-    streams.stderr_path = (dir_ / "stderr.txt").string();
+    // A server still running after 60 s is killed (exit_code stays -1).
+    test::CapturedRun run = test::run_captured(words, dir_, std::chrono::seconds(60));
     ServerRun result;
-    std::string error;
-    std::optional<test::ChildProcess> child = test::ChildProcess::spawn(words, streams, error);
-    if (!child) {
-      result.err = "spawn failed: " + error;
-      return result;
-    }
-    const std::optional<int> status = child->wait(std::chrono::seconds(60));  // else killed
-    if (status && WIFEXITED(*status)) result.exit_code = WEXITSTATUS(*status);
-    result.out = read_text(dir_ / "stdout.txt");
-    result.err = read_text(dir_ / "stderr.txt");
+    result.exit_code = run.exit_code;
+    result.out = std::move(run.out);
+    result.err = run.spawn_error.empty() ? std::move(run.err) : "spawn failed: " + run.spawn_error;
     return result;
   }
 

@@ -12,7 +12,6 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
-#include <sstream>
 #include <thread>
 
 #include "core/io/mesh_io.h"
@@ -29,12 +28,7 @@ namespace fs = std::filesystem;
 using std::chrono::seconds;
 using test::bound;
 
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream buffer;
-  buffer << in.rdbuf();
-  return buffer.str();
-}
+using test::read_text;
 
 TEST(RedisNginxTest, RoundRobinThroughNginxKeepsEverySessionCorrect) {
   if (test::RedisProcess::binary().empty()) {

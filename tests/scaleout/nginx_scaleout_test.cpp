@@ -58,12 +58,7 @@ using Clock = std::chrono::steady_clock;
 constexpr int kReplicas = 3;
 constexpr int kSessions = 12;
 
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream buffer;
-  buffer << in.rdbuf();
-  return buffer.str();
-}
+using test::read_text;
 
 /// A loopback port that was free a moment ago (nginx binds it next; a lost race is retried).
 int free_loopback_port() {
