@@ -1508,7 +1508,9 @@ TEST_F(DeformServiceTest, CoarsePreviewCarriesTheCoarseLevelOfMultiresolutionMov
         for (const std::uint32_t t : coarse.triangles()) EXPECT_LT(t, nc);
         for (int i = 0; i < coarse.to_fine_size(); ++i) {
           EXPECT_LT(coarse.to_fine(i), vertex_count);
-          if (i > 0) EXPECT_LT(coarse.to_fine(i - 1), coarse.to_fine(i)) << "ascending, distinct";
+          if (i > 0) {
+            EXPECT_LT(coarse.to_fine(i - 1), coarse.to_fine(i)) << "ascending, distinct";
+          }
         }
         if (key == 0) {
           key = coarse.key();
