@@ -11,6 +11,10 @@
 #
 #   scripts/fuzz.sh [SECONDS_PER_TARGET=10] [TARGET...]
 #
+# MESHDEFORM_FUZZ_BUILD_DIR=DIR runs the targets already built in DIR (the test command's
+# sanitizer build, scripts/test-sanitize.sh with MESHDEFORM_SANITIZE_FUZZERS=1) instead of
+# configuring and building ./build-fuzz.
+#
 # The test command runs 10 s per target. Before a change to a parser lands, run the long campaign,
 # 10 minutes per target, one per core at a time (12 targets: about 1 hour on two cores), and
 # report it in docs/testing.md:
@@ -22,13 +26,21 @@ seconds="${1:-10}"
 shift || true
 [[ "$seconds" =~ ^[0-9]+$ ]] || { echo "usage: $0 [SECONDS_PER_TARGET] [TARGET...]" >&2; exit 2; }
 
-"$root/scripts/install-fuzz-deps.sh"
-build="$root/build-fuzz"
-cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-  -DCMAKE_CXX_COMPILER=clang++ -DMESHDEFORM_BUILD_FUZZERS=ON \
-  -DMESHDEFORM_BUILD_TESTS=OFF -DMESHDEFORM_BUILD_CLI=OFF -DMESHDEFORM_BUILD_BENCH=OFF \
-  -DMESHDEFORM_BUILD_SERVER=ON >/dev/null  # for the protobuf code of fuzz_request only
-cmake --build "$build" -j"$(nproc)" --target meshdeform_fuzzers
+if [ -n "${MESHDEFORM_FUZZ_BUILD_DIR:-}" ]; then
+  build="$MESHDEFORM_FUZZ_BUILD_DIR"
+  [ -d "$build/tests/fuzz" ] || {
+    echo "fuzz.sh: $build has no fuzz targets (build it with scripts/test-sanitize.sh and MESHDEFORM_SANITIZE_FUZZERS=1)" >&2
+    exit 2
+  }
+else
+  "$root/scripts/install-fuzz-deps.sh"
+  build="$root/build-fuzz"
+  cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+    -DCMAKE_CXX_COMPILER=clang++ -DMESHDEFORM_BUILD_FUZZERS=ON \
+    -DMESHDEFORM_BUILD_TESTS=OFF -DMESHDEFORM_BUILD_CLI=OFF -DMESHDEFORM_BUILD_BENCH=OFF \
+    -DMESHDEFORM_BUILD_SERVER=ON >/dev/null  # for the protobuf code of fuzz_request only
+  cmake --build "$build" -j"$(nproc)" --target meshdeform_fuzzers
+fi
 
 if [ $# -gt 0 ]; then
   targets=("$@")

@@ -17,6 +17,17 @@
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cxx="${MESHDEFORM_SANITIZE_CXX:-clang++}"
+# MESHDEFORM_SANITIZE_FUZZERS=1 builds the libFuzzer targets here too (clang only), so that the
+# test command's fuzz stage runs them from this build instead of a third one
+# (scripts/fuzz.sh with MESHDEFORM_FUZZ_BUILD_DIR; tests/fuzz/CMakeLists.txt says what gets
+# coverage instrumentation then).
+fuzzers=OFF
+if [ "${MESHDEFORM_SANITIZE_FUZZERS:-0}" = "1" ]; then
+  case "$(basename "$cxx")" in
+    clang*) fuzzers=ON ;;
+    *) echo "test-sanitize.sh: MESHDEFORM_SANITIZE_FUZZERS=1 needs clang++, not $cxx" >&2; exit 2 ;;
+  esac
+fi
 case "$(basename "$cxx")" in
   clang*) "$root/scripts/install-fuzz-deps.sh" ;;  # the project's packages, clang, its runtimes, libomp
   *) "$root/scripts/install-deps.sh" ;;
@@ -24,7 +35,8 @@ esac
 cmake -S "$root" -B "$root/build-asan" -DCMAKE_CXX_COMPILER="$cxx" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g1" \
   -DMESHDEFORM_SANITIZE=address,undefined -DMESHDEFORM_BUILD_BENCH=OFF \
-  -DMESHDEFORM_BUILD_SERVER=ON -DMESHDEFORM_BUILD_TESTS=ON -DMESHDEFORM_BUILD_CLI=ON "$@" >/dev/null
+  -DMESHDEFORM_BUILD_SERVER=ON -DMESHDEFORM_BUILD_TESTS=ON -DMESHDEFORM_BUILD_CLI=ON \
+  -DMESHDEFORM_BUILD_FUZZERS="$fuzzers" "$@" >/dev/null
 cmake --build "$root/build-asan" -j"$(nproc)"
 [ "${MESHDEFORM_SANITIZE_BUILD_ONLY:-0}" = "1" ] && exit 0  # scripts/test-under-load.sh
 # halt_on_error makes UBSan findings fatal (by default it only prints them); LeakSanitizer works

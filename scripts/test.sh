@@ -6,8 +6,9 @@
 #     (scripts/kill-check.sh: a SIGKILLed test leaves no server process behind);
 #  2. every C++ test again under ASan + UBSan, the gRPC suites included (scripts/test-sanitize.sh,
 #     ./build-asan; no benchmarks, no JavaScript);
-#  3. a short bounded fuzz run of every parser (scripts/fuzz.sh, clang + libFuzzer, ./build-fuzz),
-#     MESHDEFORM_FUZZ_SECONDS per target (default 10).
+#  3. a short bounded fuzz run of every parser (scripts/fuzz.sh, clang + libFuzzer),
+#     MESHDEFORM_FUZZ_SECONDS per target (default 10), with the targets built in stage 2's
+#     ./build-asan (./build-fuzz when stage 2 is skipped).
 # MESHDEFORM_SKIP_SANITIZE=1 skips stage 2, MESHDEFORM_FUZZ_SECONDS=0 skips stage 3 (local loops).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -23,13 +24,22 @@ ctest --test-dir "$root/build" --output-on-failure --timeout 600 -j"$(nproc)"
 "$root/scripts/kill-check.sh" "$root/build"
 stage "stage 1 (build + tests + kill check) done"
 
+fuzz_seconds="${MESHDEFORM_FUZZ_SECONDS:-10}"
+sanitized=0
 if [ "${MESHDEFORM_SKIP_SANITIZE:-0}" != "1" ]; then
-  "$root/scripts/test-sanitize.sh"
+  # The fuzz targets are built in the same instrumented build (one clang build, not two).
+  fuzzers=0
+  [ "$fuzz_seconds" != "0" ] && fuzzers=1
+  MESHDEFORM_SANITIZE_FUZZERS=$fuzzers "$root/scripts/test-sanitize.sh"
+  sanitized=$fuzzers
   stage "stage 2 (ASan + UBSan tests) done"
 fi
 
-fuzz_seconds="${MESHDEFORM_FUZZ_SECONDS:-10}"
 if [ "$fuzz_seconds" != "0" ]; then
-  "$root/scripts/fuzz.sh" "$fuzz_seconds"
+  if [ "$sanitized" = 1 ]; then
+    MESHDEFORM_FUZZ_BUILD_DIR="$root/build-asan" "$root/scripts/fuzz.sh" "$fuzz_seconds"
+  else
+    "$root/scripts/fuzz.sh" "$fuzz_seconds"
+  fi
   stage "stage 3 (fuzz, ${fuzz_seconds}s per target) done"
 fi
