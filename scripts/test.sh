@@ -28,8 +28,11 @@ fuzz_seconds="${MESHDEFORM_FUZZ_SECONDS:-10}"
 sanitized=0
 if [ "${MESHDEFORM_SKIP_SANITIZE:-0}" != "1" ]; then
   # The fuzz targets are built in the same instrumented build (one clang build, not two).
+  # (Not with MESHDEFORM_SANITIZE_CXX=g++: libFuzzer is clang's; stage 3 then builds its own.)
   fuzzers=0
-  [ "$fuzz_seconds" != "0" ] && fuzzers=1
+  case "$(basename "${MESHDEFORM_SANITIZE_CXX:-clang++}")" in
+    clang*) [ "$fuzz_seconds" != "0" ] && fuzzers=1 ;;
+  esac
   MESHDEFORM_SANITIZE_FUZZERS=$fuzzers "$root/scripts/test-sanitize.sh"
   sanitized=$fuzzers
   stage "stage 2 (ASan + UBSan tests) done"
