@@ -58,6 +58,10 @@ struct Options {
   long max_vertices = 1'000'000;
   std::vector<int> spot_levels = {2, 3, 4};
   int threads = 1;
+  /// The default run's DeformerSettings::multilevel_above and multilevel_coarsest_vertices
+  /// (the library's defaults unless given: the study of the cascade below 20,000 vertices).
+  int multilevel_above = core::kDefaultMultilevelAbove;
+  int multilevel_coarsest = core::kDefaultMultilevelCoarsest;
   int converge_iterations = 300;             // budget of the "run to the rule" solves
   long single_converge_max_vertices = 250'000;
   int cgal_iterations = 100;
@@ -82,6 +86,9 @@ void print_usage(std::ostream& out) {
          "  --max-vertices N      skip models with more vertices (1000000)\n"
          "  --spot-levels a,b     Loop subdivision levels of Spot (2,3,4: ~47k, 187k, 750k)\n"
          "  --threads N           our solvers' OpenMP threads (1, as the CLI's default)\n"
+         "  --multilevel-above N  the default run's multilevel threshold (20000; the `single`\n"
+         "                        run stays single-level)\n"
+         "  --multilevel-coarsest N  the default run's coarsest level target (1000)\n"
          "  --converge-iterations N  budget of the runs to the stopping rule (300)\n"
          "  --single-converge-max-vertices N  run the single level to the rule up to N (250000)\n"
          "  --cgal-iterations N   CGAL's timed run (100)\n"
@@ -107,6 +114,8 @@ Result<Options> parse_options(int argc, char** argv) {
   flags.integer("--max-vertices", o.max_vertices, 1L);
   flags.integer_list("--spot-levels", o.spot_levels, 0);
   flags.integer("--threads", o.threads, 0);
+  flags.integer("--multilevel-above", o.multilevel_above, 0);
+  flags.integer("--multilevel-coarsest", o.multilevel_coarsest, 100);
   flags.integer("--converge-iterations", o.converge_iterations, 1);
   flags.integer("--single-converge-max-vertices", o.single_converge_max_vertices, 0L);
   flags.integer("--cgal-iterations", o.cgal_iterations, 1);
@@ -214,7 +223,8 @@ json quality_json(const Model& model, const core::Measures& rest, const core::Me
 json run_ours(const Model& model, const Options& options, bool multilevel, int max_iterations) {
   core::DeformerSettings settings;
   settings.threads = options.threads;
-  if (!multilevel) settings.multilevel_above = 0;
+  settings.multilevel_above = multilevel ? options.multilevel_above : 0;
+  settings.multilevel_coarsest_vertices = options.multilevel_coarsest;
   core::SolveOptions solve_options;
   solve_options.track_metrics = false;
   if (max_iterations > 0) solve_options.max_iterations = max_iterations;
@@ -438,8 +448,13 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
       << ": core::make_deformer (the precompute) and one solve with the default SolveOptions "
          "(budget 15 full-resolution iterations, stopping rule `remaining` at tolerance 1e-3: "
       << core::stopping_rule_description(core::StoppingRule::Remaining)
-      << "); multilevel above " << core::kDefaultMultilevelAbove
-      << " vertices. Time = precompute + solve, wall clock. `single`: the same with the "
+      << "); multilevel above " << options.multilevel_above << " vertices (coarsest level ~"
+      << options.multilevel_coarsest << ")"
+      << (options.multilevel_above != core::kDefaultMultilevelAbove ||
+                  options.multilevel_coarsest != core::kDefaultMultilevelCoarsest
+              ? " (not the library's defaults: --multilevel-above / --multilevel-coarsest)"
+              : "")
+      << ". Time = precompute + solve, wall clock. `single`: the same with the "
          "multilevel path off (DeformerSettings::multilevel_above 0). `*_converged`: the same "
          "two run to the same rule with a budget of "
       << options.converge_iterations << " iterations\n";
