@@ -22,15 +22,16 @@ cxx="${MESHDEFORM_SANITIZE_CXX:-clang++}"
 # (scripts/fuzz.sh with MESHDEFORM_FUZZ_BUILD_DIR; tests/fuzz/CMakeLists.txt says what gets
 # coverage instrumentation then).
 fuzzers=OFF
-if [ "${MESHDEFORM_SANITIZE_FUZZERS:-0}" = "1" ]; then
-  case "$(basename "$cxx")" in
-    clang*) fuzzers=ON ;;
-    *) echo "test-sanitize.sh: MESHDEFORM_SANITIZE_FUZZERS=1 needs clang++, not $cxx" >&2; exit 2 ;;
-  esac
-fi
+[ "${MESHDEFORM_SANITIZE_FUZZERS:-0}" = "1" ] && fuzzers=ON
 case "$(basename "$cxx")" in
   clang*) "$root/scripts/install-fuzz-deps.sh" ;;  # the project's packages, clang, its runtimes, libomp
-  *) "$root/scripts/install-deps.sh" ;;
+  *)
+    if [ "$fuzzers" = ON ]; then
+      echo "test-sanitize.sh: MESHDEFORM_SANITIZE_FUZZERS=1 needs clang++, not $cxx" >&2
+      exit 2
+    fi
+    "$root/scripts/install-deps.sh"
+    ;;
 esac
 cmake -S "$root" -B "$root/build-asan" -DCMAKE_CXX_COMPILER="$cxx" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g1" \

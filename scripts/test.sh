@@ -25,21 +25,19 @@ ctest --test-dir "$root/build" --output-on-failure --timeout 600 -j"$(nproc)"
 stage "stage 1 (build + tests + kill check) done"
 
 fuzz_seconds="${MESHDEFORM_FUZZ_SECONDS:-10}"
-sanitized=0
+fuzzers=0  # 1: stage 2 built the fuzz targets
 if [ "${MESHDEFORM_SKIP_SANITIZE:-0}" != "1" ]; then
   # The fuzz targets are built in the same instrumented build (one clang build, not two).
   # (Not with MESHDEFORM_SANITIZE_CXX=g++: libFuzzer is clang's; stage 3 then builds its own.)
-  fuzzers=0
   case "$(basename "${MESHDEFORM_SANITIZE_CXX:-clang++}")" in
     clang*) [ "$fuzz_seconds" != "0" ] && fuzzers=1 ;;
   esac
   MESHDEFORM_SANITIZE_FUZZERS=$fuzzers "$root/scripts/test-sanitize.sh"
-  sanitized=$fuzzers
   stage "stage 2 (ASan + UBSan tests) done"
 fi
 
 if [ "$fuzz_seconds" != "0" ]; then
-  if [ "$sanitized" = 1 ]; then
+  if [ "$fuzzers" = 1 ]; then
     MESHDEFORM_FUZZ_BUILD_DIR="$root/build-asan" "$root/scripts/fuzz.sh" "$fuzz_seconds"
   else
     "$root/scripts/fuzz.sh" "$fuzz_seconds"
