@@ -340,7 +340,11 @@ Result<std::unique_ptr<Deformer>> make_deformer_impl(Method method, const Positi
         return std::unique_ptr<Deformer>(
             std::make_unique<MultilevelScaleAwareDeformer>(std::move(built), constrained));
       }
-      MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, ScaleAwareSolver::create(V0, F, constrained, s, stop, progress));
+      MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver,
+                          checked != nullptr
+                              ? ScaleAwareSolver::create(V0, F, *checked, constrained, s, stop,
+                                                         progress)
+                              : ScaleAwareSolver::create(V0, F, constrained, s, stop, progress));
       return std::unique_ptr<Deformer>(std::make_unique<ScaleAwareDeformer>(std::move(solver)));
     }
     case Method::Arap: {

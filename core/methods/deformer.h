@@ -152,9 +152,9 @@ class Deformer {
                                                               std::stop_token stop = {},
                                                               const BuildProgress& progress = {});
 /// The same for a mesh the caller has validated (validate_triangle_mesh) and whose topology it
-/// has built (build_topology(F, #V)), e.g. a server session when the mesh was uploaded: the
-/// multiresolution, ARAP and Laplacian methods do neither again (0.17 s at 187k vertices); the
-/// single-level scale-aware solver still does. The constrained indices are still checked.
+/// has built (build_topology(F, #V)), e.g. a server session when the mesh was uploaded: no
+/// method does either again (0.17 s at 187k vertices). The constrained indices are still
+/// checked.
 [[nodiscard]] Result<std::unique_ptr<Deformer>> make_deformer(
     Method method, const Positions& V0, const Triangles& F, const MeshTopology& topology,
     const Eigen::VectorXi& constrained, const DeformerSettings& settings = {},

@@ -98,12 +98,21 @@ RigidityStitcher::~RigidityStitcher() = default;
 Result<RigidityStitcher> RigidityStitcher::create(const Positions& V0, const Triangles& F,
                                                   const Eigen::VectorXi& constrained,
                                                   double lambda) {
+  MD_RETURN_IF_ERROR(validate_triangle_mesh(V0, F));
+  MD_ASSIGN_OR_RETURN(const MeshTopology topology, build_topology(F, static_cast<int>(V0.rows())));
+  return create(V0, F, topology, constrained, lambda);
+}
+
+Result<RigidityStitcher> RigidityStitcher::create(const Positions& V0, const Triangles& F,
+                                                  const MeshTopology& topology,
+                                                  const Eigen::VectorXi& constrained,
+                                                  double lambda) {
+  MD_ASSERT(topology.vertex_count == V0.rows() && topology.face_count == F.rows());
   if (!(lambda > 0) || !std::isfinite(lambda)) {
     return Error(ErrorCode::InvalidArgument, "lambda must be positive and finite");
   }
-  MD_RETURN_IF_ERROR(validate_triangle_mesh(V0, F));
   auto impl = std::make_unique<Impl>();
-  MD_ASSIGN_OR_RETURN(impl->topology, build_topology(F, static_cast<int>(V0.rows())));
+  impl->topology = topology;
   MD_RETURN_IF_ERROR(check_constrained(constrained, impl->topology, 1));
   const int n = static_cast<int>(V0.rows());
   // Each face edge (i, j) adds (x_i - x_j)^2: an edge-count weighted graph Laplacian.

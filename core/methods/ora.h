@@ -17,6 +17,7 @@
 #include <Eigen/Core>
 
 #include "core/mesh/mesh_data.h"
+#include "core/mesh/topology.h"
 #include "core/base/status.h"
 
 namespace meshdeform::core {
@@ -50,6 +51,12 @@ class RigidityStitcher {
   /// @return the stitcher; InvalidArgument for a bad mesh or index or an unconstrained component;
   ///         NumericalFailure if the factorization fails.
   [[nodiscard]] static Result<RigidityStitcher> create(const Positions& V0, const Triangles& F,
+                                                       const Eigen::VectorXi& constrained,
+                                                       double lambda = 100.0);
+  /// The same for a mesh the caller has validated (validate_triangle_mesh) and whose topology
+  /// it has built (build_topology(F, #V)): neither is done again (the scale-aware solver's ORA).
+  [[nodiscard]] static Result<RigidityStitcher> create(const Positions& V0, const Triangles& F,
+                                                       const MeshTopology& topology,
                                                        const Eigen::VectorXi& constrained,
                                                        double lambda = 100.0);
 

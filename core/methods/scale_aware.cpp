@@ -41,7 +41,19 @@ Result<ScaleAwareSolver> ScaleAwareSolver::create(const Positions& V0, const Tri
                                                   std::stop_token stop,
                                                   const BuildProgress& progress) {
   auto impl = std::make_unique<Impl>();
-  MD_RETURN_IF_ERROR(impl->build(V0, F, constrained, settings, stop, progress));
+  MD_RETURN_IF_ERROR(impl->build(V0, F, nullptr, constrained, settings, stop, progress));
+  return ScaleAwareSolver(std::move(impl));
+}
+
+Result<ScaleAwareSolver> ScaleAwareSolver::create(const Positions& V0, const Triangles& F,
+                                                  const MeshTopology& topology,
+                                                  const Eigen::VectorXi& constrained,
+                                                  const ScaleAwareSettings& settings,
+                                                  std::stop_token stop,
+                                                  const BuildProgress& progress) {
+  MD_ASSERT(topology.vertex_count == V0.rows() && topology.face_count == F.rows());
+  auto impl = std::make_unique<Impl>();
+  MD_RETURN_IF_ERROR(impl->build(V0, F, &topology, constrained, settings, stop, progress));
   return ScaleAwareSolver(std::move(impl));
 }
 
@@ -501,7 +513,8 @@ Result<SolveReport> ScaleAwareSolver::solve(const Positions& targets, const Solv
     const auto stitch_start = Clock::now();
     if (!s.stitcher) {
       MD_ASSIGN_OR_RETURN(RigidityStitcher built,
-                          RigidityStitcher::create(s.V0, s.F, s.constrained, s.settings.lambda));
+                          RigidityStitcher::create(s.V0, s.F, s.topology, s.constrained,
+                                                   s.settings.lambda));
       s.stitcher.emplace(std::move(built));
     }
     MD_ASSIGN_OR_RETURN(Positions stitched,

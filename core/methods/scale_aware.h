@@ -18,6 +18,7 @@
 
 #include "core/methods/deform_types.h"
 #include "core/mesh/mesh_data.h"
+#include "core/mesh/topology.h"
 #include "core/base/status.h"
 
 namespace meshdeform::core {
@@ -96,6 +97,16 @@ class ScaleAwareSolver {
   /// @param[in] progress     phases "validate", "rigid_start" (unless lazy) and "step_two"
   ///                         (see BuildProgress); may be empty.
   [[nodiscard]] static Result<ScaleAwareSolver> create(const Positions& V0, const Triangles& F,
+                                                       const Eigen::VectorXi& constrained,
+                                                       const ScaleAwareSettings& settings = {},
+                                                       std::stop_token stop = {},
+                                                       const BuildProgress& progress = {});
+  /// The same for a mesh the caller has validated (validate_triangle_mesh) and whose topology
+  /// it has built (build_topology(F, #V)), e.g. a level of a multilevel solver or a server
+  /// session's mesh: neither is done again, and the rigid start's ARAP solver and ORA's stitcher
+  /// use that topology too. The constrained indices are still checked.
+  [[nodiscard]] static Result<ScaleAwareSolver> create(const Positions& V0, const Triangles& F,
+                                                       const MeshTopology& topology,
                                                        const Eigen::VectorXi& constrained,
                                                        const ScaleAwareSettings& settings = {},
                                                        std::stop_token stop = {},

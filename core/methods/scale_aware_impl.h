@@ -216,9 +216,11 @@ struct ScaleAwareSolver::Impl {
   Positions carried_targets;
   double carried_rho = -1;
 
-  Status build(const Positions& V0_in, const Triangles& F_in, const Eigen::VectorXi& constrained_in,
-               const ScaleAwareSettings& settings_in, const std::stop_token& stop,
-               const BuildProgress& progress);
+  /// @param[in] checked  the topology of a mesh the caller has validated, or null to validate
+  ///                     and build it here.
+  Status build(const Positions& V0_in, const Triangles& F_in, const MeshTopology* checked,
+               const Eigen::VectorXi& constrained_in, const ScaleAwareSettings& settings_in,
+               const std::stop_token& stop, const BuildProgress& progress);
   /// The ARAP solver of the rigid start (factors ARAP's reduced cotangent Laplacian).
   Status build_rigid_start() {
     ArapSettings arap_settings;

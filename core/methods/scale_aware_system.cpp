@@ -34,6 +34,7 @@ void ScaleAwareSolver::Impl::build_edge_form() {
 }
 
 Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_in,
+                                     const MeshTopology* checked,
                                      const Eigen::VectorXi& constrained_in,
                                      const ScaleAwareSettings& settings_in,
                                      const std::stop_token& stop,
@@ -56,8 +57,12 @@ Status ScaleAwareSolver::Impl::build(const Positions& V0_in, const Triangles& F_
                  ">= 0 (infinity allowed)");
   }
   report_progress(progress, "validate", 0.0);
-  MD_RETURN_IF_ERROR(validate_triangle_mesh(V0_in, F_in));
-  MD_ASSIGN_OR_RETURN(topology, build_topology(F_in, static_cast<int>(V0_in.rows())));
+  if (checked != nullptr) {
+    topology = *checked;
+  } else {
+    MD_RETURN_IF_ERROR(validate_triangle_mesh(V0_in, F_in));
+    MD_ASSIGN_OR_RETURN(topology, build_topology(F_in, static_cast<int>(V0_in.rows())));
+  }
   MD_RETURN_IF_ERROR(check_constrained(constrained_in, topology, 2));
 
   settings = settings_in;

@@ -76,6 +76,9 @@ struct MultilevelSolver::Impl {
   std::optional<MeshHierarchy> hierarchy;
   /// Hierarchy levels used, full resolution first: used[i + 1] is coarser than used[i].
   std::vector<int> used;
+  /// level_topology[i]: the connectivity of level i >= 1 (validated once at build; level 0's is
+  /// `topology`), shared by its prolongation and its solvers.
+  std::vector<MeshTopology> level_topology;
   /// prolongation[i]: level used[i + 1] -> level used[i].
   std::vector<Prolongation> prolongation;
   std::optional<ScaleAwareSolver> fine;
@@ -88,6 +91,9 @@ struct MultilevelSolver::Impl {
     return i == 0 ? static_cast<int>(V.rows()) : static_cast<int>(level(i).V.rows());
   }
   int top() const { return static_cast<int>(used.size()) - 1; }
+  const MeshTopology& topology_of(int i) const {
+    return i == 0 ? topology : level_topology[static_cast<size_t>(i)];
+  }
   /// Targets of level i's constrained vertices (level 0: the caller's order).
   Result<Positions> targets_of(int i, const Positions& targets) const {
     if (i == 0) return targets;
@@ -213,6 +219,14 @@ Status MultilevelSolver::Impl::build(const Positions& V_in, const Triangles& F_i
 
   start = Clock::now();
   report_progress(progress, "prolongation", 0.0);
+  // Each coarse level's connectivity is built once, for its prolongation and for the solvers
+  // every cold solve creates on it (MeshHierarchy has validated every level).
+  level_topology.resize(used.size());
+  for (int i = 1; i <= top(); ++i) {
+    const MeshLevel& here = level(i);
+    MD_ASSIGN_OR_RETURN(level_topology[static_cast<size_t>(i)],
+                        build_topology(here.F, static_cast<int>(here.V.rows())));
+  }
   for (int i = 0; i < top(); ++i) {
     const MeshLevel& here = level(i);
     const MeshLevel& coarse = level(i + 1);
@@ -223,12 +237,10 @@ Status MultilevelSolver::Impl::build(const Positions& V_in, const Triangles& F_i
     for (Eigen::Index r = 0; r < coarse.to_fine.size(); ++r) {
       coarse_rows(r) = row[static_cast<size_t>(coarse.to_fine(r))];
     }
-    // Level 0 is the input mesh, validated with its topology already.
     MD_ASSIGN_OR_RETURN(Prolongation p,
-                        i == 0 ? Prolongation::create_checked(V, F, topology, coarse_rows, stop,
-                                                              settings.threads, nullptr)
-                               : Prolongation::create(here.V, here.F, coarse_rows, stop,
-                                                      settings.threads));
+                        Prolongation::create_checked(i == 0 ? V : here.V, i == 0 ? F : here.F,
+                                                     topology_of(i), coarse_rows, stop,
+                                                     settings.threads, nullptr));
     prolongation.push_back(std::move(p));
     report_progress(progress, "prolongation",
                     static_cast<double>(i + 1) / static_cast<double>(top()));
@@ -242,7 +254,8 @@ Status MultilevelSolver::Impl::build(const Positions& V_in, const Triangles& F_i
   ScaleAwareSettings fine_settings = settings.solver;
   fine_settings.lazy_laplacian_guess = true;
   MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver,
-                      ScaleAwareSolver::create(V, F, constrained, fine_settings, stop, progress));
+                      ScaleAwareSolver::create(V, F, topology, constrained, fine_settings, stop,
+                                               progress));
   fine.emplace(std::move(solver));
   fine_setup_seconds = seconds_since(start);
   const Measures rest = compute_measures(V, F, topology);
@@ -371,7 +384,8 @@ Result<SolveReport> MultilevelSolver::solve(const Positions& targets, const Solv
                         i == 0 ? ArapSolver::create(s.V, s.F, s.topology, s.constrained,
                                                     arap_settings)
                                : ArapSolver::create(s.level(i).V, s.level(i).F,
-                                                    s.constrained_of(i), arap_settings));
+                                                    s.topology_of(i), s.constrained_of(i),
+                                                    arap_settings));
     if (i == top) {
       arap_options.start = StartFrom::Laplacian;
       arap_options.max_iterations = options.rigid_start_iterations;
@@ -420,8 +434,8 @@ Result<SolveReport> MultilevelSolver::solve(const Positions& targets, const Solv
     // factorizations.
     level_settings.lazy_laplacian_guess = i != top;
     MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver,
-                        ScaleAwareSolver::create(here.V, here.F, s.constrained_of(i),
-                                                 level_settings, stop));
+                        ScaleAwareSolver::create(here.V, here.F, s.topology_of(i),
+                                                 s.constrained_of(i), level_settings, stop));
     SolveOptions run = level_options;
     if (i == top) {
       run.start = StartFrom::Auto;

@@ -927,6 +927,7 @@ Result<Positions> Prolongation::apply(const Positions& coarse) const {
 struct MultiresDeformer::Impl {
   MultiresDeformerSettings settings;
   MeshHierarchy hierarchy;
+  MeshTopology fine_topology;  // of hierarchy level 0 (the input mesh), for the fine solver
   int level = 1;
   std::optional<Prolongation> prolongation;
   std::optional<ScaleAwareSolver> coarse;
@@ -982,6 +983,7 @@ Result<MultiresDeformer> MultiresDeformer::create(const Positions& V, const Tria
                       MeshHierarchy::build_checked(V, F, topology, constrained, settings.hierarchy,
                                                    progress, stop));
   s.report.hierarchy_seconds = seconds_since(start);
+  s.fine_topology = topology;
   const int coarsest = s.hierarchy.level_count() - 1;
   s.level = settings.level < 0 ? coarsest : settings.level;
   if (s.level < 1 || s.level > coarsest) {
@@ -1039,6 +1041,7 @@ std::optional<MultiresDeformer::FineSolverInputs> MultiresDeformer::fine_solver_
   FineSolverInputs inputs;
   inputs.V = fine.V;
   inputs.F = fine.F;
+  inputs.topology = s.fine_topology;
   // The fine solver takes the constrained vertices in the caller's order (targets' rows).
   inputs.constrained.resize(fine.constrained.size());
   for (Eigen::Index j = 0; j < fine.constrained.size(); ++j) {
@@ -1055,8 +1058,8 @@ std::optional<MultiresDeformer::FineSolverInputs> MultiresDeformer::fine_solver_
 Result<ScaleAwareSolver> MultiresDeformer::build_fine_solver(const FineSolverInputs& inputs,
                                                              std::stop_token stop) {
   MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver,
-                      ScaleAwareSolver::create(inputs.V, inputs.F, inputs.constrained,
-                                               inputs.settings, stop));
+                      ScaleAwareSolver::create(inputs.V, inputs.F, inputs.topology,
+                                               inputs.constrained, inputs.settings, stop));
   if (inputs.rigidity >= 0) {
     if (stop.stop_requested()) {
       return Error(ErrorCode::Cancelled, "precompute cancelled (deadline or client)");

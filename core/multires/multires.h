@@ -287,6 +287,7 @@ class MultiresDeformer {
     Positions V;
     Triangles F;
     Eigen::VectorXi constrained;  ///< in the order of the targets' rows
+    MeshTopology topology;        ///< of (V, F), validated at create: not built again
     ScaleAwareSettings settings;
     /// The rigidity the first refinement will solve at: its setup (ScaleAwareSolver::prepare)
     /// is built with the solver; negative: none.

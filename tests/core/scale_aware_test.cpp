@@ -155,6 +155,40 @@ TEST(ScaleAwareSolver, ALazyLaplacianGuessGivesTheSameSolveBitForBit) {
   EXPECT_EQ(ra->V, rb->V);
 }
 
+TEST(ScaleAwareSolver, ACallersTopologyGivesTheSameSolveBitForBit) {
+  // A caller that has validated the mesh and built its topology (a multilevel level, a server
+  // session) passes it in; the solve, ORA's stitch included, is the one create() builds itself.
+  MeshData m = test::make_grid(12, 0.05);
+  std::vector<int> idx;
+  for (int j = 0; j <= 12; ++j) {
+    idx.push_back(j * 13);
+    idx.push_back(j * 13 + 12);
+  }
+  const Eigen::VectorXi constrained = Eigen::Map<Eigen::VectorXi>(idx.data(), int(idx.size()));
+  Positions targets = rows_of(m.V, constrained);
+  for (Eigen::Index j = 1; j < targets.rows(); j += 2) targets(j, 0) += 0.4;
+  auto topology = build_topology(m.F, static_cast<int>(m.V.rows()));
+  ASSERT_TRUE(topology.ok());
+  auto own = ScaleAwareSolver::create(m.V, m.F, constrained);
+  auto given = ScaleAwareSolver::create(m.V, m.F, *topology, constrained);
+  ASSERT_TRUE(own.ok() && given.ok());
+  SolveOptions options;
+  options.max_iterations = 5;
+  options.ora = true;
+  auto a = own->solve(targets, options);
+  auto b = given->solve(targets, options);
+  ASSERT_TRUE(a.ok() && b.ok());
+  ASSERT_TRUE(b->stitch.applied);
+  EXPECT_EQ(a->V, b->V);
+  EXPECT_EQ(a->history.back().energy, b->history.back().energy);
+  // The constrained indices are still checked.
+  Eigen::VectorXi bad = constrained;
+  bad(0) = static_cast<int>(m.V.rows());
+  const auto rejected = ScaleAwareSolver::create(m.V, m.F, *topology, bad);
+  ASSERT_FALSE(rejected.ok());
+  EXPECT_EQ(rejected.status().code(), ErrorCode::InvalidArgument);
+}
+
 TEST(ScaleAwareSolver, WarmStartedRepeatOfTheSameTargetsIsAlreadyConverged) {
   MeshData m = test::make_icosphere(2);
   Eigen::VectorXi constrained(6);
