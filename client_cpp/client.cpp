@@ -341,6 +341,8 @@ struct WatchStream::State {
   std::optional<std::stop_callback<std::function<void()>>> on_stop;
   /// Link-sized updates: the positions reconstructed so far.
   std::optional<codec::StreamDecoder> decoder;
+  /// Coarse preview: the levels' meshes this stream received.
+  detail::CoarseLevelDecoder coarse;
 
   void cancel() {
     is_cancelled_by_caller.store(true);
@@ -422,6 +424,14 @@ Result<std::optional<WatchUpdate>> WatchStream::next() {
         update->result.positions = state_->decoder->positions();
       }
     }
+    if (update.ok() && message.has_coarse()) {
+      Result<CoarseLevel> coarse = state_->coarse.decode(message.coarse());
+      if (coarse.ok()) {
+        update->coarse = std::move(coarse).value();
+      } else {
+        update = coarse.status();
+      }
+    }
     if (update.ok()) update->wire_bytes = message.ByteSizeLong();
     if (!update.ok()) {
       state_->cancel();
@@ -443,6 +453,14 @@ Result<std::optional<WatchUpdate>> WatchStream::next() {
 
 WatchStream Client::open_watch(const SessionRef& session, const CallOptions& call,
                                const UpdateOptions& updates) const {
+  WatchOptions options;
+  options.updates = updates;
+  return open_watch(session, call, options);
+}
+
+WatchStream Client::open_watch(const SessionRef& session, const CallOptions& call,
+                               const WatchOptions& watch_options) const {
+  const UpdateOptions& updates = watch_options.updates;
   auto state = std::make_unique<WatchStream::State>();
   Status ok = check_timeout(call);
   if (ok.ok()) ok = check_session_id(session.id);
@@ -463,6 +481,7 @@ WatchStream Client::open_watch(const SessionRef& session, const CallOptions& cal
     options->set_relative_tolerance(updates.relative_tolerance);
     options->set_max_update_bytes(updates.max_update_bytes);
   }
+  request.set_coarse_preview(watch_options.coarse_preview);
   state->reader = impl_->stub->Watch(&state->context, request);
   WatchStream::State* raw = state.get();
   state->on_stop.emplace(call.stop, std::function<void()>([raw] { raw->cancel(); }));
@@ -472,7 +491,15 @@ WatchStream Client::open_watch(const SessionRef& session, const CallOptions& cal
 Result<WatchEnd> Client::watch(const SessionRef& session,
                                const std::function<bool(const WatchUpdate&)>& on_update,
                                const CallOptions& call, const UpdateOptions& updates) const {
-  WatchStream stream = open_watch(session, call, updates);
+  WatchOptions options;
+  options.updates = updates;
+  return watch(session, on_update, call, options);
+}
+
+Result<WatchEnd> Client::watch(const SessionRef& session,
+                               const std::function<bool(const WatchUpdate&)>& on_update,
+                               const CallOptions& call, const WatchOptions& options) const {
+  WatchStream stream = open_watch(session, call, options);
   // Bounded by the stream's deadline: every Read returns by then.
   for (;;) {
     Result<std::optional<WatchUpdate>> next = stream.next();

@@ -205,6 +205,25 @@ struct UpdateOptions {
   std::uint32_t max_update_bytes = 0;
 };
 
+/// What a Watch stream asks for besides the session (meshdeform.v1.WatchRequest).
+struct WatchOptions {
+  UpdateOptions updates;  ///< link-sized updates (default off)
+  /// Updates of a multiresolution session's moves also carry the coarse level they were solved
+  /// on (WatchUpdate::coarse), for a client that draws the coarse mesh during a drag: a fraction
+  /// of the vertices. The full positions come as usual.
+  bool coarse_preview = false;
+};
+
+/// The coarse level of a multiresolution move (meshdeform.v1.CoarseLevel, WatchOptions::
+/// coarse_preview). The server sends a level's mesh once per stream; the client fills it in on
+/// every update of that level.
+struct CoarseLevel {
+  std::uint64_t key = 0;      ///< identifies the level's mesh
+  Positions positions;        ///< #Vc x 3, the full result's positions at the coarse vertices
+  Triangles triangles;        ///< #Fc x 3 coarse vertex indices
+  std::vector<int> to_fine;   ///< #Vc: the full-resolution vertex of each coarse vertex
+};
+
 /// What a link-sized update cost and how close it brought the client (VertexDelta).
 struct DeltaStats {
   std::uint64_t sequence = 0;
@@ -248,6 +267,8 @@ struct WatchUpdate {
   /// Streams with UpdateOptions: what the update cost. result.positions then always holds the
   /// reconstructed positions (is_snapshot is true for the stream's first update only).
   std::optional<DeltaStats> delta;
+  /// Streams with WatchOptions::coarse_preview, on an update of a move solved on a coarse level.
+  std::optional<CoarseLevel> coarse;
   /// The message's size on the wire (serialized bytes), for reports.
   std::size_t wire_bytes = 0;
 };
@@ -356,12 +377,21 @@ class Client {
                                        const std::function<bool(const WatchUpdate&)>& on_update,
                                        const CallOptions& call = {},
                                        const UpdateOptions& updates = {}) const;
+  /// The same with every Watch option (link-sized updates, the coarse preview).
+  /// @return as above; InvalidArgument for a coarse level that does not decode (positions of
+  ///         the wrong size, a level whose mesh never came, indices out of range).
+  [[nodiscard]] Result<WatchEnd> watch(const SessionRef& session,
+                                       const std::function<bool(const WatchUpdate&)>& on_update,
+                                       const CallOptions& call, const WatchOptions& options) const;
 
   /// Opens a Watch stream to read update by update (see WatchStream).
   /// @return the stream (errors such as NotFound surface from its first next()).
   [[nodiscard]] WatchStream open_watch(const SessionRef& session,
                                        const CallOptions& call = {},
                                        const UpdateOptions& updates = {}) const;
+  /// The same with every Watch option.
+  [[nodiscard]] WatchStream open_watch(const SessionRef& session, const CallOptions& call,
+                                       const WatchOptions& options) const;
 
   /// The mesh at `revision` (default: current) as file bytes. View or edit token.
   /// @return the bytes; NotFound for an unknown session or a revision no longer kept;

@@ -1,6 +1,9 @@
 #include "client_cpp/client_conversions.h"
 
 #include <algorithm>
+#include <bit>
+#include <cstring>
+#include <limits>
 #include <optional>
 #include <utility>
 
@@ -189,6 +192,62 @@ Result<WatchUpdate> update_from_proto(const v1::DeformUpdate& in) {
   update.is_snapshot = in.is_snapshot();
   update.skipped_revisions = in.skipped_revisions();
   return update;
+}
+
+Result<CoarseLevel> CoarseLevelDecoder::decode(const v1::CoarseLevel& in) {
+  const auto bad = [&in](const std::string& why) {
+    return malformed("Watch", "coarse level " + std::to_string(in.key()) + ": " + why);
+  };
+  const std::uint32_t nc = in.vertex_count();
+  if (in.positions().size() != 12ull * nc) {
+    return bad(std::to_string(in.positions().size()) + " position bytes for " + std::to_string(nc) +
+               " vertices (12 per vertex)");
+  }
+  if (in.to_fine_size() > 0 || in.triangles_size() > 0) {
+    if (static_cast<std::uint32_t>(in.to_fine_size()) != nc) {
+      return bad(std::to_string(in.to_fine_size()) + " to_fine entries for " + std::to_string(nc) +
+                 " vertices");
+    }
+    if (in.triangles_size() == 0 || in.triangles_size() % 3 != 0) {
+      return bad(std::to_string(in.triangles_size()) +
+                 " triangle indices (a positive multiple of 3)");
+    }
+    Mesh mesh;
+    mesh.triangles.resize(in.triangles_size() / 3, 3);
+    for (int k = 0; k < in.triangles_size(); ++k) {
+      if (in.triangles(k) >= nc) {
+        return bad("triangle index " + std::to_string(in.triangles(k)) + " of " +
+                   std::to_string(nc) + " vertices");
+      }
+      mesh.triangles(k / 3, k % 3) = static_cast<int>(in.triangles(k));
+    }
+    for (const std::uint32_t v : in.to_fine()) {
+      if (v > static_cast<std::uint32_t>(std::numeric_limits<int>::max())) {
+        return bad("to_fine index " + std::to_string(v) + " above INT_MAX");
+      }
+      mesh.to_fine.push_back(static_cast<int>(v));
+    }
+    meshes_[in.key()] = std::move(mesh);
+  }
+  const auto known = meshes_.find(in.key());
+  if (known == meshes_.end()) return bad("its mesh never came on this stream");
+  if (known->second.to_fine.size() != nc) {
+    return bad(std::to_string(nc) + " vertices, its mesh has " +
+               std::to_string(known->second.to_fine.size()));
+  }
+  CoarseLevel out;
+  out.key = in.key();
+  // Little-endian float32 on the wire, as on every machine this builds for.
+  static_assert(std::endian::native == std::endian::little && sizeof(float) == 4);
+  std::vector<float> xyz(3u * nc);
+  if (nc > 0) std::memcpy(xyz.data(), in.positions().data(), in.positions().size());
+  out.positions.resize(nc, 3);
+  for (std::uint32_t i = 0; i < nc; ++i) {
+    for (int c = 0; c < 3; ++c) out.positions(i, c) = xyz[3u * i + static_cast<unsigned>(c)];
+  }
+  out.triangles = known->second.triangles;
+  out.to_fine = known->second.to_fine;
+  return out;
 }
 
 ServerStats stats_from_proto(const v1::GetServerStatsResponse& in) {

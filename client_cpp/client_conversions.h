@@ -8,6 +8,8 @@
 
 #include <grpcpp/support/status.h>
 
+#include <cstdint>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -35,6 +37,25 @@ Status groups_to_proto(const std::vector<HandleGroup>& groups,
 
 /// @return success; InvalidArgument for a negative group or vertex index or max_iterations.
 Status move_to_proto(const MoveSpec& spec, v1::MoveHandlesRequest* out);
+
+/// The coarse levels of one Watch stream with coarse_preview (v1::CoarseLevel): the server sends
+/// a level's mesh (triangles, to_fine) with the level's first update on the stream and only its
+/// positions after that; decode() fills the mesh in on every update.
+class CoarseLevelDecoder {
+ public:
+  /// @return the level with its mesh (remembered when the update carries it); malformed("Watch")
+  ///         for positions that are not 12 bytes per vertex, a mesh whose to_fine does not match
+  ///         the vertex count or whose triangle index is out of range, or a key whose mesh never
+  ///         came on this stream.
+  Result<CoarseLevel> decode(const v1::CoarseLevel& in);
+
+ private:
+  struct Mesh {
+    Triangles triangles;
+    std::vector<int> to_fine;
+  };
+  std::map<std::uint64_t, Mesh> meshes_;  ///< by key (a new handle set makes a new level)
+};
 
 /// The responses of `rpc`; malformed() for an unknown enum value, an index above INT_MAX or
 /// position lists that do not match.

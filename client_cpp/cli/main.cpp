@@ -81,12 +81,14 @@ it out of the process list):
       method; default: the session's, set by create --rigidity, else 30).
   watch --session ID --token T [--max-updates N] [--seconds S]
         [--updates quantized|lossless [--tolerance X | --relative-tolerance X]
-         [--max-update-bytes N]]
+         [--max-update-bytes N]] [--coarse-preview]
       Prints one JSON line per committed revision (the first is a snapshot) until the session
       closes, N updates were printed or S seconds passed. --updates asks for link-sized updates
       (deltas against what this stream delivered, zstd; quantized within the tolerance, default
       1e-4 of the bounding-box diagonal, or lossless); each line then also has "delta" (bytes,
-      vertices sent, max error, pending vertices, continuation).
+      vertices sent, max error, pending vertices, continuation). --coarse-preview: the lines of
+      a multiresolution session's moves also have "coarse" (the level the move was solved on:
+      key, vertices, faces, its centroid).
   get --session ID --token T --out FILE [--revision N]
       Downloads the mesh; the format comes from the extension.
   info --session ID --token T       Prints the session summary.
@@ -135,6 +137,7 @@ const std::map<std::string, std::set<std::string>> kCommandFlags = {
     {"create", {"weld", "progress"}},
     {"handles", {"progress"}},
     {"move", {"ora"}},
+    {"watch", {"coarse-preview"}},
 };
 
 /// Parses the command line with CLI11: the commands are subcommands, the global options are the
@@ -638,7 +641,9 @@ int cmd_watch(const mc::Client& client, const Args& args) {
                        std::chrono::duration<double>(*seconds)) +
                    std::chrono::seconds(30);
   }
-  mc::UpdateOptions updates;
+  mc::WatchOptions options;
+  options.coarse_preview = args.has("coarse-preview");
+  mc::UpdateOptions& updates = options.updates;
   if (auto mode = args.get("updates")) {
     if (*mode == "quantized") {
       updates.mode = mc::UpdateOptions::Mode::Quantized;
@@ -686,11 +691,20 @@ int cmd_watch(const mc::Client& client, const Args& args) {
                                {"pending_vertices", d.pending_vertices},
                                {"continuation", d.continuation}};
         }
+        if (update.coarse) {
+          const mc::CoarseLevel& c = *update.coarse;
+          line["coarse"] = json{{"key", c.key},
+                                {"vertices", c.positions.rows()},
+                                {"faces", c.triangles.rows()}};
+          if (c.positions.rows() > 0) {
+            line["coarse"]["centroid"] = vec_json(c.positions.colwise().mean().transpose());
+          }
+        }
         std::cout << line.dump() << std::endl;
         ++printed;
         return !(max_updates && printed >= *max_updates);
       },
-      call, updates);
+      call, options);
   timer.request_stop();
   if (!mirror_error.ok()) return server_error("watch", mirror_error);
   if (!end.ok()) return server_error("watch", end.status());

@@ -217,10 +217,12 @@ TEST_F(ClientCliTest, RoundTripCreateHandlesMoveGet) {
   EXPECT_EQ(parse(info)["revision"], 1);
   EXPECT_EQ(parse(info)["last_method"], "scale_aware");
   const CliRun watched =
-      run({"watch", "--session", id, "--token", view, "--max-updates", "1", "--seconds", "30"});
+      run({"watch", "--session", id, "--token", view, "--max-updates", "1", "--seconds", "30",
+           "--coarse-preview"});
   ASSERT_EQ(watched.exit_code, 0) << describe(watched);
   const json line = parse(watched);  // exactly one line: the join snapshot
   EXPECT_EQ(line["is_snapshot"], true);
+  EXPECT_FALSE(line.contains("coarse")) << "a single-level session's snapshot has no coarse level";
   EXPECT_EQ(line["revision"], 1);
   EXPECT_EQ(line["vertices"], 420);
 

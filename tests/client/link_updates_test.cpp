@@ -309,5 +309,86 @@ TEST_F(LinkUpdatesTest, ASlowWatcherGetsTheNewestRevisionAndTheSkippedOnesCounte
   EXPECT_TRUE(*received.back().result.positions == *truth);
 }
 
+// The coarse preview through the C++ client (issue 44's WatchRequest.coarse_preview): a watcher
+// that asks for it gets, with each move a multiresolution session solved on its coarse level,
+// that level with its mesh filled in on every update (the server sends the mesh once per
+// stream), at the full result's positions; full-resolution solves (ORA) carry none, nor does a
+// watcher that did not ask.
+TEST(CoarsePreviewClient, WatchersGetTheCoarseLevelOfMultiresolutionMoves) {
+  std::string error;
+  const auto server = test::ServerProcess::start(
+      MESHDEFORM_SERVER_PATH,
+      {"--refine-delay-ms", "60000", "--multires-above", "1000", "--multires-coarse-vertices",
+       "1000", "--workers", "2"},
+      error);
+  ASSERT_NE(server, nullptr) << error;
+  ClientOptions options;
+  options.target = server->address();
+  options.default_timeout = seconds(60);
+  options.watch_timeout = seconds(120);
+  Result<Client> client = Client::connect(options);
+  ASSERT_TRUE(client.ok()) << message_of(client);
+  Result<Session> session = client->create_session_from_sample("cylinder");
+  ASSERT_TRUE(session.ok()) << message_of(session);
+  ASSERT_TRUE(client->set_handles(session->edit(), session->suggested_groups).ok());
+  Result<SessionInfo> info = client->session_info(session->view());
+  ASSERT_TRUE(info.ok());
+  ASSERT_GT(info->vertices, 2000) << "the sample must be above the multiresolution threshold";
+
+  WatchOptions preview;
+  preview.coarse_preview = true;
+  WatchStream with = client->open_watch(session->view(), {}, preview);
+  WatchStream without = client->open_watch(session->view());
+  for (WatchStream* stream : {&with, &without}) {
+    Result<std::optional<WatchUpdate>> join = stream->next();
+    ASSERT_TRUE(join.ok() && join->has_value()) << message_of(join);
+    EXPECT_FALSE((*join)->coarse) << "the rest mesh was not solved on a coarse level";
+  }
+  std::uint64_t key = 0;
+  for (int step = 1; step <= 3; ++step) {
+    SCOPED_TRACE("step " + std::to_string(step));
+    MoveSpec spec = bend(15.0 * step);
+    spec.ora = step == 3;  // solved at full resolution: no coarse level
+    Result<DeformResult> moved = client->move(session->edit(), spec);
+    ASSERT_TRUE(moved.ok() && moved->positions) << message_of(moved);
+    Result<std::optional<WatchUpdate>> plain = without.next();
+    ASSERT_TRUE(plain.ok() && plain->has_value()) << message_of(plain);
+    EXPECT_EQ((*plain)->result.revision, moved->revision);
+    EXPECT_FALSE((*plain)->coarse);
+    Result<std::optional<WatchUpdate>> update = with.next();
+    ASSERT_TRUE(update.ok() && update->has_value()) << message_of(update);
+    ASSERT_EQ((*update)->result.revision, moved->revision);
+    if (step == 3) {
+      EXPECT_FALSE((*update)->coarse);
+      continue;
+    }
+    ASSERT_TRUE((*update)->coarse);
+    const CoarseLevel& coarse = *(*update)->coarse;
+    const Eigen::Index nc = coarse.positions.rows();
+    EXPECT_GE(nc, 3);
+    EXPECT_LT(nc, info->vertices / 2);
+    if (step == 1) key = coarse.key;
+    EXPECT_EQ(coarse.key, key);
+    // The mesh is there on every update, though the server sent it with the first only.
+    ASSERT_EQ(static_cast<Eigen::Index>(coarse.to_fine.size()), nc);
+    ASSERT_GT(coarse.triangles.rows(), 0);
+    EXPECT_GE(coarse.triangles.minCoeff(), 0);
+    EXPECT_LT(coarse.triangles.maxCoeff(), nc);
+    // The prolongation keeps coarse vertices where the coarse solve put them (float32).
+    int mismatches = 0;
+    for (Eigen::Index i = 0; i < nc; ++i) {
+      const int v = coarse.to_fine[static_cast<std::size_t>(i)];
+      ASSERT_GE(v, 0);
+      ASSERT_LT(v, info->vertices);
+      for (int c = 0; c < 3; ++c) {
+        if (coarse.positions(i, c) != static_cast<double>(static_cast<float>((*moved->positions)(v, c)))) {
+          ++mismatches;
+        }
+      }
+    }
+    EXPECT_EQ(mismatches, 0);
+  }
+}
+
 }  // namespace
 }  // namespace meshdeform::client
