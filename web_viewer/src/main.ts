@@ -7,7 +7,7 @@ import {
   HandleGroupSchema, HandleRole, HistoryAction, MagnifyRegionSchema, MeshFormat, Method,
   type CreateSessionResponse, type HandleGroup, type MoveHandlesRequest, type MoveHandlesResponse, type SessionInfo, type SetHandlesResponse,
 } from "./gen/meshdeform/v1/deformation_pb";
-import { kSessionId, makeClient } from "./client";
+import { kSessionId } from "./client";
 import { progressText, readWithProgress } from "./progress";
 import { MoveCoalescer } from "./coalescer";
 import { rigidityLabel, rigidityStep, rigidityValue } from "./rigidity";
@@ -19,13 +19,11 @@ import { entriesFromEdit, newGesture, settingsView } from "./edit_state";
 import { derive, Timeline, type Entry, type Settings } from "./timeline";
 import { Interaction, type HandleGroupView, type PickHit, type Tool } from "./interaction";
 import { DEFAULT_ITERATIONS, parseIterations } from "./iterations";
-import { describeCommand, effectiveAxis, feedKey, startCommand, typedValue, type KeyCommand } from "./keycmd";
-import { modalState, type ModalPointer } from "./modal";
 import {
   applyMove, cloneStates, fitSimilarity, identityStates, planReset, statesKey, toGroupMove,
   type GroupStates, type Vec3,
 } from "./moves";
-import { buildAdjacency, components, farSide, pickGroups, type Adjacency } from "./pick";
+import { buildAdjacency, components, farSide, pickGroups } from "./pick";
 import { Viewer3D } from "./scene";
 import { loadPrefs, savePrefs } from "./prefs";
 import { SelectionState, type PaintMode } from "./selection";
@@ -36,120 +34,16 @@ import { showBytes, showCounts, showResult } from "./ui/metrics";
 import { dismissFirstHint, hideLinkProblem, showFirstHint, showLinkProblem } from "./ui/notice";
 import { ColorPainter } from "./ui/colors";
 import { clearStateNotice, showStateNotice, type NoticeAction } from "./ui/stateNotice";
-import { decoderReady, parseEncoding, PositionState } from "./updates";
+import { decoderReady, PositionState } from "./updates";
 import type { FromWorker, HeatMetric, ToWorker, UpdateInfo } from "./frames";
 import { autoScale, DEFAULT_HEAT_SCALE, heatMax, legend, parseScale, scaleValue, withScale, type HeatScale } from "./heatscale";
 import { viewForKey } from "./views";
-import { linkSizedOptions, parseLinkSized } from "./update_codec";
 import { DragToFrame } from "./frame_latency";
 import { makeHooks, newPageMetrics, type Hooks, type PageMetrics, type Role } from "./test_hooks";
+import { ModalTransform } from "./app/modal_transform";
+import { client, COARSE, EDIT_CONTROLS, ENCODING, FORMATS, GONE_TEXT, LAMBDA, LINK_SIZED, query, storage, UPDATES } from "./app/config";
+import { centroidOfRows, type MoveTarget, type PendingPick, type Session } from "./app/session";
 import "./style.css";
-
-interface MoveTarget {
-  states: GroupStates;
-  t0: number;
-  opts: string;
-  /** The drag this move belongs to (its moves make one undo step); 0n: a step of its own. */
-  gesture: bigint;
-  /** The history entry this move makes (its server step is filled in from the response). */
-  entry: Entry | null;
-}
-
-/** Per applied group: where its vertices were when the handles were set (the server's anchors, as
- * rendered) and their centroid (the pivot of the group's rotation and scale). */
-interface Anchor {
-  centroid: THREE.Vector3 | null;
-  positions: Float32Array;
-}
-
-/** An open G / R / S command. */
-interface Modal {
-  cmd: KeyCommand;
-  group: number;
-  base: GroupStates;
-  gesture: bigint;
-  entry: Entry;
-  start: { x: number; y: number } | null;
-  now: { x: number; y: number } | null;
-  sent: boolean;
-  label: string;
-}
-
-/** A pick-and-drag whose handles are being set while the pointer already moves. */
-interface PendingPick {
-  delta: THREE.Vector3 | null;
-  t0: number;
-  applied: boolean;
-  released: boolean;
-  failed: boolean;
-}
-
-const query = new URLSearchParams(location.search);
-/** localStorage, or null where the browser refuses it (privacy settings, sandboxed frames). */
-function storage(): Storage | null {
-  try {
-    return window.localStorage;
-  } catch {
-    return null;
-  }
-}
-
-/** The centroid of 3-per-vertex rows, or null for none. */
-function centroidOfRows(a: ArrayLike<number>): THREE.Vector3 | null {
-  const n = a.length / 3;
-  if (n === 0) return null;
-  const c = new THREE.Vector3();
-  for (let k = 0; k < n; k++) c.add(new THREE.Vector3(a[k * 3], a[k * 3 + 1], a[k * 3 + 2]));
-  return c.divideScalar(n);
-}
-const ENCODING = parseEncoding(query.get("encoding"));
-// ?updates=quantized|lossless[&tolerance=X][&budget=BYTES]: link-sized Watch updates (issue 45).
-const LINK_SIZED = parseLinkSized(query);
-const UPDATES = linkSizedOptions(LINK_SIZED);
-// ?coarse=on|off: draw the coarse level during a multiresolution drag (an editor's page only: a
-// watcher draws the full mesh, so its stream does not carry the level). Default on, except with
-// link-sized updates: the level's float32 positions (12 bytes per coarse vertex) would come on
-// top of their byte budget.
-const COARSE = query.get("coarse") === "on" || (query.get("coarse") !== "off" && UPDATES === undefined);
-const client = makeClient(location.origin);
-// ?lambda= soft handle weight for new sessions (server default 100 lets fixed vertices drift ~1e-4).
-const LAMBDA = Number(query.get("lambda")) > 0 ? Number(query.get("lambda")) : undefined;
-const FORMATS: Record<string, MeshFormat> = {
-  obj: MeshFormat.OBJ, off: MeshFormat.OFF, ply: MeshFormat.PLY, stl: MeshFormat.STL, glb: MeshFormat.GLB, gltf: MeshFormat.GLTF,
-};
-/** Controls that edit the session (disabled for watchers and once the session is gone). */
-const EDIT_CONTROLS = ["tool-move", "tool-grab", "tool-brush", "tool-lasso", "gizmo-translate", "gizmo-rotate", "gizmo-scale", "apply-handles",
-  "clear-selection", "extend-group", "paint-mode", "undo", "redo", "method", "ora", "rigidity", "iterations", "magnify", "delete-group",
-  "reset-rest", "grab-radius"];
-const GONE_TEXT = "The session this link points to no longer exists: it was closed, it expired, or the server restarted. Its edits cannot be recovered from here.";
-
-/** Everything that belongs to one open session. */
-interface Session {
-  creds: Credentials;
-  role: Role;
-  viewToken: string | null;
-  editToken: string | null;
-  indices: Uint32Array;
-  /** Revision 0 as loaded; restKnown false if the server no longer had it (then it is the shape at opening). */
-  rest: Float32Array;
-  restKnown: boolean;
-  /** The positions on screen and their revision (the worker's last frame). */
-  state: PositionState;
-  selection: SelectionState; // the magnify region
-  draft: GroupSet; // the groups as painted
-  groups: HandleGroup[]; // the groups as applied (SetHandles)
-  anchors: Anchor[];
-  /** The applied groups' anchors are the rest positions: identity moves give the rest pose. */
-  anchorsAtRest: boolean;
-  gone: boolean;
-  worker: Worker | null;
-  gotSnapshot: Promise<void>;
-  resolveSnapshot: () => void;
-  /** The heat map's values of the last frame (radians or |log ratio|) and their metric. */
-  heat: Float32Array | null;
-  heatMetric: HeatMetric | null;
-  topology: { adjacency: Adjacency; components: { id: Int32Array; count: number } } | null;
-}
 
 class App {
   readonly banner = new Banner((t) => (hooks.lastError = t));
@@ -165,7 +59,37 @@ class App {
   /** The server's undo-history position, as its last answer said. */
   private serverPos = 0;
   dirty = false; // the painted groups differ from the applied ones
-  modal: Modal | null = null;
+  readonly modal = new ModalTransform({
+    viewer: () => this.viewer,
+    states: () => this.states,
+    setStates: (st) => { this.states = st; },
+    blocked: () => ({ dirty: this.dirty, busy: this.historyBusy || !!this.pendingPick }),
+    lastPointer: () => this.interaction.lastPointer,
+    selectedHandle: () => this.selectedHandle(),
+    handleIndices: () => this.handleIndices(),
+    selectGroup: (i) => this.selectGroup(i),
+    explainBlocked: () => {
+      if (this.dirty) this.updateReady();
+      else if (this.handleIndices().length === 0) this.banner.message("Nothing to move with G, R or S yet: pick a point and drag it (Grab), or paint a handle.");
+    },
+    anchorCentroid: (i) => this.session?.anchors[i]?.centroid ?? null,
+    newGestureEntry: () => this.newGestureEntry(),
+    setGizmoMode: (m) => this.setGizmoMode(m),
+    opened: () => dismissFirstHint(),
+    placeGizmo: () => this.placeGizmo(),
+    submitMove: (st, t0, o) => this.submitMove(st, t0, o),
+    afterCommand: (entry) => {
+      if (entry) this.timeline.push(entry);
+      this.updateUndoButtons();
+    },
+    revertSent: (base) => this.revertModal(base),
+    endGesture: () => this.endCoarse(),
+    show: (text) => {
+      $("keycmd").textContent = text;
+      $("keycmd").hidden = !text;
+      hooks.modal = text;
+    },
+  });
   private pendingPick: PendingPick | null = null;
   private historyChain: Promise<void> = Promise.resolve();
   historyBusy = false;
@@ -202,10 +126,10 @@ class App {
         this.viewer.setGrabPreview(hit ? hit.point : null, this.grabRadius());
       },
       radiusWheel: (dy) => this.radiusWheel(dy),
-      modalActive: () => this.modal !== null,
-      modalPointer: (x, y) => this.modalPointer(x, y),
-      modalConfirm: () => this.confirmModal(),
-      modalCancel: () => this.cancelModal(),
+      modalActive: () => this.modal.active,
+      modalPointer: (x, y) => this.modal.pointer(x, y),
+      modalConfirm: () => this.modal.confirm(),
+      modalCancel: () => this.modal.cancel(),
       paintStart: (extend) => this.paintStart(extend),
       paint: (ix) => this.paint(ix),
       paintEnd: () => this.paintEnd(),
@@ -281,7 +205,7 @@ class App {
     s.worker?.terminate();
     s.worker = null;
     this.coalescer.reset();
-    this.closeModal();
+    this.modal.close();
     this.linkProblem(detail);
     this.placeGizmo();
   }
@@ -415,7 +339,7 @@ class App {
     this.session = null;
     hooks.ready = false;
     this.coalescer.reset();
-    this.closeModal();
+    this.modal.close();
     this.pendingPick = null;
   }
 
@@ -998,7 +922,7 @@ class App {
       this.banner.message("Reset is not possible: the server no longer keeps this session's rest mesh.");
       return;
     }
-    this.closeModal();
+    this.modal.close();
     await this.runHistoryOp(async () => {
       $in("magnify").value = "1";
       $("magnify-val").textContent = "1.00";
@@ -1078,7 +1002,7 @@ class App {
 
   undoRedo(redo: boolean): void {
     if (this.session?.role !== "edit" || this.session.gone) return;
-    this.closeModal();
+    this.modal.close();
     void this.runHistoryOp(() => this.stepHistory(redo), redo ? "Redo failed" : "Undo failed", "move");
   }
 
@@ -1172,154 +1096,21 @@ class App {
     return r.ok;
   }
 
-  // ---------- modal transforms (G / R / S) ----------
-
-  private startModal(key: string): boolean {
-    const cmd = startCommand(key);
-    if (!cmd) return false;
-    let i = this.selectedHandle();
-    if (i < 0 && !this.dirty && this.handleIndices().length > 0) {
-      i = this.handleIndices()[0];
-      this.selectGroup(i);
-    }
-    if (i < 0 || this.historyBusy || this.pendingPick) {
-      if (this.dirty) this.updateReady();
-      else if (this.handleIndices().length === 0) this.banner.message("Nothing to move with G, R or S yet: pick a point and drag it (Grab), or paint a handle.");
-      return true;
-    }
-    const p = this.interaction.lastPointer;
-    this.modal = {
-      cmd, group: i, base: cloneStates(this.states), gesture: newGesture(), entry: this.newGestureEntry()!, start: p ? { ...p } : null,
-      now: p ? { ...p } : null, sent: false, label: "",
-    };
-    this.viewer.orbit.enabled = false;
-    this.setGizmoMode(cmd.kind);
-    dismissFirstHint();
-    this.showModal();
-    return true;
-  }
-
-  private modalPointer(x: number, y: number): void {
-    const m = this.modal;
-    if (!m) return;
-    if (!m.start) m.start = { x, y };
-    m.now = { x, y };
-    this.updateModal();
-  }
-
-  /** Sends the group's state for the command as it stands (pointer or typed amount). */
-  private updateModal(): void {
-    const m = this.modal;
-    const s = this.session;
-    if (!m || !s) return;
-    const value = typedValue(m.cmd);
-    if (value === null && (!m.start || !m.now)) {
-      this.showModal();
-      return;
-    }
-    const a = s.anchors[m.group]?.centroid;
-    if (!a) return;
-    const t = m.base[m.group].translation;
-    const centre = new THREE.Vector3(a.x + t[0], a.y + t[1], a.z + t[2]);
-    const cs = this.viewer.toScreen(centre.x, centre.y, centre.z) ?? [0, 0];
-    const start = m.start ?? { x: cs[0], y: cs[1] };
-    const now = m.now ?? start;
-    const plane = new THREE.Plane().setFromNormalAndCoplanarPoint(this.viewer.viewDirection(), centre);
-    const h0 = this.viewer.ray(start.x, start.y).intersectPlane(plane, new THREE.Vector3());
-    const h1 = this.viewer.ray(now.x, now.y).intersectPlane(plane, new THREE.Vector3());
-    const planeDelta: Vec3 = h0 && h1 ? [h1.x - h0.x, h1.y - h0.y, h1.z - h0.z] : [0, 0, 0];
-    const pointer: ModalPointer = {
-      centre: [cs[0], cs[1]], start: [start.x, start.y], now: [now.x, now.y], planeDelta,
-      towardViewer: this.viewer.viewDirection().negate().toArray() as Vec3,
-    };
-    const amount = modalState(m.base[m.group], m.cmd.kind, effectiveAxis(m.cmd), value, pointer);
-    m.label = amount.label;
-    const st = cloneStates(m.base);
-    st[m.group] = amount.state;
-    this.submitMove(st, performance.now(), { gesture: m.gesture, entry: m.entry });
-    m.sent = true;
-    this.placeGizmo();
-    this.showModal();
-  }
-
-  private feedModal(key: string): void {
-    const m = this.modal;
-    if (!m) return;
-    const step = feedKey(m.cmd, key);
-    if (step.state === "cancel") {
-      this.cancelModal();
-      return;
-    }
-    if (step.state === "apply") {
-      m.cmd = step.cmd;
-      this.confirmModal();
-      return;
-    }
-    const restarted = key.length === 1 && /[grs]/i.test(key);
-    m.cmd = step.cmd;
-    if (restarted) {
-      // A new command: from the state the first one started at, the pointer's travel anew.
-      m.start = m.now ? { ...m.now } : m.start;
-      m.label = "";
-      this.setGizmoMode(m.cmd.kind);
-    }
-    this.updateModal();
-  }
-
-  private confirmModal(): void {
-    const m = this.modal;
-    if (!m) return;
-    this.updateModal();
-    this.closeModal();
-    if (m.sent && statesKey(this.states) !== statesKey(m.base)) {
-      m.entry.states = cloneStates(this.states);
-      this.timeline.push(m.entry);
-    } else if (m.sent) {
-      // Nothing changed after all: the moves sent were the state it started at.
-      this.states = cloneStates(m.base);
-    }
-    this.updateUndoButtons();
-    this.placeGizmo();
-  }
-
-  /** Esc or a right-click: the group goes back exactly (the server's undo of the command's step). */
-  private cancelModal(): void {
-    const m = this.modal;
-    if (!m) return;
-    this.closeModal();
-    this.states = cloneStates(m.base);
-    this.placeGizmo();
-    if (!m.sent) return;
+  /** A cancelled G / R / S command whose moves reached the server: its step undone there. */
+  private revertModal(base: GroupStates): void {
     void this.runHistoryOp(async () => {
       const cur = this.timeline.current;
       if (this.serverPos === (cur?.serverPos ?? -1) + 1 && cur && cur.epoch === this.timeline.live) {
         const r = await this.historyMove({ history: HistoryAction.UNDO });
         this.onMoveResult(r, null);
       } else if (cur?.revision !== null && cur) {
-        const r = await this.historyMove({ moves: this.groupMoves(m.base), restoreRevision: BigInt(cur.revision) });
+        const r = await this.historyMove({ moves: this.groupMoves(base), restoreRevision: BigInt(cur.revision) });
         this.onMoveResult(r, null);
         this.timeline.recorded(cur, this.serverPos, this.serverPos - 1);
         cur.revision = Number(r.result?.revision ?? -1);
       }
-      this.states = cloneStates(m.base);
+      this.states = cloneStates(base);
     }, "Cancel failed", "move");
-  }
-
-  private closeModal(): void {
-    if (!this.modal) return;
-    this.modal = null;
-    this.endCoarse();
-    this.viewer.orbit.enabled = true;
-    $("keycmd").hidden = true;
-    hooks.modal = "";
-  }
-
-  private showModal(): void {
-    const m = this.modal;
-    const text = m ? describeCommand(m.cmd, m.label) : "";
-    $("keycmd").textContent = text;
-    $("keycmd").hidden = !m;
-    hooks.modal = text;
   }
 
   // ---------- keys ----------
@@ -1328,9 +1119,9 @@ class App {
     const el = e.target as HTMLElement | null;
     const typing = (el?.tagName === "INPUT" && (el as HTMLInputElement).type !== "range" && (el as HTMLInputElement).type !== "checkbox") || el?.tagName === "SELECT" || el?.tagName === "TEXTAREA";
     if (typing) return;
-    if (this.modal && !e.ctrlKey && !e.metaKey && !e.altKey) {
+    if (this.modal.active && !e.ctrlKey && !e.metaKey && !e.altKey) {
       e.preventDefault();
-      this.feedModal(e.key);
+      this.modal.feed(e.key);
       return;
     }
     if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "z") {
@@ -1361,7 +1152,7 @@ class App {
           e.preventDefault();
           void this.deleteGroup(i);
         }
-      } else if (this.startModal(e.key)) {
+      } else if (this.modal.start(e.key)) {
         e.preventDefault();
       }
     }
@@ -1620,7 +1411,7 @@ class App {
     const o = this.viewer.pivotObject;
     const i = this.selectedHandle();
     const c = i >= 0 ? s?.anchors[i]?.centroid : null;
-    const show = !!c && s!.role === "edit" && !s!.gone && this.tool === "move" && !this.modal;
+    const show = !!c && s!.role === "edit" && !s!.gone && this.tool === "move" && !this.modal.active;
     this.viewer.gizmo.getHelper().visible = show;
     this.viewer.gizmo.enabled = show;
     if (c && this.states[i]) {
@@ -1710,7 +1501,7 @@ class App {
 
   /** A drag, gizmo drag or modal transform is under way. */
   private gesturing(): boolean {
-    return this.interaction.dragging || this.viewer.gizmo.dragging || !!this.modal;
+    return this.interaction.dragging || this.viewer.gizmo.dragging || this.modal.active;
   }
 
   /** The gesture ended: the full mesh again, if its coarse level was drawn. */
