@@ -35,13 +35,15 @@ import { dismissFirstHint, hideLinkProblem, showFirstHint, showLinkProblem } fro
 import { ColorPainter } from "./ui/colors";
 import { clearStateNotice, showStateNotice, type NoticeAction } from "./ui/stateNotice";
 import { decoderReady, PositionState } from "./updates";
-import type { FromWorker, HeatMetric, ToWorker, UpdateInfo } from "./frames";
+import type { HeatMetric, ToWorker, UpdateInfo } from "./frames";
 import { autoScale, DEFAULT_HEAT_SCALE, heatMax, legend, parseScale, scaleValue, withScale, type HeatScale } from "./heatscale";
 import { viewForKey } from "./views";
 import { DragToFrame } from "./frame_latency";
 import { makeHooks, newPageMetrics, type Hooks, type PageMetrics, type Role } from "./test_hooks";
 import { ModalTransform } from "./app/modal_transform";
-import { client, COARSE, EDIT_CONTROLS, ENCODING, FORMATS, GONE_TEXT, LAMBDA, LINK_SIZED, query, storage, UPDATES } from "./app/config";
+import { openWatch, type Frame } from "./app/watch_stream";
+import { createSessionFromFile, downloadMesh, formatOfName } from "./app/mesh_files";
+import { client, COARSE, EDIT_CONTROLS, ENCODING, GONE_TEXT, LAMBDA, LINK_SIZED, query, storage, UPDATES } from "./app/config";
 import { centroidOfRows, type MoveTarget, type PendingPick, type Session } from "./app/session";
 import "./style.css";
 
@@ -1315,9 +1317,8 @@ class App {
   }
 
   private async upload(file: File): Promise<void> {
-    const ext = file.name.split(".").pop()?.toLowerCase() ?? "";
-    const format = FORMATS[ext];
-    if (!format) {
+    const { ext, format } = formatOfName(file.name);
+    if (format === null) {
       this.banner.message(`Upload failed: unsupported file type “.${ext}” (use .obj .off .ply .stl .glb .gltf)`);
       return;
     }
@@ -1325,12 +1326,7 @@ class App {
     const before = this.sessionStatus;
     try {
       await this.banner.progress(`Uploading ${file.name}…`, async () => {
-        const bytes = new Uint8Array(await file.arrayBuffer());
-        this.banner.status(`Uploading ${file.name} (${(bytes.length / 1024).toFixed(0)} KiB)…`);
-        const r = await readWithProgress<CreateSessionResponse>(
-          client.createSessionWithProgress({ source: { case: "meshBytes", value: bytes }, format, lambda: LAMBDA, weld: format === MeshFormat.STL || format === MeshFormat.OBJ }),
-          (p) => this.banner.status(progressText(`Uploading ${file.name}…`, p)),
-        );
+        const r = await createSessionFromFile(file, format, (text) => this.banner.status(text));
         const creds = { sessionId: r.sessionId, token: r.editToken };
         await this.load(creds, "edit", r.info!, r.viewToken, r.editToken);
         this.startTool();
@@ -1349,19 +1345,7 @@ class App {
     const s = this.session;
     if (!s) return;
     try {
-      const r = await this.banner.progress("Preparing download…", () =>
-        client.getMesh({ sessionId: s.creds.sessionId, token: s.creds.token, format, revision: BigInt(Math.max(0, s.state.revision)) }).catch((e) => {
-          if (errorCode(e) !== Code.NotFound) throw e;
-          return client.getMesh({ sessionId: s.creds.sessionId, token: s.creds.token, format });
-        }));
-      const url = URL.createObjectURL(new Blob([r.meshBytes as BlobPart], { type: mime }));
-      const a = document.createElement("a");
-      a.href = url;
-      a.download = `meshdeform-${s.creds.sessionId.slice(0, 8)}-r${s.state.revision}.${ext}`;
-      document.body.appendChild(a);
-      a.click();
-      a.remove();
-      setTimeout(() => URL.revokeObjectURL(url), 10_000);
+      await this.banner.progress("Preparing download…", () => downloadMesh(s.creds, s.state.revision, format, ext, mime));
     } catch (e) {
       this.fail("Download failed", e, "download");
     }
@@ -1470,33 +1454,31 @@ class App {
   }
 
   private startStream(s: Session, indices: Uint32Array): void {
-    const w = new Worker(new URL("./mesh_worker.ts", import.meta.url), { type: "module" });
-    s.worker = w;
-    w.onmessage = (ev: MessageEvent<FromWorker>) => {
-      if (this.session !== s || s.gone) return;
-      const m = ev.data;
-      if (m.type === "frame") this.onFrame(s, m);
-      else if (m.type === "status") this.banner.status(m.text);
-      else if (m.type === "bad") this.banner.error("Bad update from the server", new Error(m.message));
-      else if (m.type === "end") {
+    // Events of a stream that is no longer the page's (closed, switched, gone) are dropped.
+    const current = () => this.session === s && !s.gone;
+    s.worker = openWatch({
+      type: "open", origin: location.origin, sessionId: s.creds.sessionId, token: s.creds.token, encoding: ENCODING, updates: LINK_SIZED, coarse: COARSE && s.role === "edit", vertexCount: s.state.vertexCount,
+      indices: Uint32Array.from(indices), rest: Float32Array.from(s.rest), heat: this.heatMetric(), pageTimeOrigin: performance.timeOrigin,
+    }, {
+      frame: (f) => { if (current()) this.onFrame(s, f); },
+      status: (text) => { if (current()) this.banner.status(text); },
+      bad: (message) => { if (current()) this.banner.error("Bad update from the server", new Error(message)); },
+      ended: () => {
+        if (!current()) return;
         s.resolveSnapshot();
         this.markGone(s, "The session was closed by its owner (or an operator). Its link no longer opens it.");
-      } else if (m.type === "error") {
+      },
+      failed: (e) => {
+        if (!current()) return;
         s.resolveSnapshot();
-        const e = new ConnectError(m.rawMessage, m.code);
-        if (m.code === Code.NotFound) this.markGone(s);
+        if (e.code === Code.NotFound) this.markGone(s);
         else {
           this.banner.error("Watching the session failed", e, "watch");
           hooks.ready = false;
         }
-      }
-    };
-    w.onerror = (ev) => this.banner.error("The viewer's update worker failed", new Error(ev.message));
-    const open: ToWorker = {
-      type: "open", origin: location.origin, sessionId: s.creds.sessionId, token: s.creds.token, encoding: ENCODING, updates: LINK_SIZED, coarse: COARSE && s.role === "edit", vertexCount: s.state.vertexCount,
-      indices: Uint32Array.from(indices), rest: Float32Array.from(s.rest), heat: this.heatMetric(), pageTimeOrigin: performance.timeOrigin,
-    };
-    w.postMessage(open, [open.indices.buffer, open.rest.buffer]);
+      },
+      workerFailed: (message) => this.banner.error("The viewer's update worker failed", new Error(message)),
+    });
   }
 
   /** A drag, gizmo drag or modal transform is under way. */
@@ -1511,7 +1493,7 @@ class App {
   }
 
   /** A frame from the worker: the newest positions (with the updates since the last frame). */
-  private onFrame(s: Session, f: Extract<FromWorker, { type: "frame" }>): void {
+  private onFrame(s: Session, f: Frame): void {
     const last = f.updates[f.updates.length - 1] as UpdateInfo | undefined;
     for (const u of f.updates) {
       this.metrics.updateBytes.push(u.bytes);
