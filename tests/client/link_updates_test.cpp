@@ -54,10 +54,11 @@ double max_distance(const Positions& a, const Positions& b) {
 
 class LinkUpdatesTest : public ::testing::Test {
  protected:
-  void SetUp() override {
+  void SetUp() override { start_server({"--refine-budget", "0", "--workers", "2"}); }
+
+  void start_server(const std::vector<std::string>& flags) {
     std::string error;
-    server_ = test::ServerProcess::start(MESHDEFORM_SERVER_PATH,
-                                         {"--refine-budget", "0", "--workers", "2"}, error);
+    server_ = test::ServerProcess::start(MESHDEFORM_SERVER_PATH, flags, error);
     ASSERT_NE(server_, nullptr) << error;
     ClientOptions direct;
     direct.target = server_->address();
@@ -314,31 +315,26 @@ TEST_F(LinkUpdatesTest, ASlowWatcherGetsTheNewestRevisionAndTheSkippedOnesCounte
 // that level with its mesh filled in on every update (the server sends the mesh once per
 // stream), at the full result's positions; full-resolution solves (ORA) carry none, nor does a
 // watcher that did not ask.
-TEST(CoarsePreviewClient, WatchersGetTheCoarseLevelOfMultiresolutionMoves) {
-  std::string error;
-  const auto server = test::ServerProcess::start(
-      MESHDEFORM_SERVER_PATH,
-      {"--refine-delay-ms", "60000", "--multires-above", "1000", "--multires-coarse-vertices",
-       "1000", "--workers", "2"},
-      error);
-  ASSERT_NE(server, nullptr) << error;
-  ClientOptions options;
-  options.target = server->address();
-  options.default_timeout = seconds(60);
-  options.watch_timeout = seconds(120);
-  Result<Client> client = Client::connect(options);
-  ASSERT_TRUE(client.ok()) << message_of(client);
-  Result<Session> session = client->create_session_from_sample("cylinder");
-  ASSERT_TRUE(session.ok()) << message_of(session);
-  ASSERT_TRUE(client->set_handles(session->edit(), session->suggested_groups).ok());
-  Result<SessionInfo> info = client->session_info(session->view());
+class CoarsePreviewTest : public LinkUpdatesTest {
+ protected:
+  // Multiresolution sessions at the samples' size, and no refinement revision in between.
+  void SetUp() override {
+    start_server({"--refine-delay-ms", "60000", "--multires-above", "1000",
+                  "--multires-coarse-vertices", "1000", "--workers", "2"});
+  }
+};
+
+TEST_F(CoarsePreviewTest, WatchersGetTheCoarseLevelOfMultiresolutionMoves) {
+  const Session session = create_with_handles("cylinder");
+  const Client& client = *editor_;
+  Result<SessionInfo> info = client.session_info(session.view());
   ASSERT_TRUE(info.ok());
   ASSERT_GT(info->vertices, 2000) << "the sample must be above the multiresolution threshold";
 
   WatchOptions preview;
   preview.coarse_preview = true;
-  WatchStream with = client->open_watch(session->view(), {}, preview);
-  WatchStream without = client->open_watch(session->view());
+  WatchStream with = client.open_watch(session.view(), {}, preview);
+  WatchStream without = client.open_watch(session.view());
   for (WatchStream* stream : {&with, &without}) {
     Result<std::optional<WatchUpdate>> join = stream->next();
     ASSERT_TRUE(join.ok() && join->has_value()) << message_of(join);
@@ -349,7 +345,7 @@ TEST(CoarsePreviewClient, WatchersGetTheCoarseLevelOfMultiresolutionMoves) {
     SCOPED_TRACE("step " + std::to_string(step));
     MoveSpec spec = bend(15.0 * step);
     spec.ora = step == 3;  // solved at full resolution: no coarse level
-    Result<DeformResult> moved = client->move(session->edit(), spec);
+    Result<DeformResult> moved = client.move(session.edit(), spec);
     ASSERT_TRUE(moved.ok() && moved->positions) << message_of(moved);
     Result<std::optional<WatchUpdate>> plain = without.next();
     ASSERT_TRUE(plain.ok() && plain->has_value()) << message_of(plain);

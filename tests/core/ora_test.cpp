@@ -49,14 +49,7 @@ TEST(Ora, UniformlyScaledMeshComesBackToItsOriginalSize) {
 
 TEST(Ora, ThroughTheSolverItTradesAngleErrorForArea) {
   // Stretch a bumpy strip: the scale-aware result grows its details; ORA brings areas back.
-  MeshData m = test::make_grid(16, 0.05);
-  std::vector<int> idx;
-  for (int j = 0; j <= 16; ++j) {
-    idx.push_back(j * 17);
-    idx.push_back(j * 17 + 16);
-  }
-  Eigen::VectorXi constrained = Eigen::Map<Eigen::VectorXi>(idx.data(), int(idx.size()));
-  Positions targets = rows_of(m.V, constrained);
+  auto [m, constrained, targets] = test::make_strip_edit(16);
   for (Eigen::Index j = 1; j < targets.rows(); j += 2) targets(j, 0) += 0.6;  // pull right side
   auto solver = ScaleAwareSolver::create(m.V, m.F, constrained);
   ASSERT_TRUE(solver.ok());

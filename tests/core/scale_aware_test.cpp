@@ -96,15 +96,8 @@ TEST(ScaleAwareSolver, SingleTriangleFollowsTheRightHandRule) {
 }
 
 TEST(ScaleAwareSolver, DeformationLowersAngleErrorBelowTheLaplacianStart) {
-  MeshData m = test::make_grid(16, 0.05);
   // Left column fixed, right column lifted and rotated: a bend.
-  std::vector<int> idx;
-  for (int j = 0; j <= 16; ++j) {
-    idx.push_back(j * 17);
-    idx.push_back(j * 17 + 16);
-  }
-  Eigen::VectorXi constrained = Eigen::Map<Eigen::VectorXi>(idx.data(), int(idx.size()));
-  Positions targets = rows_of(m.V, constrained);
+  auto [m, constrained, targets] = test::make_strip_edit(16);
   const Eigen::Matrix3d R = Eigen::AngleAxisd(M_PI / 3, Eigen::Vector3d::UnitY()).toRotationMatrix();
   for (Eigen::Index j = 1; j < targets.rows(); j += 2) {
     const Eigen::Vector3d p = targets.row(j).transpose();
@@ -125,14 +118,7 @@ TEST(ScaleAwareSolver, DeformationLowersAngleErrorBelowTheLaplacianStart) {
 }
 
 TEST(ScaleAwareSolver, ALazyLaplacianGuessGivesTheSameSolveBitForBit) {
-  MeshData m = test::make_grid(12, 0.05);
-  std::vector<int> idx;
-  for (int j = 0; j <= 12; ++j) {
-    idx.push_back(j * 13);
-    idx.push_back(j * 13 + 12);
-  }
-  const Eigen::VectorXi constrained = Eigen::Map<Eigen::VectorXi>(idx.data(), int(idx.size()));
-  Positions targets = rows_of(m.V, constrained);
+  auto [m, constrained, targets] = test::make_strip_edit(12);
   for (Eigen::Index j = 1; j < targets.rows(); j += 2) targets(j, 2) += 0.3;
   ScaleAwareSettings eager, lazy;
   lazy.lazy_laplacian_guess = true;
@@ -158,14 +144,7 @@ TEST(ScaleAwareSolver, ALazyLaplacianGuessGivesTheSameSolveBitForBit) {
 TEST(ScaleAwareSolver, ACallersTopologyGivesTheSameSolveBitForBit) {
   // A caller that has validated the mesh and built its topology (a multilevel level, a server
   // session) passes it in; the solve, ORA's stitch included, is the one create() builds itself.
-  MeshData m = test::make_grid(12, 0.05);
-  std::vector<int> idx;
-  for (int j = 0; j <= 12; ++j) {
-    idx.push_back(j * 13);
-    idx.push_back(j * 13 + 12);
-  }
-  const Eigen::VectorXi constrained = Eigen::Map<Eigen::VectorXi>(idx.data(), int(idx.size()));
-  Positions targets = rows_of(m.V, constrained);
+  auto [m, constrained, targets] = test::make_strip_edit(12);
   for (Eigen::Index j = 1; j < targets.rows(); j += 2) targets(j, 0) += 0.4;
   auto topology = build_topology(m.F, static_cast<int>(m.V.rows()));
   ASSERT_TRUE(topology.ok());

@@ -160,4 +160,17 @@ std::string make_grid_obj_text(int rows) {
   return out;
 }
 
+StripEdit make_strip_edit(int n) {
+  StripEdit out;
+  out.mesh = make_grid(n, 0.05);
+  std::vector<int> idx;
+  for (int j = 0; j <= n; ++j) {
+    idx.push_back(j * (n + 1));
+    idx.push_back(j * (n + 1) + n);
+  }
+  out.constrained = Eigen::Map<const Eigen::VectorXi>(idx.data(), static_cast<Eigen::Index>(idx.size()));
+  out.targets = gather_rows(out.mesh.V, out.constrained);
+  return out;
+}
+
 }  // namespace meshdeform::test

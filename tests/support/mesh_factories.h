@@ -32,6 +32,15 @@ double bbox_diagonal(const MeshData& mesh);
 /// Rows idx(0), idx(1), ... of V (e.g. the rest positions of constrained vertices).
 Positions gather_rows(const Positions& V, const Eigen::VectorXi& idx);
 
+/// A strip edit: the bumpy grid make_grid(n, 0.05) with its left and right columns constrained
+/// (interleaved: even rows of `targets` on the left, odd rows on the right), targets at rest.
+struct StripEdit {
+  MeshData mesh;
+  Eigen::VectorXi constrained;
+  Positions targets;  ///< #C x 3, the rest positions: move the odd rows to pull the right side
+};
+StripEdit make_strip_edit(int n);
+
 /// A test mesh with a constrained set that pins a similarity, reflections included: the angle
 /// measures are unsigned, so a mirror image is an exact zero of the scale-aware energy as well,
 /// and a constrained set inside one plane cannot tell the two apart.
