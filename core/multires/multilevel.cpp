@@ -76,8 +76,8 @@ struct MultilevelSolver::Impl {
   std::optional<MeshHierarchy> hierarchy;
   /// Hierarchy levels used, full resolution first: used[i + 1] is coarser than used[i].
   std::vector<int> used;
-  /// level_topology[i]: the connectivity of level i >= 1 (validated once at build; level 0's is
-  /// `topology`), shared by its prolongation and its solvers.
+  /// level_topology[i]: the connectivity of level i >= 1, built once at build (MeshHierarchy
+  /// validated the level; level 0's is `topology`), for its prolongation and its solvers.
   std::vector<MeshTopology> level_topology;
   /// prolongation[i]: level used[i + 1] -> level used[i].
   std::vector<Prolongation> prolongation;

@@ -927,7 +927,7 @@ Result<Positions> Prolongation::apply(const Positions& coarse) const {
 struct MultiresDeformer::Impl {
   MultiresDeformerSettings settings;
   MeshHierarchy hierarchy;
-  MeshTopology fine_topology;  // of hierarchy level 0 (the input mesh), for the fine solver
+  MeshTopology fine_topology;  // of hierarchy level 0 (the input mesh), until the fine solver has it
   int level = 1;
   std::optional<Prolongation> prolongation;
   std::optional<ScaleAwareSolver> coarse;
@@ -1073,7 +1073,9 @@ bool MultiresDeformer::needs_fine_solver() const { return !impl_->fine.has_value
 
 void MultiresDeformer::install_fine_solver(ScaleAwareSolver solver) {
   Impl& s = *impl_;
-  if (!s.fine) s.fine.emplace(std::move(solver));
+  if (s.fine) return;
+  s.fine.emplace(std::move(solver));
+  s.fine_topology = MeshTopology{};  // the fine solver holds its own copy now
 }
 
 Status MultiresDeformer::prepare_refinement(const BuildProgress& progress, std::stop_token stop) {
