@@ -1,5 +1,6 @@
-// Wiring: session lifecycle, the Watch stream's worker, moves, tools, the undo history and the
-// test hooks.
+// Wiring: session lifecycle, the Watch stream's frames, moves, tools, the undo history and the
+// test hooks (the G/R/S commands, the Watch worker, file transfers and the address settings are
+// in app/).
 import * as THREE from "three";
 import { create } from "@bufbuild/protobuf";
 import { Code, ConnectError, createContextValues } from "@connectrpc/connect";
