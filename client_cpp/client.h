@@ -377,7 +377,8 @@ class Client {
                                        const std::function<bool(const WatchUpdate&)>& on_update,
                                        const CallOptions& call = {},
                                        const UpdateOptions& updates = {}) const;
-  /// The same with every Watch option (link-sized updates, the coarse preview).
+  /// The same with every Watch option (link-sized updates, the coarse preview). (A bare `{}` as
+  /// the fourth argument is ambiguous between the two: write UpdateOptions{} or WatchOptions{}.)
   /// @return as above; InvalidArgument for a coarse level that does not decode (positions of
   ///         the wrong size, a level whose mesh never came, indices out of range).
   [[nodiscard]] Result<WatchEnd> watch(const SessionRef& session,
