@@ -238,9 +238,8 @@ Status MultilevelSolver::Impl::build(const Positions& V_in, const Triangles& F_i
       coarse_rows(r) = row[static_cast<size_t>(coarse.to_fine(r))];
     }
     MD_ASSIGN_OR_RETURN(Prolongation p,
-                        Prolongation::create_checked(i == 0 ? V : here.V, i == 0 ? F : here.F,
-                                                     topology_of(i), coarse_rows, stop,
-                                                     settings.threads, nullptr));
+                        Prolongation::create_checked(here.V, here.F, topology_of(i), coarse_rows,
+                                                     stop, settings.threads, nullptr));
     prolongation.push_back(std::move(p));
     report_progress(progress, "prolongation",
                     static_cast<double>(i + 1) / static_cast<double>(top()));
