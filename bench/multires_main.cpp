@@ -80,7 +80,7 @@ void print_usage(std::ostream& out) {
          "  --moves N               drag steps from rest to the edit (20)\n"
          "  --move-iterations N     coarse outer iterations per move (1)\n"
          "  --max-iterations N      cap of the converging solves (60)\n"
-         "  --tolerance-exp N       converged at a relative energy change below 10^-N (4)\n"
+         "  --tolerance-exp N       the stopping rule's tolerance, 10^-N (4)\n"
          "  --threads N             solver OpenMP threads, and the hierarchy's (1)\n"
          "  --split-above N         decimate meshes above N vertices in two halves (50000;\n"
          "                          0 never)\n"
@@ -391,7 +391,9 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
       << options.moves << "), each " << options.move_iterations
       << " coarse outer iteration(s) warm-started from the previous move, then the prolongation; "
          "move 1 is cold (coarse Laplacian guess) and left out of the percentiles\n";
-  out << "- converged: relative energy change < " << fmt("%.0e", options.tolerance) << " or "
+  out << "- converged: the stopping rule (core/methods/convergence.h: estimated remaining "
+         "relative energy change <= "
+      << fmt("%.0e", options.tolerance) << " at two consecutive iterations) or "
       << options.max_iterations
       << " outer iterations; single level from " << start_phrase(options.single_start)
       << ", multires refinement from the "
