@@ -7,8 +7,9 @@
 #    editor's view), over 20 Mbit/s / 40 ms RTT, with the plain meshopt positions: the baseline;
 #  - link_spot187k_20mbit_budget149k: the same drag with link-sized updates, quantized at the
 #    default tolerance (1e-4 of the bounding-box diagonal) within 149,000 payload bytes per
-#    update (the message around it adds ~60 bytes: at most 150,000 on the wire), and the same
-#    with --send-on-response (a missed tick's target sent as the response arrives);
+#    update (the message around it adds ~60 bytes: at most 150,000 on the wire), the same
+#    with --send-on-response (a missed tick's target sent as the response arrives), and the
+#    same with --coarse-preview (the watcher also gets the coarse level of each move);
 #  - link_spot47k_20mbit_quantized, link_cylinder_20mbit_{quantized,lossless}: the same drag of
 #    Spot subdivided twice (46,850 vertices) and of the 4,802-vertex cylinder over the same
 #    line, quantized without a budget (and the cylinder lossless): the cost at 5k and 50k;
@@ -77,6 +78,8 @@ drag link_spot187k_20mbit_budget149k "$scratch/spot187k.obj" --updates quantized
   --max-update-bytes 149000
 drag link_spot187k_20mbit_budget149k_send_on_response "$scratch/spot187k.obj" --updates quantized \
   --max-update-bytes 149000 --send-on-response
+drag link_spot187k_20mbit_budget149k_coarse_preview "$scratch/spot187k.obj" --updates quantized \
+  --max-update-bytes 149000 --coarse-preview
 drag link_spot47k_20mbit_quantized "$scratch/spot47k.obj" --updates quantized
 drag link_cylinder_20mbit_quantized sample:cylinder --updates quantized
 drag link_cylinder_20mbit_lossless sample:cylinder --updates lossless

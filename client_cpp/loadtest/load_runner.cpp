@@ -439,7 +439,9 @@ void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
       updates->set_relative_tolerance(options_.relative_tolerance);
       updates->set_max_update_bytes(options_.max_update_bytes);
     }
+    request.set_coarse_preview(options_.coarse_preview);
     codec::StreamDecoder decoder;
+    std::uint64_t coarse_key = 0;  // the level whose mesh this stream has received
     const Clock::time_point started = Clock::now();
     std::unique_ptr<grpc::ClientReader<v1::DeformUpdate>> reader =
         session.stub->Watch(watcher.context.get(), request);
@@ -472,6 +474,18 @@ void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
         } else {
           result.join_bytes = static_cast<double>(update.ByteSizeLong());
         }
+      }
+      if (update.has_coarse()) {
+        const v1::CoarseLevel& coarse = update.coarse();
+        ++result.coarse_updates;
+        result.coarse_bytes.push_back(static_cast<double>(coarse.ByteSizeLong()));
+        const bool has_mesh = coarse.triangles_size() > 0 &&
+                              coarse.to_fine_size() == static_cast<int>(coarse.vertex_count());
+        if (coarse.positions().size() != 12 * static_cast<std::size_t>(coarse.vertex_count()) ||
+            (coarse.key() != coarse_key && !has_mesh)) {
+          ++result.coarse_malformed;
+        }
+        if (has_mesh) coarse_key = coarse.key();
       }
       const Clock::time_point at = Clock::now();
       if (result.updates == 0) {

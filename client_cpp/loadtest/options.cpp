@@ -165,6 +165,9 @@ std::string usage_text() {
          "  --send-on-response     when ticks came while a move was in flight, send the newest\n"
          "                         target as soon as the response arrives (the viewer's drag)\n"
          "                         instead of at the next tick; still one move in flight\n"
+         "  --coarse-preview       watchers ask for the coarse level of multiresolution moves\n"
+         "                         (a server session above --multires-above); the report counts\n"
+         "                         the updates that carried one and their coarse bytes\n"
          "  --via-link SPEC        run every channel through an emulated link, e.g. 20mbit,40ms\n"
          "                         or 100mbit,20ms,jitter=2ms,loss=0.1% (a line per channel;\n"
          "                         see meshdeform-link --help); reports name the link\n"
@@ -201,6 +204,7 @@ ParseOutcome parse_options(const std::vector<std::string>& args, Options& option
   command_line::add_flag(app, "--fail-on-errors", options.fail_on_errors);
   command_line::add_flag(app, "--fixed-receive-window", options.fixed_receive_window);
   command_line::add_flag(app, "--send-on-response", options.send_on_response);
+  command_line::add_flag(app, "--coarse-preview", options.coarse_preview);
   bool has_sample = false;
   // The value is refused with the generic message below; no per-flag text.
   const auto check = [](bool ok) { return ok ? std::nullopt : std::optional<std::string>(""); };

@@ -55,6 +55,9 @@ struct Options {
   /// --send-on-response: when ticks came while a move was in flight, send the newest target
   /// as soon as the response arrives instead of waiting for the next tick (the viewer's drag).
   bool send_on_response = false;
+  /// --coarse-preview: watchers ask for the coarse level of multiresolution moves
+  /// (WatchRequest.coarse_preview) and the report counts and sizes it.
+  bool coarse_preview = false;
   int move_deadline_ms = 10'000;  ///< deadline of each MoveHandles call
   int max_message_mib = 64;       ///< client send/receive limit (snapshots of big meshes)
   std::string tls_ca_path;        ///< --tls-ca: TLS trusting these PEM roots (empty: plaintext)

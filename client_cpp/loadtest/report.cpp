@@ -127,7 +127,7 @@ Aggregate aggregate(const RunResult& run) {
   Aggregate totals;
   totals.sessions = static_cast<int>(run.sessions.size());
   std::vector<double> setup, create, set_handles, latency, solve, per_session, delays, joins;
-  std::vector<double> delays_after_send, applied, update_bytes, max_error, decode_ms;
+  std::vector<double> delays_after_send, applied, update_bytes, max_error, decode_ms, coarse_bytes;
   double join_bytes = 0;
   std::int64_t iterations = 0;
   std::uint64_t response_bytes = 0, delta_bytes = 0;
@@ -190,6 +190,10 @@ Aggregate aggregate(const RunResult& run) {
       totals.watcher_continuations += watcher.continuations;
       totals.watcher_complete_updates += watcher.complete_updates;
       totals.watcher_decode_failures += watcher.decode_failures;
+      totals.watcher_coarse_updates += watcher.coarse_updates;
+      totals.watcher_coarse_malformed += watcher.coarse_malformed;
+      coarse_bytes.insert(coarse_bytes.end(), watcher.coarse_bytes.begin(),
+                          watcher.coarse_bytes.end());
     }
   }
   totals.setup_ms = summarize(std::move(setup));
@@ -205,6 +209,7 @@ Aggregate aggregate(const RunResult& run) {
   totals.watcher_update_bytes = summarize(std::move(update_bytes));
   totals.watcher_max_error = summarize(std::move(max_error));
   totals.watcher_decode_ms = summarize(std::move(decode_ms));
+  totals.watcher_coarse_bytes = summarize(std::move(coarse_bytes));
   if (totals.watchers > 0) totals.watcher_join_bytes = join_bytes / totals.watchers;
   if (phase > 0.0 && totals.watchers > 0) {
     totals.watcher_revision_updates_per_second_each =
@@ -326,6 +331,7 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
                         {"via_link", o.via_link},
                         {"fixed_receive_window", o.fixed_receive_window},
                         {"send_on_response", o.send_on_response},
+                        {"coarse_preview", o.coarse_preview},
                         {"move_deadline_ms", o.move_deadline_ms},
                         {"one_move_in_flight", true}};
   if (run.link.used) {
@@ -406,7 +412,11 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
                  {"update_bytes", summary_json(t.watcher_update_bytes)},
                  {"max_error", summary_json(t.watcher_max_error)},
                  {"decode_ms", summary_json(t.watcher_decode_ms)},
-                 {"applied_after_send_ms", summary_json(t.watcher_applied_after_send_ms)}}}};
+                 {"applied_after_send_ms", summary_json(t.watcher_applied_after_send_ms)}}},
+           {"coarse_preview",
+            Json{{"updates", t.watcher_coarse_updates},
+                 {"malformed", t.watcher_coarse_malformed},
+                 {"coarse_bytes", summary_json(t.watcher_coarse_bytes)}}}};
   json["server"] = Json{{"stats_available", run.stats_loaded.is_available},
                         {"resident_bytes_before", resident_json(run.stats_before)},
                         {"resident_bytes_loaded", resident_json(run.stats_loaded)},
@@ -489,7 +499,12 @@ std::string report_markdown(const RunResult& run, const Aggregate& t) {
       << (o.send_on_response ? ", sent as soon as the response arrives (--send-on-response)"
                              : "")
       << "); move deadline " << o.move_deadline_ms << " ms\n";
-  out << "- watchers: " << o.watchers << " per session (view token)\n";
+  out << "- watchers: " << o.watchers << " per session (view token)"
+      << (o.coarse_preview ? "; they ask for the coarse level of multiresolution moves "
+                             "(--coarse-preview: WatchRequest.coarse_preview, float32 positions "
+                             "beside the full ones)"
+                           : "")
+      << "\n";
   if (run.link.used) {
     out << "- link (--via-link " << run.link.spec << "): " << run.link.description
         << "; each gRPC channel its own line through the emulator (linkemu); carried "
@@ -557,6 +572,13 @@ std::string report_markdown(const RunResult& run, const Aggregate& t) {
     out << "| link-sized: client decode ms p50 / max | " << ms_text(t.watcher_decode_ms.p50)
         << " / " << ms_text(t.watcher_decode_ms.max) << " |\n";
     out << "| link-sized: decode failures | " << t.watcher_decode_failures << " |\n";
+  }
+  if (o.coarse_preview && t.watchers > 0) {
+    out << "| coarse preview: updates with a coarse level (malformed) | "
+        << t.watcher_coarse_updates << " (" << t.watcher_coarse_malformed << ") |\n";
+    out << "| coarse preview: coarse bytes per update p50 / max | "
+        << format("%.0f", t.watcher_coarse_bytes.p50.value_or(0)) << " / "
+        << format("%.0f", t.watcher_coarse_bytes.max.value_or(0)) << " |\n";
   }
   out << "\n## Latency (ms)\n\n";
   out << "| | count | p50 | p95 | p99 | max |\n|---|---:|---:|---:|---:|---:|\n";

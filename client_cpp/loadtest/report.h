@@ -66,6 +66,9 @@ struct Aggregate {
   std::int64_t watcher_continuations = 0;
   std::int64_t watcher_complete_updates = 0;
   std::int64_t watcher_decode_failures = 0;
+  std::int64_t watcher_coarse_updates = 0;    ///< --coarse-preview: updates with a coarse level
+  std::int64_t watcher_coarse_malformed = 0;  ///< ... that broke the protocol
+  Summary watcher_coarse_bytes;               ///< ... and the coarse part's serialized size
   double watcher_revision_updates_per_second_each = 0;  ///< newer revisions applied per second
 };
 

@@ -57,6 +57,11 @@ struct WatcherResult {
   std::vector<double> max_error;      ///< VertexDelta.max_error of every update after the join
   std::vector<double> decode_ms;      ///< time to apply each update (decompress + reconstruct)
   double join_bytes = 0;              ///< serialized size of the join update
+  // --coarse-preview:
+  std::int64_t coarse_updates = 0;    ///< updates carrying DeformUpdate.coarse
+  std::int64_t coarse_malformed = 0;  ///< of those, positions not 12 bytes per coarse vertex,
+                                      ///< or a first update of a level without its mesh
+  std::vector<double> coarse_bytes;   ///< serialized size of DeformUpdate.coarse per update
   /// For each move the editor committed: its send time to the first update of this watcher
   /// with that revision or a newer one, applied (ms): what a user sees of their own drag.
   std::vector<double> applied_after_send_ms;

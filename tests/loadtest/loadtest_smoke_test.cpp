@@ -52,10 +52,10 @@ class LoadtestTest : public ::testing::Test {
     return result;
   }
 
-  static std::unique_ptr<test::ServerProcess> start_server() {
+  static std::unique_ptr<test::ServerProcess> start_server(
+      std::vector<std::string> flags = {"--refine-budget", "0"}) {
     std::string error;
-    auto server =
-        test::ServerProcess::start(MESHDEFORM_SERVER_PATH, {"--refine-budget", "0"}, error);
+    auto server = test::ServerProcess::start(MESHDEFORM_SERVER_PATH, flags, error);
     EXPECT_NE(server, nullptr) << error;
     return server;
   }
@@ -210,6 +210,45 @@ TEST_F(LoadtestTest, ThroughAnEmulatedLinkWithLinkSizedUpdates) {
   const std::string markdown = read_text(markdown_path);
   EXPECT_NE(markdown.find("link (--via-link 50mbit,20ms)"), std::string::npos) << markdown;
   EXPECT_NE(markdown.find("link-sized: bytes per update"), std::string::npos) << markdown;
+}
+
+TEST_F(LoadtestTest, CoarsePreviewIsCountedForMultiresolutionSessions) {
+  // Multiresolution sessions at the sample's size: with --coarse-preview every watcher asks for
+  // the coarse level, and the updates of the moves carry it, well formed and smaller than the
+  // full positions; without the flag none does.
+  const auto server = start_server({"--refine-budget", "0", "--multires-above", "1000",
+                                     "--multires-coarse-vertices", "1000"});
+  ASSERT_NE(server, nullptr);
+  std::map<bool, json> reports;
+  for (const bool preview : {true, false}) {
+    SCOPED_TRACE(preview ? "--coarse-preview" : "without");
+    const fs::path json_path = dir_ / (preview ? "preview.json" : "plain.json");
+    const fs::path markdown_path = dir_ / (preview ? "preview.md" : "plain.md");
+    std::vector<std::string> args = {
+        "--server", server->address(), "--sessions", "1", "--moves", "4", "--rate", "0",
+        "--watchers", "2", "--sample", "cylinder", "--duration", "60", "--encoding", "float32",
+        "--json", json_path.string(), "--markdown", markdown_path.string()};
+    if (preview) args.push_back("--coarse-preview");
+    const ChildResult run = run_loadtest(args);
+    ASSERT_FALSE(run.is_timed_out) << run.out << run.err;
+    ASSERT_EQ(run.exit_code, kExitOk) << run.out << run.err;
+    const json report = json::parse(read_text(json_path));
+    EXPECT_EQ(report["moves"]["ok"], 4);
+    EXPECT_EQ(report["config"]["coarse_preview"], preview);
+    const std::string markdown = read_text(markdown_path);
+    EXPECT_EQ(markdown.find("coarse preview: updates") != std::string::npos, preview) << markdown;
+    reports[preview] = report;
+  }
+  const json& with = reports[true]["watchers"];
+  const json& coarse = with["coarse_preview"];
+  // Each watcher gets at least the newest move (latest wins may skip the ones between), and
+  // every update after the join is a move solved on the coarse level.
+  EXPECT_GE(coarse["updates"].get<int>(), 2);
+  EXPECT_EQ(coarse["updates"].get<int>(), with["deltas"].get<int>());
+  EXPECT_EQ(coarse["malformed"], 0);
+  EXPECT_GT(coarse["coarse_bytes"]["min"].get<double>(), 0.0);
+  EXPECT_LT(coarse["coarse_bytes"]["p50"].get<double>(), with["mean_delta_bytes"].get<double>());
+  EXPECT_EQ(reports[false]["watchers"]["coarse_preview"]["updates"], 0);
 }
 
 TEST_F(LoadtestTest, BadLinkOrUpdateFlagsAreUsageErrors) {
