@@ -170,10 +170,13 @@ struct SessionState {
   // Own revisions (written by the mover only): when the move was sent and when it returned.
   std::map<std::uint64_t, std::pair<Clock::time_point, Clock::time_point>> move_times;
 
-  std::mutex mutex;  //< guards the two counters below
+  std::mutex mutex;  //< guards the counters below
   std::condition_variable changed;
   int watchers_joined = 0;    //< got the join snapshot or ended
   int watchers_finished = 0;  //< stream ended
+  // The newest converged revision any watcher received, and when it first arrived.
+  std::uint64_t converged_revision = 0;
+  Clock::time_point converged_at;
   std::vector<std::unique_ptr<WatcherState>> watchers;
 };
 
@@ -190,6 +193,8 @@ class LoadRun {
   void start_watchers(SessionState& session);
   void run_watcher(SessionState& session, WatcherState& watcher);
   void drive(SessionState& session);
+  // --settle-seconds: waits for a converged revision at or past the last own move.
+  void settle(SessionState& session);
   // Sends one move aimed at the drag pose at `drag_seconds`; blocks until it returns.
   void send_move(SessionState& session, const ScriptedDrag& drag, double drag_seconds);
   void close_session(SessionState& session);
@@ -204,7 +209,9 @@ class LoadRun {
   std::vector<std::unique_ptr<v1::DeformationService::Stub>> stubs_;
   Clock::time_point start_;
   Clock::time_point run_end_;   //< start + duration: no move is sent after it
-  Clock::time_point hard_end_;  //< run_end + drain + backstop: no call outlives it
+  Clock::time_point hard_end_;  //< run_end + drain + settle + backstop: no call outlives it
+  Clock::time_point settle_end_;  //< run_end + drain + settle: every settle wait ends by then
+  Clock::time_point last_drive_end_;  //< guarded by phase_mutex_: when the last drag ended
 
   std::mutex phase_mutex_;
   std::condition_variable phase_changed_;
@@ -505,6 +512,14 @@ void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
       if (watcher.seen.size() < kMaxSeenPerWatcher) {
         watcher.seen.push_back(Seen{deform.revision(), at, deform.refinement()});
       }
+      if (deform.converged()) {
+        const std::lock_guard lock(session.mutex);
+        if (deform.revision() > session.converged_revision) {
+          session.converged_revision = deform.revision();
+          session.converged_at = at;
+          session.changed.notify_all();
+        }
+      }
       mark_joined();
     }
     const grpc::Status status = reader->Finish();
@@ -639,6 +654,24 @@ void LoadRun::drive(SessionState& session) {
   }
 }
 
+void LoadRun::settle(SessionState& session) {
+  SessionResult& result = session.result;
+  if (session.move_times.empty()) return;  // no own move: nothing to settle
+  // The last own move (the newest revision this session committed) and its response.
+  // (No structured binding: clang before 16 cannot capture one in the lambda below.)
+  const std::uint64_t revision = session.move_times.rbegin()->first;
+  const Clock::time_point responded = session.move_times.rbegin()->second.second;
+  const Clock::time_point bound =
+      responded + std::chrono::duration_cast<Clock::duration>(
+                      std::chrono::duration<double>(options_.settle_seconds));
+  std::unique_lock lock(session.mutex);
+  if (session.changed.wait_until(lock, std::min(bound, settle_end_), [&] {
+        return session.converged_revision >= revision;
+      })) {
+    result.settle_ms = ms_between(responded, session.converged_at);
+  }
+}
+
 void LoadRun::close_session(SessionState& session) {
   grpc::ClientContext context;
   context.AddMetadata("x-session-id", session.session_id);
@@ -688,6 +721,11 @@ void LoadRun::run_session(SessionState& session) {
   if (is_set_up && is_go) {
     try {
       drive(session);
+      {
+        const std::lock_guard lock(phase_mutex_);
+        last_drive_end_ = std::max(last_drive_end_, Clock::now());
+      }
+      if (options_.settle_seconds > 0) settle(session);
     } catch (const std::exception& e) {
       ++session.result.errors_by_code["CLIENT_EXCEPTION"];
       session.result.first_error.try_emplace("CLIENT_EXCEPTION", truncated(e.what()));
@@ -715,7 +753,10 @@ RunResult LoadRun::run() {
   start_ = Clock::now();
   run_end_ = start_ + std::chrono::duration_cast<Clock::duration>(
                           std::chrono::duration<double>(options_.duration_seconds));
-  hard_end_ = run_end_ + kDrain + kWatchBackstop;
+  const auto settle = std::chrono::duration_cast<Clock::duration>(
+      std::chrono::duration<double>(options_.settle_seconds));
+  settle_end_ = run_end_ + kDrain + settle;
+  hard_end_ = settle_end_ + kWatchBackstop;
 
   std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::InsecureChannelCredentials();
   if (!options_.tls_root_certs.empty()) {
@@ -805,11 +846,16 @@ RunResult LoadRun::run() {
     go_time_ = Clock::now();
     is_go_ = true;
     phase_changed_.notify_all();
-    // Every drive ends by run_end_ + kDrain (move deadlines are capped); one more second of slack.
-    phase_changed_.wait_until(lock, run_end_ + kDrain + std::chrono::seconds(1),
+    // Every drive ends by run_end_ + kDrain (move deadlines are capped), and its settle wait
+    // by settle_end_; one more second of slack.
+    phase_changed_.wait_until(lock, settle_end_ + std::chrono::seconds(1),
                               [&] { return drives_done_ == started; });
   }
-  const Clock::time_point moves_end = Clock::now();
+  Clock::time_point moves_end = Clock::now();
+  if (options_.settle_seconds > 0) {  // the rates are over the drags, not the settle waits
+    const std::lock_guard lock(phase_mutex_);
+    if (last_drive_end_ > go_time_) moves_end = std::min(moves_end, last_drive_end_);
+  }
   run.setup_phase_seconds = seconds_between(start_, go_time_);
   run.move_phase_seconds = seconds_between(go_time_, moves_end);
   run.stats_loaded = fetch_stats();

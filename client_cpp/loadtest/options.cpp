@@ -168,6 +168,10 @@ std::string usage_text() {
          "  --coarse-preview       watchers ask for the coarse level of multiresolution moves\n"
          "                         (a server session above --multires-above); the report counts\n"
          "                         the updates that carried one and their coarse bytes\n"
+         "  --settle-seconds S     after its drag, each session waits up to S s for a converged\n"
+         "                         revision at or past its last move (the server's background\n"
+         "                         refinement; needs --watchers) and reports the time from the\n"
+         "                         last move's response to a watcher's receipt of it\n"
          "  --via-link SPEC        run every channel through an emulated link, e.g. 20mbit,40ms\n"
          "                         or 100mbit,20ms,jitter=2ms,loss=0.1% (a line per channel;\n"
          "                         see meshdeform-link --help); reports name the link\n"
@@ -238,6 +242,7 @@ ParseOutcome parse_options(const std::vector<std::string>& args, Options& option
   number("--rate", 0.0, 10'000.0, options.rate_hz);
   number("--duration", 0.1, 7.0 * 24 * 3600, options.duration_seconds);
   integer("--watchers", 0, 64, options.watchers);
+  number("--settle-seconds", 0.0, 3600.0, options.settle_seconds);
   integer("--iterations", 1, 1000, options.iterations);
   command_line::add_checked(app, "--method", [&](const std::string& value) {
     return check(parse_method(value, options.method));
@@ -322,6 +327,9 @@ ParseOutcome parse_options(const std::vector<std::string>& args, Options& option
   if (options.updates == Updates::Off &&
       (options.tolerance > 0 || options.relative_tolerance > 0 || options.max_update_bytes > 0)) {
     return usage_error("--tolerance, --relative-tolerance and --max-update-bytes need --updates");
+  }
+  if (options.settle_seconds > 0 && options.watchers < 1) {
+    return usage_error("--settle-seconds needs --watchers >= 1 (a watcher sees the refinement)");
   }
   if (has_sample && !options.mesh_path.empty()) {
     return usage_error("give --sample or --mesh, not both");

@@ -58,6 +58,10 @@ struct Options {
   /// --coarse-preview: watchers ask for the coarse level of multiresolution moves
   /// (WatchRequest.coarse_preview) and the report counts and sizes it.
   bool coarse_preview = false;
+  /// --settle-seconds: after its drag, each session waits up to this long for its watchers to
+  /// see a converged revision at or past its last move (the server's background refinement),
+  /// and the report gives that time from the last move's response. 0: no wait.
+  double settle_seconds = 0.0;
   int move_deadline_ms = 10'000;  ///< deadline of each MoveHandles call
   int max_message_mib = 64;       ///< client send/receive limit (snapshots of big meshes)
   std::string tls_ca_path;        ///< --tls-ca: TLS trusting these PEM roots (empty: plaintext)

@@ -210,6 +210,12 @@ Aggregate aggregate(const RunResult& run) {
   totals.watcher_max_error = summarize(std::move(max_error));
   totals.watcher_decode_ms = summarize(std::move(decode_ms));
   totals.watcher_coarse_bytes = summarize(std::move(coarse_bytes));
+  std::vector<double> settle;
+  for (const SessionResult& s : run.sessions) {
+    if (s.settle_ms) settle.push_back(*s.settle_ms);
+  }
+  totals.sessions_settled = static_cast<int>(settle.size());
+  totals.settle_ms = summarize(std::move(settle));
   if (totals.watchers > 0) totals.watcher_join_bytes = join_bytes / totals.watchers;
   if (phase > 0.0 && totals.watchers > 0) {
     totals.watcher_revision_updates_per_second_each =
@@ -332,6 +338,7 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
                         {"fixed_receive_window", o.fixed_receive_window},
                         {"send_on_response", o.send_on_response},
                         {"coarse_preview", o.coarse_preview},
+                        {"settle_seconds", o.settle_seconds},
                         {"move_deadline_ms", o.move_deadline_ms},
                         {"one_move_in_flight", true}};
   if (run.link.used) {
@@ -385,6 +392,9 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
                        {"revision_gaps", t.revision_gaps}};
   Json end_status = Json::object();
   for (const auto& [name, count] : t.watcher_end_status) end_status[name] = count;
+  json["settle"] = Json{{"seconds", o.settle_seconds},
+                        {"sessions_settled", t.sessions_settled},
+                        {"ms_after_last_response", summary_json(t.settle_ms)}};
   json["watchers"] =
       Json{{"streams", t.watchers},
            {"with_join_snapshot", t.watchers_with_join_snapshot},
@@ -471,6 +481,7 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
         {"revision_gaps", s.revision_gaps},
         {"last_revision", s.last_revision},
         {"close_status", s.close_status},
+        {"settle_ms", s.settle_ms ? Json(rounded(*s.settle_ms)) : Json(nullptr)},
         {"watchers", watchers}});
   }
   json["sessions"] = sessions;
@@ -543,6 +554,12 @@ std::string report_markdown(const RunResult& run, const Aggregate& t) {
   out << "| positions encoding | " << encoding_name(o.encoding) << " |\n";
   out << "| mean bytes per move response | " << format("%.0f", t.mean_response_bytes) << " |\n";
   out << "| revisions between own moves (refinement) | " << t.revision_gaps << " |\n";
+  if (o.settle_seconds > 0) {
+    out << "| converged revision seen after the last move's response (--settle-seconds "
+        << format("%g", o.settle_seconds) << "): sessions, p50 / max ms | "
+        << t.sessions_settled << " of " << t.sessions << ", " << ms_text(t.settle_ms.p50)
+        << " / " << ms_text(t.settle_ms.max) << " |\n";
+  }
   if (t.watchers > 0) {
     out << "| watcher streams (with join snapshot) | " << t.watchers << " ("
         << t.watchers_with_join_snapshot << ") |\n";

@@ -69,6 +69,8 @@ struct Aggregate {
   std::int64_t watcher_coarse_updates = 0;    ///< --coarse-preview: updates with a coarse level
   std::int64_t watcher_coarse_malformed = 0;  ///< ... that broke the protocol
   Summary watcher_coarse_bytes;               ///< ... and the coarse part's serialized size
+  int sessions_settled = 0;  ///< --settle-seconds: sessions that saw a converged revision
+  Summary settle_ms;         ///< ... from their last move's response
   double watcher_revision_updates_per_second_each = 0;  ///< newer revisions applied per second
 };
 

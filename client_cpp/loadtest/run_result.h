@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -72,6 +73,9 @@ struct WatcherResult {
 /// One session: its setup, its scripted drag, its watchers.
 struct SessionResult {
   int index = 0;
+  /// --settle-seconds: from the last own move's response to the first watcher's receipt of a
+  /// converged revision at or past it (ms); empty when none came within the bound.
+  std::optional<double> settle_ms;
   int channel = 0;
   bool is_set_up = false;  ///< CreateSession and SetHandles succeeded
   std::string

@@ -251,6 +251,40 @@ TEST_F(LoadtestTest, CoarsePreviewIsCountedForMultiresolutionSessions) {
   EXPECT_EQ(reports[false]["watchers"]["coarse_preview"]["updates"], 0);
 }
 
+TEST_F(LoadtestTest, SettleWaitsForTheRefinementsConvergedRevision) {
+  // --settle-seconds: after the drag each session waits for its watcher to receive a converged
+  // revision at or past its last move (here the server's background refinement, which the
+  // three one-iteration moves leave to do) and reports the time from the last move's response.
+  // The bound is generous: the test waits only as long as the refinement takes.
+  const auto server = start_server({"--refine-budget", "300"});
+  ASSERT_NE(server, nullptr);
+  const fs::path json_path = dir_ / "settle.json";
+  const fs::path markdown_path = dir_ / "settle.md";
+  const ChildResult run = run_loadtest(
+      {"--server", server->address(), "--sessions", "2", "--moves", "3", "--rate", "0",
+       "--iterations", "1", "--watchers", "1", "--sample", "cylinder_small", "--duration", "60",
+       "--settle-seconds", "300", "--json", json_path.string(), "--markdown",
+       markdown_path.string()},
+      std::chrono::seconds(420));
+  ASSERT_FALSE(run.is_timed_out) << run.out << run.err;
+  ASSERT_EQ(run.exit_code, kExitOk) << run.out << run.err;
+  const json report = json::parse(read_text(json_path));
+  EXPECT_EQ(report["moves"]["ok"], 6);
+  EXPECT_EQ(report["config"]["settle_seconds"], 300.0);
+  EXPECT_EQ(report["settle"]["sessions_settled"], 2);
+  EXPECT_EQ(report["settle"]["ms_after_last_response"]["count"], 2);
+  EXPECT_GE(report["watchers"]["refinements"].get<int>(), 2);  // the moves did not converge
+  for (const json& session : report["sessions"]) {
+    ASSERT_TRUE(session["settle_ms"].is_number()) << session.dump();
+    // A refinement revision comes after the move's response (and the server's rest delay).
+    EXPECT_GT(session["settle_ms"].get<double>(), 0.0) << session.dump();
+  }
+  const std::string markdown = read_text(markdown_path);
+  EXPECT_NE(markdown.find("converged revision seen after the last move's response"),
+            std::string::npos)
+      << markdown;
+}
+
 TEST_F(LoadtestTest, BadLinkOrUpdateFlagsAreUsageErrors) {
   for (const std::vector<std::string>& args : std::vector<std::vector<std::string>>{
            {"--server", "127.0.0.1:1", "--via-link", "20furlongs"},
@@ -283,6 +317,8 @@ TEST_F(LoadtestTest, BadFlagsAreUsageErrors) {
            {"--server", "127.0.0.1:1", "--encoding", "float16"},
            {"--server", "127.0.0.1:1", "--rate", "-1"},
            {"--server", "127.0.0.1:1", "--sample", "bar", "--mesh", "x.obj"},
+           {"--server", "127.0.0.1:1", "--settle-seconds", "5"},  // no watcher to see it
+           {"--server", "127.0.0.1:1", "--watchers", "1", "--settle-seconds", "-1"},
            {"--sessions", "1"}}) {
     const ChildResult run = run_loadtest(args, std::chrono::seconds(30));
     ASSERT_FALSE(run.is_timed_out);
