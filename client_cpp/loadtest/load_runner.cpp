@@ -169,6 +169,9 @@ struct SessionState {
   std::uint32_t handle_group = 1;
   // Own revisions (written by the mover only): when the move was sent and when it returned.
   std::map<std::uint64_t, std::pair<Clock::time_point, Clock::time_point>> move_times;
+  // The newest own revision and its response, whatever the sample cap (mover only).
+  std::uint64_t last_own_revision = 0;
+  Clock::time_point last_own_response;
 
   std::mutex mutex;  //< guards the counters below
   std::condition_variable changed;
@@ -590,6 +593,10 @@ void LoadRun::send_move(SessionState& session, const ScriptedDrag& drag, double 
   if (session.move_times.size() < kMaxSamplesPerSession) {
     session.move_times.emplace(deform.revision(), std::make_pair(sent, returned));
   }
+  if (deform.revision() >= session.last_own_revision) {
+    session.last_own_revision = deform.revision();
+    session.last_own_response = returned;
+  }
 }
 
 // The scripted drag. At a rate, ticks come every 1/rate s (staggered per session); one move is
@@ -656,11 +663,10 @@ void LoadRun::drive(SessionState& session) {
 
 void LoadRun::settle(SessionState& session) {
   SessionResult& result = session.result;
-  if (session.move_times.empty()) return;  // no own move: nothing to settle
   // The last own move (the newest revision this session committed) and its response.
-  // (No structured binding: clang before 16 cannot capture one in the lambda below.)
-  const std::uint64_t revision = session.move_times.rbegin()->first;
-  const Clock::time_point responded = session.move_times.rbegin()->second.second;
+  const std::uint64_t revision = session.last_own_revision;
+  if (revision == 0) return;  // no own move: nothing to settle
+  const Clock::time_point responded = session.last_own_response;
   const Clock::time_point bound =
       responded + std::chrono::duration_cast<Clock::duration>(
                       std::chrono::duration<double>(options_.settle_seconds));
