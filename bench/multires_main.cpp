@@ -4,8 +4,11 @@
 //  - multires: MultiresDeformer::create (hierarchy, prolongation factor, coarse precompute); a
 //    drag of the handles from rest to the edit in --moves steps, each a warm move of
 //    --move-iterations coarse outer iterations plus the prolongation (the interactive answer);
-//    the coarse level converged at the final targets and prolonged; then the full-resolution
-//    solver built and run from the prolonged positions to convergence (background refinement);
+//    the coarse level converged at the final targets and prolonged (or, with --refine-from
+//    drag-end, nothing: the drag's last prolonged move as the server has it after a release);
+//    then the full-resolution solver built and run from the prolonged positions to convergence
+//    (background refinement), as one solve or, with --refine-slice N, as solves of N
+//    iterations in a row, each continuing the last (the server's slices);
 //  - single: ScaleAwareSolver at full resolution to convergence from the Laplacian guess, or
 //    with --single-start auto from the solver's default start.
 // Writes a Markdown report (stdout and <out-dir>/<stem>.md) and <out-dir>/<stem>.json.
@@ -65,6 +68,12 @@ struct Options {
   bool single = true;
   core::StartFrom single_start = core::StartFrom::Laplacian;
   bool refine = true;
+  // The refinement's start: the prolonged converged coarse result, or the drag's end (what the
+  // server refines from after a release).
+  bool refine_from_drag_end = false;
+  // Refinement as solves of this many iterations in a row (the server's background slices: 2);
+  // 0 = one solve.
+  int refine_slice = 0;
   std::string out_dir = MESHDEFORM_BENCH_RESULTS_DIR;
   std::string stem = "multires";
   std::string spot_path = std::string(MESHDEFORM_BENCH_SOURCE_DIR) + "/tests/data/spot.obj";
@@ -90,6 +99,12 @@ void print_usage(std::ostream& out) {
          "                          ARAP at rigidity > 0) (laplacian)\n"
          "  --no-refine             skip the coarse convergence and the full-resolution\n"
          "                          refinement (interactive part only)\n"
+         "  --refine-from WHERE     converged-coarse (the coarse level converged at the edit,\n"
+         "                          prolonged) or drag-end (the drag's last prolonged move, as\n"
+         "                          the server refines after a release) (converged-coarse)\n"
+         "  --refine-slice N        run the refinement as solves of N iterations in a row,\n"
+         "                          each continuing the last (the server's background slices\n"
+         "                          are 2); 0: one solve (0)\n"
          "  --out-dir DIR           (default "
       << MESHDEFORM_BENCH_RESULTS_DIR
       << ")\n"
@@ -135,6 +150,14 @@ Result<Options> parse_options(int argc, char** argv) {
     return Status::success();
   });
   flags.flag("--no-refine", [&] { o.refine = false; });
+  flags.value("--refine-from", [&](const std::string& value) -> Status {
+    if (value != "converged-coarse" && value != "drag-end") {
+      return Error(ErrorCode::InvalidArgument, "--refine-from wants converged-coarse or drag-end");
+    }
+    o.refine_from_drag_end = value == "drag-end";
+    return Status::success();
+  });
+  flags.integer("--refine-slice", o.refine_slice, 0);
   flags.text("--out-dir", o.out_dir);
   flags.text("--stem", o.stem);
   flags.text("--spot", o.spot_path);
@@ -232,25 +255,54 @@ json run_multires(const Model& model, const Options& options) {
   out["drag_end_errors"] = metrics.of(deformer.positions(), F);
   if (!options.refine) return out;
 
-  // The coarse level settled at the edit, prolonged.
+  // The coarse level settled at the edit, prolonged (unless the refinement starts at the drag's
+  // end).
   const core::SolveOptions converge = converge_options(options);
-  start = std::chrono::steady_clock::now();
-  const core::MultiresMove settled = value_or_throw(deformer.move(model.setup.targets, converge));
-  out["coarse_converge_s"] = seconds_since(start);
-  out["coarse_converge_iterations"] = settled.coarse.iterations;
-  out["coarse_converged"] = settled.coarse.converged;
-  out["settled_prolong_s"] = settled.prolong_seconds;
-  out["prolonged_errors"] = metrics.of(settled.V, F);
+  if (!options.refine_from_drag_end) {
+    start = std::chrono::steady_clock::now();
+    const core::MultiresMove settled =
+        value_or_throw(deformer.move(model.setup.targets, converge));
+    out["coarse_converge_s"] = seconds_since(start);
+    out["coarse_converge_iterations"] = settled.coarse.iterations;
+    out["coarse_converged"] = settled.coarse.converged;
+    out["settled_prolong_s"] = settled.prolong_seconds;
+    out["prolonged_errors"] = metrics.of(settled.V, F);
+  }
 
-  // Background refinement at full resolution from the prolonged positions.
+  // Background refinement at full resolution from the prolonged positions: one solve, or solves
+  // of --refine-slice iterations in a row, each continuing the last (as the server's slices do),
+  // until the rule holds or --max-iterations are spent.
   start = std::chrono::steady_clock::now();
   const Status prepared = deformer.prepare_refinement();
   if (!prepared.ok()) throw std::runtime_error(prepared.to_string());
   out["fine_precompute_s"] = seconds_since(start);
-  const core::SolveReport refined = value_or_throw(deformer.refine(model.setup.targets, converge));
+  core::SolveReport refined;
+  int iterations = 0;
+  int solves = 0;
+  double seconds = 0;
+  std::vector<core::IterationInfo> history;
+  while (iterations < options.max_iterations) {
+    core::SolveOptions slice = converge;
+    if (options.refine_slice > 0) {
+      slice.max_iterations = std::min(options.refine_slice, options.max_iterations - iterations);
+    }
+    refined = value_or_throw(deformer.refine(model.setup.targets, slice));
+    // One history across the solves: each solve's iteration 0 is the last one's result.
+    const double offset = seconds;
+    for (std::size_t k = history.empty() ? 0 : 1; k < refined.history.size(); ++k) {
+      history.push_back(refined.history[k]);
+      history.back().elapsed_seconds += offset;
+    }
+    iterations += refined.iterations;
+    seconds += refined.seconds;
+    ++solves;
+    if (refined.converged || refined.iterations == 0) break;
+  }
+  refined.history = std::move(history);
   out["peak_rss_kib"] = peak_rss_kib();
-  out["refine_s"] = refined.seconds;
-  out["refine_iterations"] = refined.iterations;
+  out["refine_s"] = seconds;
+  out["refine_iterations"] = iterations;
+  out["refine_solves"] = solves;
   out["refine_converged"] = refined.converged;
   out["refined_errors"] = metrics.of(refined.V, F);
   out["refine_history"] = energy_history(refined);
@@ -397,8 +449,15 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
       << options.max_iterations
       << " outer iterations; single level from " << start_phrase(options.single_start)
       << ", multires refinement from the "
-         "prolonged converged coarse solution (same full-resolution solver, ScaleAwareSolver::"
-         "set_positions)\n";
+      << (options.refine_from_drag_end ? "drag's last prolonged move"
+                                       : "prolonged converged coarse solution")
+      << " (same full-resolution solver, ScaleAwareSolver::set_positions), "
+      << (options.refine_slice > 0
+              ? "as solves of " + std::to_string(options.refine_slice) +
+                    " iterations in a row, each continuing the last (the server's background "
+                    "refinement slices)"
+              : std::string("as one solve"))
+      << "\n";
   out << "- each of multires / single in its own forked process; peak RSS is VmHWM of that process "
          "(reset after fork; includes the input mesh); interactive peak = before the full-"
          "resolution solver is built\n\n";
@@ -442,9 +501,12 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
       return std::to_string(j[key].get<int>()) + (j[converged].get<bool>() ? "" : ", cap");
     };
     out << "| " << row.name << " | " << errors_cell(m["drag_end_errors"]) << " | "
-        << errors_cell(m["prolonged_errors"]) << " | "
-        << fmt("%.2f", m["coarse_converge_s"].get<double>()) << " ("
-        << its(m, "coarse_converge_iterations", "coarse_converged") << ") | "
+        << (m.contains("prolonged_errors") ? errors_cell(m["prolonged_errors"]) : "-") << " | "
+        << (m.contains("coarse_converge_s")
+                ? fmt("%.2f", m["coarse_converge_s"].get<double>()) + " (" +
+                      its(m, "coarse_converge_iterations", "coarse_converged") + ")"
+                : "-")
+        << " | "
         << fmt("%.1f", m["fine_precompute_s"].get<double>()) << " | "
         << fmt("%.1f", m["refine_s"].get<double>()) << " ("
         << its(m, "refine_iterations", "refine_converged") << ") | ";
@@ -532,7 +594,9 @@ json to_json(const MachineInfo& machine, const std::string& load_end, const Opti
                     {"tolerance", options.tolerance},
                     {"threads", options.threads},
                     {"split_above", options.split_above},
-                    {"single_start", core::start_name(options.single_start)}};
+                    {"single_start", core::start_name(options.single_start)},
+                    {"refine_from", options.refine_from_drag_end ? "drag-end" : "converged-coarse"},
+                    {"refine_slice", options.refine_slice}};
   out["targets"] = {{"warm_move_p50_ms_187k", kMoveP50TargetMs},
                     {"setup_s_187k", kSetupTargetSeconds},
                     {"peak_mib_187k", kMemory187kTargetMiB},

@@ -121,6 +121,11 @@ class ScaleAwareSolver {
   ///         rigidity negative or not finite, or rigid_start_iterations < 0;
   ///         Cancelled when `stop` is requested mid-solve (the solver keeps its previous state);
   ///         NumericalFailure if the solve breaks down.
+  /// A Previous (or warm Auto) solve toward the same targets, rigidity and stopping test as the
+  /// last one continues it: the stopping rule's state, the inexact PCG's reduction and, when
+  /// the last solve ended on its max_iterations, Anderson's window carry over, so that short
+  /// solves in a row (the server's background refinement slices) take the one long solve's
+  /// steps. Its history's iteration 0 is the last solve's final iterate and energy.
   [[nodiscard]] Result<SolveReport> solve(const Positions& targets, const SolveOptions& options = {},
                                           const ProgressCallback& progress = {},
                                           std::stop_token stop = {});
