@@ -110,7 +110,10 @@ std::size_t estimate_session_bytes(int vertices, int faces, int cached_deformers
   // solvers (git 09c4c30 and after) a single-level scale-aware deformer holds 2.4 KB per vertex
   // after its first move (Spot 47k) and peaks at about 3.5 KB during a cold one; the charge
   // stays as measured, above the multiresolution deformer's 4.6 KB (issue 15's bench at 187k:
-  // 977 MiB peak with the refinement, 1020 before).
+  // 977 MiB peak with the refinement, 1020 before). Refinement slices that continue one another
+  // keep Anderson's window between them (288 B per vertex, twice that while a slice runs: the
+  // bench's 187k refinement in slices peaked at 1,067 MiB against 998 as one solve), which the
+  // charge still covers (4.6 + 0.6 KB).
   const std::size_t per_deformer = v * 5200;
   return base + per_deformer * static_cast<std::size_t>(std::max(cached_deformers, 0));
 }
