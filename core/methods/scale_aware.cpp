@@ -268,8 +268,7 @@ Result<ScaleAwareSolver::Impl::Candidate> ScaleAwareSolver::Impl::run_from(
   bool unchecked = false;         // x is an accelerated iterate whose merit is not yet known
   double accepted_merit = std::numeric_limits<double>::infinity();
   if (accelerate && continues && s.carried_accelerator &&
-      s.carried_accelerator->window() == options.anderson_window &&
-      s.carried_accelerator->current().size() == x.size() && options.max_iterations > 0) {
+      s.carried_accelerator->window() == options.anderson_window && options.max_iterations > 0) {
     accelerator = *s.carried_accelerator;
     accepted_merit = s.carried_merit;
     plain = x;
