@@ -1,17 +1,17 @@
 // Wiring: session lifecycle, the Watch stream's frames, moves, tools, the undo history and the
-// test hooks (the G/R/S commands, the Watch worker, file transfers and the address settings are
-// in app/).
+// test hooks (the G/R/S commands, the Watch worker, file transfers, the address settings and the
+// settings panel are in app/).
 import * as THREE from "three";
 import { create } from "@bufbuild/protobuf";
 import { Code, ConnectError, createContextValues } from "@connectrpc/connect";
 import {
-  HandleGroupSchema, HandleRole, HistoryAction, MagnifyRegionSchema, MeshFormat, Method,
+  HandleGroupSchema, HandleRole, HistoryAction, MeshFormat, Method,
   type CreateSessionResponse, type HandleGroup, type MoveHandlesRequest, type MoveHandlesResponse, type SessionInfo, type SetHandlesResponse,
 } from "./gen/meshdeform/v1/deformation_pb";
 import { kSessionId } from "./client";
 import { progressText, readWithProgress } from "./progress";
 import { MoveCoalescer } from "./coalescer";
-import { rigidityLabel, rigidityStep, rigidityValue } from "./rigidity";
+import { rigidityStep } from "./rigidity";
 import { rampCss } from "./distortion";
 import { errorCode, type Action } from "./errors";
 import { GroupSet, groupColor, type GroupSpec } from "./groups";
@@ -19,14 +19,13 @@ import { parseGlb } from "./glb";
 import { entriesFromEdit, newGesture, settingsView } from "./edit_state";
 import { derive, Timeline, type Entry, type Settings } from "./timeline";
 import { Interaction, type HandleGroupView, type PickHit, type Tool } from "./interaction";
-import { DEFAULT_ITERATIONS, parseIterations } from "./iterations";
+import { DEFAULT_ITERATIONS } from "./iterations";
 import {
   applyMove, cloneStates, fitSimilarity, identityStates, planReset, statesKey, toGroupMove,
   type GroupStates, type Vec3,
 } from "./moves";
 import { buildAdjacency, components, farSide, pickGroups } from "./pick";
 import { Viewer3D } from "./scene";
-import { loadPrefs, savePrefs } from "./prefs";
 import { SelectionState, type PaintMode } from "./selection";
 import { formatHash, parseLink, shareLink, type Credentials } from "./share";
 import { Banner, $, $btn, $in, $sel } from "./ui/dom";
@@ -36,15 +35,15 @@ import { dismissFirstHint, hideLinkProblem, showFirstHint, showLinkProblem } fro
 import { ColorPainter } from "./ui/colors";
 import { clearStateNotice, showStateNotice, type NoticeAction } from "./ui/stateNotice";
 import { decoderReady, PositionState } from "./updates";
-import type { HeatMetric, ToWorker, UpdateInfo } from "./frames";
-import { autoScale, DEFAULT_HEAT_SCALE, heatMax, legend, parseScale, scaleValue, withScale, type HeatScale } from "./heatscale";
+import type { ToWorker, UpdateInfo } from "./frames";
 import { viewForKey } from "./views";
 import { DragToFrame } from "./frame_latency";
 import { makeHooks, newPageMetrics, type Hooks, type PageMetrics, type Role } from "./test_hooks";
 import { ModalTransform } from "./app/modal_transform";
 import { openWatch, type Frame } from "./app/watch_stream";
 import { createSessionFromFile, downloadMesh, formatOfName } from "./app/mesh_files";
-import { client, COARSE, EDIT_CONTROLS, ENCODING, GONE_TEXT, LAMBDA, LINK_SIZED, query, storage, UPDATES } from "./app/config";
+import { client, COARSE, EDIT_CONTROLS, ENCODING, GONE_TEXT, LAMBDA, LINK_SIZED, query } from "./app/config";
+import { SettingsPanel } from "./app/settings_panel";
 import { centroidOfRows, type MoveTarget, type PendingPick, type Session } from "./app/session";
 import "./style.css";
 
@@ -96,13 +95,18 @@ class App {
   private pendingPick: PendingPick | null = null;
   private historyChain: Promise<void> = Promise.resolve();
   historyBusy = false;
-  private iterationsValue = DEFAULT_ITERATIONS;
   private sessionStatus = "";
   private targetTimer: ReturnType<typeof setTimeout> | undefined;
-  private heatScale: HeatScale = { ...DEFAULT_HEAT_SCALE };
   noticeText = "";
   readonly metrics: PageMetrics = newPageMetrics();
   private readonly dragToFrame = new DragToFrame(this.metrics.dragToFrameMs);
+  private readonly settings: SettingsPanel = new SettingsPanel({
+    session: () => this.session,
+    viewer: () => this.viewer,
+    resolve: () => this.resolveWithSettings(),
+    recolor: () => this.recolor(),
+    message: (text) => this.banner.message(text),
+  });
 
   readonly coalescer = new MoveCoalescer<MoveTarget, MoveHandlesResponse>({
     key: (t) => statesKey(t.states) + "|" + t.opts,
@@ -271,15 +275,7 @@ class App {
     // shared link continues with them; a session without moves keeps the user's current choices
     // except the scale control, which starts at the session's (what its moves use unless told).
     const settings = info.edit?.settings ? settingsView(info.edit.settings) : null;
-    $in("rigidity").value = String(rigidityStep(settings?.rigidity ?? info.rigidity));
-    if (settings) {
-      $sel("method").value = String(settings.method);
-      $in("ora").checked = settings.ora;
-      $in("iterations").value = String(settings.iterations);
-      this.iterationsValue = settings.iterations;
-      $in("magnify").value = String(settings.magnifyScale);
-      $("magnify-val").textContent = settings.magnifyScale.toFixed(2);
-    }
+    this.settings.showOpened(settings, info.rigidity);
     let resolveSnapshot!: () => void;
     const gotSnapshot = new Promise<void>((r) => (resolveSnapshot = r));
     const state = new PositionState(n);
@@ -297,7 +293,7 @@ class App {
     hooks.vertexCount = n;
     hooks.revision = -1;
     this.setRole(role);
-    this.showRigidity();
+    this.settings.showRigidity();
     showCounts(info.vertices, info.faces);
     if (settings) {
       s.selection.clear();
@@ -313,12 +309,12 @@ class App {
       method: Method.SCALE_AWARE, ora: false, rigidityStep: rigidityStep(info.rigidity), iterations: DEFAULT_ITERATIONS, magnifyScale: 1, magnify: [],
     };
     const restored = entriesFromEdit(info.edit, s.anchors.map((a) => (a.centroid ? (a.centroid.toArray() as Vec3) : null)),
-      (i, step) => (i === 0 && step && step.moves.length === 0 && step.targets === undefined ? defaults : this.currentSettings()), n);
+      (i, step) => (i === 0 && step && step.moves.length === 0 && step.targets === undefined ? defaults : this.settings.currentSettings()), n);
     this.timeline.restore(restored.entries.map((e) => ({ ...e, epoch })), restored.index);
     this.serverPos = restored.index;
     this.states = cloneStates(this.timeline.current?.states ?? identityStates(s.groups.length));
     this.updateUndoButtons();
-    this.updateMethodAvailability();
+    this.settings.updateMethodAvailability();
     this.recolor();
     this.setStatus(`Session ${creds.sessionId.slice(0, 8)}… · ${info.vertices.toLocaleString("en")} vertices`);
     this.startStream(s, mesh.indices);
@@ -358,8 +354,8 @@ class App {
     for (const id of EDIT_CONTROLS) ($(id) as HTMLInputElement).disabled = !on;
     $in("upload-input").disabled = this.session?.role === "view";
     if (on) {
-      this.showRigidity();
-      this.updateMethodAvailability();
+      this.settings.showRigidity();
+      this.settings.updateMethodAvailability();
       this.updateUndoButtons();
       this.updateGroupButtons();
     }
@@ -495,7 +491,7 @@ class App {
       // The streaming form reports the precompute's phases (seconds on a big mesh).
       const r = await readWithProgress<SetHandlesResponse>(
         client.setHandlesWithProgress(
-          { sessionId: s.creds.sessionId, token: s.creds.token, groups, prepare: this.method() },
+          { sessionId: s.creds.sessionId, token: s.creds.token, groups, prepare: this.settings.method() },
           { contextValues: createContextValues().set(kSessionId, s.creds.sessionId) },
         ),
         (p) => this.banner.status(progressText("Factorizing…", p)),
@@ -521,7 +517,7 @@ class App {
     await this.setHandlesRaw(specs);
     if (first) this.timeline.clearEntries();
     this.timeline.push({
-      epoch: this.timeline.live, serverPos: 0, states: cloneStates(this.states), settings: this.currentSettings(), draft: null,
+      epoch: this.timeline.live, serverPos: 0, states: cloneStates(this.states), settings: this.settings.currentSettings(), draft: null,
       revision: s.state.revision,
     });
     this.updateUndoButtons();
@@ -656,78 +652,12 @@ class App {
 
   // ---------- settings ----------
 
-  private method(): Method {
-    return Number($sel("method").value) as Method;
-  }
-
-  private optsKey(): string {
-    return [$sel("method").value, $in("ora").checked, this.rigidity(), this.iterationsValue, $in("magnify").value, this.session?.selection.magnifyIndices().length ?? 0].join("|");
-  }
-
-  private rigidity(): number {
-    return rigidityValue(Number($in("rigidity").value));
-  }
-
-  /** The solver settings the controls show (a history entry's). */
-  private currentSettings(): Settings {
-    return {
-      method: this.method(), ora: $in("ora").checked, rigidityStep: Number($in("rigidity").value), iterations: this.iterationsValue,
-      magnifyScale: Number($in("magnify").value), magnify: this.session?.selection.magnifyIndices() ?? [],
-    };
-  }
-
-  /** Shows `st` in the controls (an undo or redo to a step solved with them). */
-  private applySettings(st: Settings): void {
-    const s = this.session;
-    $sel("method").value = String(st.method);
-    $in("ora").checked = st.ora;
-    $in("rigidity").value = String(st.rigidityStep);
-    $in("iterations").value = String(st.iterations);
-    this.iterationsValue = st.iterations;
-    this.checkIterations();
-    $in("magnify").value = String(st.magnifyScale);
-    $("magnify-val").textContent = st.magnifyScale.toFixed(2);
-    if (s) {
-      s.selection.clear();
-      s.selection.paint(st.magnify, "magnify");
-    }
-    this.showRigidity();
-    this.updateMethodAvailability();
-  }
-
-  private showRigidity(): void {
-    $("rigidity-val").textContent = rigidityLabel(this.rigidity());
-    // Only the scale-aware method has a scale term.
-    $in("rigidity").disabled =
-      this.method() !== Method.SCALE_AWARE || this.session?.role !== "edit" || !!this.session?.gone;
-  }
-
-  /** ARAP and Laplacian cannot magnify (the server refuses regions with them): while a magnify
-   * region exists they are disabled, and while one of them is chosen the magnify mode is. */
-  private updateMethodAvailability(): void {
-    const mag = !!this.session?.selection.hasMagnify;
-    const why = "Only the scale-aware method can magnify: erase the magnify region (Brush, mode erase) to use ARAP or Laplacian.";
-    for (const opt of Array.from($sel("method").options)) {
-      if (opt.value === String(Method.SCALE_AWARE)) continue;
-      opt.disabled = mag;
-      opt.title = mag ? why : "";
-    }
-    $sel("method").title = mag ? why : "";
-    $("method-note").textContent = mag ? "ARAP and Laplacian are off while a magnify region exists (only scale-aware can magnify)." : "";
-    $("method-note").hidden = !mag;
-    const scaleAware = this.method() === Method.SCALE_AWARE;
-    const magOpt = Array.from($sel("paint-mode").options).find((o) => o.value === "magnify")!;
-    magOpt.disabled = !scaleAware;
-    magOpt.title = scaleAware ? "" : "Magnify regions need the scale-aware method.";
-    if (!scaleAware && $sel("paint-mode").value === "magnify") $sel("paint-mode").value = "handle";
-  }
-
   /** A setting changed: solve again with it, as a step of the history (the server also keeps it
    * for the next page that opens the session). */
   private resolveWithSettings(): void {
     const cur = this.timeline.current;
     if (this.handleIndices().length === 0 || !cur || this.dirty) return;
-    const entry = derive(cur, { settings: this.currentSettings(), serverPos: -1, revision: null, draft: null });
+    const entry = derive(cur, { settings: this.settings.currentSettings(), serverPos: -1, revision: null, draft: null });
     this.submitMove(this.states, performance.now(), { force: true, entry });
     this.timeline.push(entry);
     this.updateUndoButtons();
@@ -739,7 +669,7 @@ class App {
     const s = this.session;
     if (!s || s.gone || this.handleIndices().length === 0 || s.role !== "edit") return;
     this.states = cloneStates(states);
-    this.coalescer.submit({ states: cloneStates(states), t0, opts: this.optsKey(), gesture: o.gesture ?? 0n, entry: o.entry ?? null }, o.force ?? false);
+    this.coalescer.submit({ states: cloneStates(states), t0, opts: this.settings.optsKey(), gesture: o.gesture ?? 0n, entry: o.entry ?? null }, o.force ?? false);
     this.scheduleTargetGhost();
   }
 
@@ -752,21 +682,10 @@ class App {
     });
   }
 
-  /** The request fields for the controls' settings. */
-  private settingsRequest(): Pick<MoveHandlesRequest, "method" | "ora" | "rigidity" | "maxIterations" | "magnify" | "encoding" | "omitPositions" | "editor"> {
-    const mag = this.session?.selection.magnifyIndices() ?? [];
-    return {
-      method: this.method(), ora: $in("ora").checked, rigidity: this.rigidity(), maxIterations: this.iterationsValue, encoding: ENCODING,
-      omitPositions: UPDATES !== undefined, // link-sized updates (issue 45): geometry comes from Watch only
-      editor: "web-viewer",
-      magnify: mag.length ? [create(MagnifyRegionSchema, { vertices: mag, scale: Number($in("magnify").value) })] : [],
-    };
-  }
-
   private sendMove(t: MoveTarget): Promise<MoveHandlesResponse> {
     const s = this.session!;
     return client.moveHandles(
-      { sessionId: s.creds.sessionId, token: s.creds.token, moves: this.groupMoves(t.states), gesture: t.gesture, ...this.settingsRequest() },
+      { sessionId: s.creds.sessionId, token: s.creds.token, moves: this.groupMoves(t.states), gesture: t.gesture, ...this.settings.request() },
       { timeoutMs: 60_000 },
     );
   }
@@ -797,7 +716,7 @@ class App {
   /** A gesture's entry: the current state's, to be filled in at its end. */
   private newGestureEntry(): Entry | null {
     const cur = this.timeline.current;
-    return cur ? derive(cur, { serverPos: -1, revision: null, draft: null, settings: this.currentSettings() }) : null;
+    return cur ? derive(cur, { serverPos: -1, revision: null, draft: null, settings: this.settings.currentSettings() }) : null;
   }
 
   private dragStart(group: number): void {
@@ -931,7 +850,7 @@ class App {
       $("magnify-val").textContent = "1.00";
       if (plan === "identity") {
         const id = identityStates(s.groups.length);
-        const entry = derive(this.timeline.current!, { states: id, settings: this.currentSettings(), serverPos: -1, revision: null, draft: null });
+        const entry = derive(this.timeline.current!, { states: id, settings: this.settings.currentSettings(), serverPos: -1, revision: null, draft: null });
         const r = await this.historyMove({ moves: this.groupMoves(id), restoreRevision: 0n });
         this.states = id;
         this.onMoveResult(r, null);
@@ -973,7 +892,7 @@ class App {
   /** A MoveHandles outside the coalescer (history steps, restores), with the controls' settings. */
   private historyMove(parts: Omit<Partial<MoveHandlesRequest>, "$typeName" | "$unknown">): Promise<MoveHandlesResponse> {
     const s = this.session!;
-    return client.moveHandles({ sessionId: s.creds.sessionId, token: s.creds.token, ...this.settingsRequest(), ...parts }, { timeoutMs: 60_000 });
+    return client.moveHandles({ sessionId: s.creds.sessionId, token: s.creds.token, ...this.settings.request(), ...parts }, { timeoutMs: 60_000 });
   }
 
   /** Runs `op` after every queued move and history step, with moves held meanwhile. */
@@ -1022,7 +941,7 @@ class App {
     }
     const fromPos = this.serverPos;
     if (plan.setGroups) await this.setHandlesRaw(plan.setGroups);
-    this.applySettings(to.settings);
+    this.settings.applySettings(to.settings);
     const live = this.timeline.live;
     const states = to.epoch === live ? cloneStates(to.states) : plan.setGroups && plan.shape.kind === "none" ? identityStates(s.groups.length) : this.rebase(to);
     const shape = plan.shape;
@@ -1086,17 +1005,6 @@ class App {
       for (let k = 0; k < from.length; k += 3) targets.push(...applyMove(e.states[i], [c.x, c.y, c.z], [from[k], from[k + 1], from[k + 2]]));
       return fitSimilarity(s.anchors[i].positions, targets);
     });
-  }
-
-  /** Validates the iterations field as typed; a bad value is shown and not used. */
-  private checkIterations(): boolean {
-    const r = parseIterations($in("iterations").value);
-    $in("iterations").classList.toggle("invalid", !r.ok);
-    $in("iterations").setCustomValidity(r.ok ? "" : r.reason);
-    $("iterations-note").textContent = r.ok ? "" : `${r.reason} Moves keep using ${this.iterationsValue}.`;
-    $("iterations-note").hidden = r.ok;
-    if (r.ok) this.iterationsValue = r.value;
-    return r.ok;
   }
 
   /** A cancelled G / R / S command whose moves reached the server: its step undone there. */
@@ -1197,7 +1105,7 @@ class App {
       this.banner.clearError();
       this.session?.selection.clear();
       this.session?.draft.clear();
-      this.updateMethodAvailability();
+      this.settings.updateMethodAvailability();
       this.afterDraftChange();
     });
     $("delete-group").addEventListener("click", () => void this.deleteGroup(this.session?.draft.selected ?? -1));
@@ -1207,67 +1115,7 @@ class App {
     radius();
     $in("grab-radius").addEventListener("input", () => this.showGrabRadius());
     this.showGrabRadius();
-    $in("iterations").addEventListener("input", () => this.checkIterations());
-    $in("iterations").addEventListener("change", () => {
-      if (this.checkIterations()) this.resolveWithSettings();
-    });
-    for (const id of ["method", "ora"]) $(id).addEventListener("change", () => this.resolveWithSettings());
-    $in("rigidity").addEventListener("input", () => this.showRigidity());
-    $in("rigidity").addEventListener("change", () => this.resolveWithSettings());  // re-solves live
-    $sel("method").addEventListener("change", () => {
-      this.showRigidity();
-      this.updateMethodAvailability();
-    });
-    $in("magnify").addEventListener("input", () => ($("magnify-val").textContent = Number($in("magnify").value).toFixed(2)));
-    $in("magnify").addEventListener("change", () => {
-      if (this.session && !this.session.selection.hasMagnify) this.banner.message("Paint a “magnify region” first (Brush or Lasso, mode magnify region).");
-      this.resolveWithSettings();
-    });
-    // View preferences are the person's, not the session's: kept in this browser.
-    const prefs = loadPrefs(storage());
-    $in("heatmap").checked = prefs.heatmap;
-    $sel("heatmap-mode").value = prefs.heatmapMode;
-    $in("wireframe").checked = prefs.wireframe;
-    $in("ghost-rest").checked = prefs.ghost;
-    this.heatScale = { angleDeg: prefs.heatScaleAngle, areaRatio: prefs.heatScaleArea };
-    this.viewer.setWireframe(prefs.wireframe);
-    const keepPrefs = () => savePrefs(storage(), {
-      heatmap: $in("heatmap").checked, heatmapMode: $sel("heatmap-mode").value === "area" ? "area" : "angle",
-      wireframe: $in("wireframe").checked, ghost: $in("ghost-rest").checked,
-      heatScaleAngle: this.heatScale.angleDeg, heatScaleArea: this.heatScale.areaRatio,
-    });
-    for (const id of ["heatmap", "heatmap-mode", "wireframe", "ghost-rest"]) $(id).addEventListener("change", keepPrefs);
-    const heatChanged = () => {
-      this.showHeatScale();
-      this.session?.worker?.postMessage({ type: "heat", metric: this.heatMetric() } satisfies ToWorker);
-      this.recolor();
-    };
-    $in("heatmap").addEventListener("change", heatChanged);
-    $sel("heatmap-mode").addEventListener("change", heatChanged);
-    $in("heat-scale").addEventListener("change", () => {
-      const metric = this.heatMode();
-      const r = parseScale(metric, $in("heat-scale").value);
-      $in("heat-scale").classList.toggle("invalid", !r.ok);
-      $("heat-scale-note").textContent = r.ok ? "" : `${r.reason} The map keeps its scale.`;
-      $("heat-scale-note").hidden = r.ok;
-      if (!r.ok) return;
-      this.heatScale = withScale(this.heatScale, metric, r.value);
-      keepPrefs();
-      this.showHeatScale();
-      this.recolor();
-    });
-    $("heat-auto").addEventListener("click", () => {
-      const s = this.session;
-      const metric = this.heatMode();
-      if (!s?.heat || s.heatMetric !== metric) return;
-      this.heatScale = withScale(this.heatScale, metric, autoScale(metric, s.heat));
-      keepPrefs();
-      this.showHeatScale();
-      this.recolor();
-    });
-    this.showHeatScale();
-    $in("wireframe").addEventListener("change", () => this.viewer.setWireframe($in("wireframe").checked));
-    $in("ghost-rest").addEventListener("change", () => this.viewer.setGhost($in("ghost-rest").checked, this.session?.rest ?? null));
+    this.settings.wire();
     $("reset-view").addEventListener("click", () => this.viewer.frame());
     $("view-front").addEventListener("click", () => this.viewer.setView("front"));
     $("view-side").addEventListener("click", () => this.viewer.setView("right"));
@@ -1446,20 +1294,12 @@ class App {
 
   // ---------- Watch (in a worker) ----------
 
-  private heatMode(): HeatMetric {
-    return $sel("heatmap-mode").value === "area" ? "area" : "angle";
-  }
-
-  private heatMetric(): HeatMetric | null {
-    return $in("heatmap").checked ? this.heatMode() : null;
-  }
-
   private startStream(s: Session, indices: Uint32Array): void {
     // Events of a stream that is no longer the page's (closed, switched, gone) are dropped.
     const current = () => this.session === s && !s.gone;
     s.worker = openWatch({
       type: "open", origin: location.origin, sessionId: s.creds.sessionId, token: s.creds.token, encoding: ENCODING, updates: LINK_SIZED, coarse: COARSE && s.role === "edit", vertexCount: s.state.vertexCount,
-      indices: Uint32Array.from(indices), rest: Float32Array.from(s.rest), heat: this.heatMetric(), pageTimeOrigin: performance.timeOrigin,
+      indices: Uint32Array.from(indices), rest: Float32Array.from(s.rest), heat: this.settings.heatMetric(), pageTimeOrigin: performance.timeOrigin,
     }, {
       frame: (f) => { if (current()) this.onFrame(s, f); },
       status: (text) => { if (current()) this.banner.status(text); },
@@ -1520,7 +1360,7 @@ class App {
         pcgIterations: last.pcgIterations, solveSeconds: last.solveSeconds, converged: last.converged,
       }, f.revision, this.gesturing());
     }
-    if (this.heatMetric()) this.recolor(); // group colours do not change with the positions
+    if (this.settings.heatMetric()) this.recolor(); // group colours do not change with the positions
     hooks.revision = f.revision;
     this.metrics.updatesRendered++;
     const rendered = performance.now();
@@ -1543,26 +1383,13 @@ class App {
 
   // ---------- colours ----------
 
-  private showHeatScale(): void {
-    const metric = this.heatMode();
-    $in("heat-scale").value = String(scaleValue(metric, this.heatScale));
-    $("heat-scale-unit").textContent = metric === "angle" ? "°" : "× area";
-    const l = legend(metric, this.heatScale);
-    $("legend-min").textContent = l.ticks[0];
-    $("legend-mid").textContent = l.ticks[1];
-    $("legend-max").textContent = l.ticks[2];
-    $("legend-what").textContent = l.what;
-    $("legend").hidden = !$in("heatmap").checked;
-    $("heat-scale-row").hidden = !$in("heatmap").checked;
-  }
-
   /** Group colours over everything, then the heat map (fixed scale) or the base colours. */
   private recolor(): void {
     const s = this.session;
     if (!s) return;
-    const metric = this.heatMetric();
+    const metric = this.settings.heatMetric();
     const heat = metric && s.heat && s.heatMetric === metric ? s.heat : null;
-    this.colors.paint(s.draft, s.selection.magnify, heat, metric ? heatMax(metric, this.heatScale) : 1);
+    this.colors.paint(s.draft, s.selection.magnify, heat, metric ? this.settings.heatMax(metric) : 1);
   }
 
   // ---------- painting ----------
@@ -1598,7 +1425,7 @@ class App {
     if (this.magnifyPainted) {
       // The magnify region is a setting: one re-solve (one step) per stroke.
       this.magnifyPainted = false;
-      this.updateMethodAvailability();
+      this.settings.updateMethodAvailability();
       this.dirty = !s.draft.equals(this.appliedSpecs());
       if (!this.dirty) {
         this.resolveWithSettings();
