@@ -48,7 +48,9 @@ import { centroidOfRows, type MoveTarget, type PendingPick, type Session } from 
 import "./style.css";
 
 class App {
-  readonly banner = new Banner((t) => (hooks.lastError = t));
+  /** The test hooks (window.__meshdeform); the page's parts set their state fields. */
+  readonly hooks: Hooks = makeHooks(this);
+  readonly banner = new Banner((t) => (this.hooks.lastError = t));
   readonly canvas = $("canvas") as HTMLCanvasElement;
   viewer!: Viewer3D;
   interaction!: Interaction;
@@ -89,7 +91,7 @@ class App {
     show: (text) => {
       $("keycmd").textContent = text;
       $("keycmd").hidden = !text;
-      hooks.modal = text;
+      this.hooks.modal = text;
     },
   });
   private pendingPick: PendingPick | null = null;
@@ -129,7 +131,7 @@ class App {
       dragEnd: () => this.dragEnd(),
       pickStart: (hit) => this.pickStart(hit),
       hover: (hit) => {
-        hooks.hovering = !!hit;
+        this.hooks.hovering = !!hit;
         this.viewer.setGrabPreview(hit ? hit.point : null, this.grabRadius());
       },
       radiusWheel: (dy) => this.radiusWheel(dy),
@@ -191,8 +193,8 @@ class App {
 
   /** Shows the broken-link notice; nothing is created and the edit controls stay off. */
   private linkProblem(detail: string): void {
-    hooks.gone = true;
-    hooks.ready = false;
+    this.hooks.gone = true;
+    this.hooks.ready = false;
     this.setEditEnabled(false);
     $("role").textContent = this.session ? "Session gone" : "No session";
     this.renderGroups();
@@ -270,7 +272,7 @@ class App {
     if (n !== info.vertices) throw new Error(`GLB has ${n} vertices, session ${info.vertices}`);
     this.closeCurrent();
     hideLinkProblem();
-    hooks.gone = false;
+    this.hooks.gone = false;
     // The controls take the session's settings (those of its last move) so that a reload or a
     // shared link continues with them; a session without moves keeps the user's current choices
     // except the scale control, which starts at the session's (what its moves use unless told).
@@ -288,10 +290,10 @@ class App {
     this.session = s;
     this.viewer.setMesh(mesh.positions, mesh.indices);
     this.viewer.setGhost($in("ghost-rest").checked, s.rest);
-    hooks.sessionId = creds.sessionId;
-    hooks.role = role;
-    hooks.vertexCount = n;
-    hooks.revision = -1;
+    this.hooks.sessionId = creds.sessionId;
+    this.hooks.role = role;
+    this.hooks.vertexCount = n;
+    this.hooks.revision = -1;
     this.setRole(role);
     this.settings.showRigidity();
     showCounts(info.vertices, info.faces);
@@ -336,7 +338,7 @@ class App {
     s.worker?.terminate();
     s.worker = null;
     this.session = null;
-    hooks.ready = false;
+    this.hooks.ready = false;
     this.coalescer.reset();
     this.modal.close();
     this.pendingPick = null;
@@ -369,7 +371,7 @@ class App {
   /** Readiness, the tool hint and the state notice: what is missing and the way out of it. */
   private updateReady(): void {
     const s = this.session;
-    hooks.ready = !!s && !s.gone && s.state.hasSnapshot && this.handleIndices().length > 0 && !this.dirty;
+    this.hooks.ready = !!s && !s.gone && s.state.hasSnapshot && this.handleIndices().length > 0 && !this.dirty;
     const edit = !!s && s.role === "edit" && !s.gone;
     const hint = $("hint");
     hint.hidden = true;
@@ -610,7 +612,7 @@ class App {
     const s = this.session;
     const editable = !!s && s.role === "edit" && !s.gone;
     renderGroupList(s?.draft ?? null, this.dirty, editable, { select: (i) => this.selectGroup(i), remove: (i) => void this.deleteGroup(i) });
-    hooks.selectedGroup = s?.draft.selected ?? -1;
+    this.hooks.selectedGroup = s?.draft.selected ?? -1;
     this.updateGroupButtons();
   }
 
@@ -886,7 +888,7 @@ class App {
     const edit = this.session?.role === "edit" && !this.session.gone;
     $btn("undo").disabled = !edit || !this.timeline.canUndo;
     $btn("redo").disabled = !edit || !this.timeline.canRedo;
-    hooks.historyBusy = this.historyBusy;
+    this.hooks.historyBusy = this.historyBusy;
   }
 
   /** A MoveHandles outside the coalescer (history steps, restores), with the controls' settings. */
@@ -1078,7 +1080,7 @@ class App {
       void this.applyHandles();
     }
     this.tool = t;
-    hooks.tool = t;
+    this.hooks.tool = t;
     for (const x of ["move", "grab", "brush", "lasso"] as const) $(`tool-${x}`).classList.toggle("on", x === t);
     $("paint-opts").hidden = t === "move" || t === "grab";
     $("gizmo-modes").hidden = t !== "move";
@@ -1315,7 +1317,7 @@ class App {
         if (e.code === Code.NotFound) this.markGone(s);
         else {
           this.banner.error("Watching the session failed", e, "watch");
-          hooks.ready = false;
+          this.hooks.ready = false;
         }
       },
       workerFailed: (message) => this.banner.error("The viewer's update worker failed", new Error(message)),
@@ -1361,7 +1363,7 @@ class App {
       }, f.revision, this.gesturing());
     }
     if (this.settings.heatMetric()) this.recolor(); // group colours do not change with the positions
-    hooks.revision = f.revision;
+    this.hooks.revision = f.revision;
     this.metrics.updatesRendered++;
     const rendered = performance.now();
     this.metrics.renderedAt.push(rendered);
@@ -1467,6 +1469,5 @@ class App {
 }
 
 const app = new App();
-const hooks: Hooks = makeHooks(app);
-(window as unknown as { __meshdeform: Hooks }).__meshdeform = hooks;
+(window as unknown as { __meshdeform: Hooks }).__meshdeform = app.hooks;
 app.start();
