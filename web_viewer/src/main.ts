@@ -1,6 +1,6 @@
 // Wiring: session lifecycle, the Watch stream's frames, moves, tools, the undo history and the
-// test hooks (the G/R/S commands, the Watch worker, file transfers, the address settings and the
-// settings panel are in app/).
+// test hooks (the G/R/S commands, the Watch worker and its frames on screen, file transfers, the
+// address settings and the settings panel are in app/).
 import * as THREE from "three";
 import { create } from "@bufbuild/protobuf";
 import { Code, ConnectError, createContextValues } from "@connectrpc/connect";
@@ -30,19 +30,18 @@ import { SelectionState, type PaintMode } from "./selection";
 import { formatHash, parseLink, shareLink, type Credentials } from "./share";
 import { Banner, $, $btn, $in, $sel } from "./ui/dom";
 import { renderGroupList } from "./ui/groupsPanel";
-import { showBytes, showCounts, showResult } from "./ui/metrics";
+import { showCounts } from "./ui/metrics";
 import { dismissFirstHint, hideLinkProblem, showFirstHint, showLinkProblem } from "./ui/notice";
 import { ColorPainter } from "./ui/colors";
 import { clearStateNotice, showStateNotice, type NoticeAction } from "./ui/stateNotice";
 import { decoderReady, PositionState } from "./updates";
-import type { ToWorker, UpdateInfo } from "./frames";
 import { viewForKey } from "./views";
 import { DragToFrame } from "./frame_latency";
 import { makeHooks, newPageMetrics, type Hooks, type PageMetrics, type Role } from "./test_hooks";
 import { ModalTransform } from "./app/modal_transform";
-import { openWatch, type Frame } from "./app/watch_stream";
 import { createSessionFromFile, downloadMesh, formatOfName } from "./app/mesh_files";
-import { client, COARSE, EDIT_CONTROLS, ENCODING, GONE_TEXT, LAMBDA, LINK_SIZED, query } from "./app/config";
+import { client, EDIT_CONTROLS, GONE_TEXT, LAMBDA, query } from "./app/config";
+import { FramesView } from "./app/frames_view";
 import { SettingsPanel } from "./app/settings_panel";
 import { centroidOfRows, type MoveTarget, type PendingPick, type Session } from "./app/session";
 import "./style.css";
@@ -87,7 +86,7 @@ class App {
       this.updateUndoButtons();
     },
     revertSent: (base) => this.revertModal(base),
-    endGesture: () => this.endCoarse(),
+    endGesture: () => this.frames.endCoarse(),
     show: (text) => {
       $("keycmd").textContent = text;
       $("keycmd").hidden = !text;
@@ -106,8 +105,21 @@ class App {
     session: () => this.session,
     viewer: () => this.viewer,
     resolve: () => this.resolveWithSettings(),
-    recolor: () => this.recolor(),
+    recolor: () => this.frames.recolor(),
     message: (text) => this.banner.message(text),
+  });
+  private readonly frames: FramesView = new FramesView({
+    banner: this.banner, hooks: this.hooks, metrics: this.metrics, dragToFrame: this.dragToFrame,
+    session: () => this.session,
+    viewer: () => this.viewer,
+    interaction: () => this.interaction,
+    colors: () => this.colors,
+    modalActive: () => this.modal.active,
+    moveInFlight: () => this.coalescer.busy,
+    heatMetric: () => this.settings.heatMetric(),
+    heatMax: (metric) => this.settings.heatMax(metric),
+    markGone: (s, detail) => this.markGone(s, detail),
+    placeGizmo: () => this.placeGizmo(),
   });
 
   readonly coalescer = new MoveCoalescer<MoveTarget, MoveHandlesResponse>({
@@ -317,9 +329,9 @@ class App {
     this.states = cloneStates(this.timeline.current?.states ?? identityStates(s.groups.length));
     this.updateUndoButtons();
     this.settings.updateMethodAvailability();
-    this.recolor();
+    this.frames.recolor();
     this.setStatus(`Session ${creds.sessionId.slice(0, 8)}… · ${info.vertices.toLocaleString("en")} vertices`);
-    this.startStream(s, mesh.indices);
+    this.frames.startStream(s, mesh.indices);
     await gotSnapshot;
     // Opened at revision 0 (the normal case for a new session): the groups' anchors are the rest pose.
     s.anchorsAtRest = (restKnown && s.state.revision === 0) || (restKnown && this.anchorsAreRest(s));
@@ -523,7 +535,7 @@ class App {
       revision: s.state.revision,
     });
     this.updateUndoButtons();
-    this.recolor();
+    this.frames.recolor();
     this.updateReady();
     if (this.tool !== "move" && this.tool !== "grab") this.setTool("move");
   }
@@ -552,7 +564,7 @@ class App {
     if (!s) return;
     s.draft.select(i);
     this.renderGroups();
-    this.recolor();
+    this.frames.recolor();
     this.placeGizmo();
   }
 
@@ -583,7 +595,7 @@ class App {
     const cur = this.timeline.current;
     if (cur) this.timeline.push(derive(cur, { draft: this.dirty ? s.draft.specs() : null }));
     this.renderGroups();
-    this.recolor();
+    this.frames.recolor();
     this.updateUndoButtons();
     this.updateReady();
   }
@@ -756,7 +768,7 @@ class App {
   }
   private finishGesture(): void {
     this.pendingPick = null;
-    this.endCoarse();
+    this.frames.endCoarse();
     if (this.dragSent && this.dragEntry) {
       this.dragEntry.states = cloneStates(this.states);
       this.timeline.push(this.dragEntry);
@@ -914,7 +926,7 @@ class App {
         this.coalescer.reset();
         this.historyBusy = false;
         this.updateUndoButtons();
-        this.recolor();
+        this.frames.recolor();
         this.renderGroups();
         this.updateReady();
         this.placeGizmo();
@@ -1294,106 +1306,6 @@ class App {
     }, 250);
   }
 
-  // ---------- Watch (in a worker) ----------
-
-  private startStream(s: Session, indices: Uint32Array): void {
-    // Events of a stream that is no longer the page's (closed, switched, gone) are dropped.
-    const current = () => this.session === s && !s.gone;
-    s.worker = openWatch({
-      type: "open", origin: location.origin, sessionId: s.creds.sessionId, token: s.creds.token, encoding: ENCODING, updates: LINK_SIZED, coarse: COARSE && s.role === "edit", vertexCount: s.state.vertexCount,
-      indices: Uint32Array.from(indices), rest: Float32Array.from(s.rest), heat: this.settings.heatMetric(), pageTimeOrigin: performance.timeOrigin,
-    }, {
-      frame: (f) => { if (current()) this.onFrame(s, f); },
-      status: (text) => { if (current()) this.banner.status(text); },
-      bad: (message) => { if (current()) this.banner.error("Bad update from the server", new Error(message)); },
-      ended: () => {
-        if (!current()) return;
-        s.resolveSnapshot();
-        this.markGone(s, "The session was closed by its owner (or an operator). Its link no longer opens it.");
-      },
-      failed: (e) => {
-        if (!current()) return;
-        s.resolveSnapshot();
-        if (e.code === Code.NotFound) this.markGone(s);
-        else {
-          this.banner.error("Watching the session failed", e, "watch");
-          this.hooks.ready = false;
-        }
-      },
-      workerFailed: (message) => this.banner.error("The viewer's update worker failed", new Error(message)),
-    });
-  }
-
-  /** A drag, gizmo drag or modal transform is under way. */
-  private gesturing(): boolean {
-    return this.interaction.dragging || this.viewer.gizmo.dragging || this.modal.active;
-  }
-
-  /** The gesture ended: the full mesh again, if its coarse level was drawn. */
-  private endCoarse(): void {
-    const p = this.session?.state.positions;
-    if (p && this.viewer.coarsePending) this.viewer.showFull(p);
-  }
-
-  /** A frame from the worker: the newest positions (with the updates since the last frame). */
-  private onFrame(s: Session, f: Frame): void {
-    const last = f.updates[f.updates.length - 1] as UpdateInfo | undefined;
-    for (const u of f.updates) {
-      this.metrics.updateBytes.push(u.bytes);
-      this.metrics.updateEncodings.push(u.encoding);
-    }
-    this.metrics.updatesDropped += Math.max(0, f.updates.length - 1);
-    this.metrics.workerMs.push(f.workMs);
-    s.state.positions.set(f.positions);
-    s.state.revision = f.revision;
-    // Kept (Auto, recolouring): a copy, the frame's own buffer goes back to the worker.
-    s.heat = f.heat ? (s.heat && s.heat.length === f.heat.length ? s.heat : new Float32Array(f.heat.length)) : null;
-    if (s.heat && f.heat) s.heat.set(f.heat);
-    s.heatMetric = f.heatMetric;
-    // During a drag of a multiresolution session: the coarse level the move solved on (a
-    // fraction of the vertices to upload and draw); the full mesh otherwise and after release.
-    if (!(f.coarse && this.viewer.setCoarseFrame(f.coarse, this.gesturing()))) {
-      this.viewer.setFrame(f.positions, f.normals, f.sphere);
-    }
-    if (last) {
-      showBytes(last.bytes, last.encoding);
-      showResult({
-        revision: BigInt(last.revision), eTheta: last.eTheta, ePhi: last.ePhi, areaLogRms: last.areaLogRms, iterations: last.iterations,
-        pcgIterations: last.pcgIterations, solveSeconds: last.solveSeconds, converged: last.converged,
-      }, f.revision, this.gesturing());
-    }
-    if (this.settings.heatMetric()) this.recolor(); // group colours do not change with the positions
-    this.hooks.revision = f.revision;
-    this.metrics.updatesRendered++;
-    const rendered = performance.now();
-    this.metrics.renderedAt.push(rendered);
-    this.metrics.renderedRefinement.push(!!last?.refinement);
-    this.metrics.renderedConverged.push(!!last?.converged);
-    if (!this.coalescer.busy) this.viewer.setTargets(null);
-    s.resolveSnapshot();
-    if (!this.viewer.gizmo.dragging) this.placeGizmo();
-    const rev = f.revision;
-    this.viewer.onNextFrame(() => {
-      this.dragToFrame.drawn(rev, performance.now());
-      // The frame is drawn: the worker may fill its buffers again (the newest update next).
-      if (s.worker && this.session === s) {
-        const ack: ToWorker = { type: "ack", positions: f.positions, normals: f.normals, heat: f.heat };
-        s.worker.postMessage(ack, [f.positions.buffer, f.normals.buffer, ...(f.heat ? [f.heat.buffer] : [])]);
-      }
-    });
-  }
-
-  // ---------- colours ----------
-
-  /** Group colours over everything, then the heat map (fixed scale) or the base colours. */
-  private recolor(): void {
-    const s = this.session;
-    if (!s) return;
-    const metric = this.settings.heatMetric();
-    const heat = metric && s.heat && s.heatMetric === metric ? s.heat : null;
-    this.colors.paint(s.draft, s.selection.magnify, heat, metric ? this.settings.heatMax(metric) : 1);
-  }
-
   // ---------- painting ----------
 
   private paintStart(extend: boolean): void {
@@ -1417,7 +1329,7 @@ class App {
     else if (mode === "erase") s.draft.erase(ix);
     s.selection.paint(ix, mode);
     if (mode === "magnify" || mode === "erase") this.magnifyPainted = true;
-    this.recolor();
+    this.frames.recolor();
   }
 
   private paintEnd(): void {
@@ -1432,7 +1344,7 @@ class App {
       if (!this.dirty) {
         this.resolveWithSettings();
         this.renderGroups();
-        this.recolor();
+        this.frames.recolor();
         this.updateReady();
         return;
       }
