@@ -1,28 +1,26 @@
-// Wiring: session lifecycle, the Watch stream's frames, moves, tools, the undo history and the
-// test hooks (the G/R/S commands, the Watch worker and its frames on screen, file transfers, the
-// address settings and the settings panel are in app/).
+// Wiring: session lifecycle, moves, tools and the test hooks (the G/R/S commands, the Watch worker
+// and its frames on screen, the undo history, file transfers, the address settings and the
+// settings panel are in app/).
 import * as THREE from "three";
 import { create } from "@bufbuild/protobuf";
 import { Code, ConnectError, createContextValues } from "@connectrpc/connect";
 import {
-  HandleGroupSchema, HandleRole, HistoryAction, MeshFormat, Method,
-  type CreateSessionResponse, type HandleGroup, type MoveHandlesRequest, type MoveHandlesResponse, type SessionInfo, type SetHandlesResponse,
+  HandleGroupSchema, HandleRole, MeshFormat,
+  type CreateSessionResponse, type HandleGroup, type MoveHandlesResponse, type SessionInfo, type SetHandlesResponse,
 } from "./gen/meshdeform/v1/deformation_pb";
 import { kSessionId } from "./client";
 import { progressText, readWithProgress } from "./progress";
 import { MoveCoalescer } from "./coalescer";
-import { rigidityStep } from "./rigidity";
 import { rampCss } from "./distortion";
 import { errorCode, type Action } from "./errors";
 import { GroupSet, groupColor, type GroupSpec } from "./groups";
 import { parseGlb } from "./glb";
-import { entriesFromEdit, newGesture, settingsView } from "./edit_state";
-import { derive, Timeline, type Entry, type Settings } from "./timeline";
+import { newGesture, settingsView } from "./edit_state";
+import { derive, Timeline, type Entry } from "./timeline";
 import { Interaction, type HandleGroupView, type PickHit, type Tool } from "./interaction";
-import { DEFAULT_ITERATIONS } from "./iterations";
 import {
-  applyMove, cloneStates, fitSimilarity, identityStates, planReset, statesKey, toGroupMove,
-  type GroupStates, type Vec3,
+  applyMove, cloneStates, identityStates, planReset, statesKey, toGroupMove,
+  type GroupStates,
 } from "./moves";
 import { buildAdjacency, components, farSide, pickGroups } from "./pick";
 import { Viewer3D } from "./scene";
@@ -42,6 +40,7 @@ import { ModalTransform } from "./app/modal_transform";
 import { createSessionFromFile, downloadMesh, formatOfName } from "./app/mesh_files";
 import { client, EDIT_CONTROLS, GONE_TEXT, LAMBDA, query } from "./app/config";
 import { FramesView } from "./app/frames_view";
+import { HistorySync } from "./app/history_sync";
 import { SettingsPanel } from "./app/settings_panel";
 import { centroidOfRows, type MoveTarget, type PendingPick, type Session } from "./app/session";
 import "./style.css";
@@ -59,14 +58,12 @@ class App {
   /** Every applied group's move (identity for fixed groups), absolute from its anchors. */
   states: GroupStates = [];
   readonly timeline = new Timeline();
-  /** The server's undo-history position, as its last answer said. */
-  private serverPos = 0;
   dirty = false; // the painted groups differ from the applied ones
   readonly modal = new ModalTransform({
     viewer: () => this.viewer,
     states: () => this.states,
     setStates: (st) => { this.states = st; },
-    blocked: () => ({ dirty: this.dirty, busy: this.historyBusy || !!this.pendingPick }),
+    blocked: () => ({ dirty: this.dirty, busy: this.history.busy || !!this.pendingPick }),
     lastPointer: () => this.interaction.lastPointer,
     selectedHandle: () => this.selectedHandle(),
     handleIndices: () => this.handleIndices(),
@@ -83,9 +80,9 @@ class App {
     submitMove: (st, t0, o) => this.submitMove(st, t0, o),
     afterCommand: (entry) => {
       if (entry) this.timeline.push(entry);
-      this.updateUndoButtons();
+      this.history.updateButtons();
     },
-    revertSent: (base) => this.revertModal(base),
+    revertSent: (base) => this.history.revertModal(base),
     endGesture: () => this.frames.endCoarse(),
     show: (text) => {
       $("keycmd").textContent = text;
@@ -94,8 +91,6 @@ class App {
     },
   });
   private pendingPick: PendingPick | null = null;
-  private historyChain: Promise<void> = Promise.resolve();
-  historyBusy = false;
   private sessionStatus = "";
   private targetTimer: ReturnType<typeof setTimeout> | undefined;
   noticeText = "";
@@ -129,11 +124,35 @@ class App {
     onError: (e) => this.fail("Move failed", e, "move"),
   });
 
+  private readonly history: HistorySync = new HistorySync({
+    banner: this.banner, hooks: this.hooks, timeline: this.timeline, coalescer: this.coalescer,
+    session: () => this.session,
+    states: () => this.states,
+    setStates: (st) => { this.states = st; },
+    dirty: () => this.dirty,
+    closeModal: () => this.modal.close(),
+    fail: (prefix, e, action) => this.fail(prefix, e, action),
+    handleIndices: () => this.handleIndices(),
+    appliedSpecs: () => this.appliedSpecs(),
+    applyHandles: () => this.applyHandles(),
+    setHandlesRaw: (specs) => this.setHandlesRaw(specs),
+    setHandles: (specs, capture) => this.setHandles(specs, capture),
+    showDraft: (specs) => this.showDraft(specs),
+    groupMoves: (st) => this.groupMoves(st),
+    settingsRequest: () => this.settings.request(),
+    currentSettings: () => this.settings.currentSettings(),
+    applySettings: (st) => this.settings.applySettings(st),
+    recolor: () => this.frames.recolor(),
+    renderGroups: () => this.renderGroups(),
+    updateReady: () => this.updateReady(),
+    placeGizmo: () => this.placeGizmo(),
+  });
+
   start(): void {
     this.interaction = new Interaction(() => this.viewer, this.canvas, {
       tool: () => this.tool,
       canEdit: () => this.canEdit(),
-      canMove: () => !this.dirty && !this.historyBusy && !this.pendingPick,
+      canMove: () => !this.dirty && !this.history.busy && !this.pendingPick,
       positions: () => this.session?.state.positions ?? null,
       handleGroups: () => this.handleGroupViews(),
       groupOf: (v) => this.session?.draft.groupOf(v) ?? -1,
@@ -314,20 +333,8 @@ class App {
       s.selection.paint(settings.magnifyVertices.filter((v) => v < n), "magnify");
     }
     this.adoptGroups(info.groups, info.groupAnchors);
-    this.timeline.clear();
     // The session's undo history and the groups' current moves, as the server keeps them.
-    const epoch = this.timeline.addEpoch({ groups: this.appliedSpecs(), anchors: s.anchors.map((a) => a.positions) });
-    // A step without settings: the first of a session without moves (the defaults), or one stored
-    // before steps kept theirs (the session's).
-    const defaults: Settings = {
-      method: Method.SCALE_AWARE, ora: false, rigidityStep: rigidityStep(info.rigidity), iterations: DEFAULT_ITERATIONS, magnifyScale: 1, magnify: [],
-    };
-    const restored = entriesFromEdit(info.edit, s.anchors.map((a) => (a.centroid ? (a.centroid.toArray() as Vec3) : null)),
-      (i, step) => (i === 0 && step && step.moves.length === 0 && step.targets === undefined ? defaults : this.settings.currentSettings()), n);
-    this.timeline.restore(restored.entries.map((e) => ({ ...e, epoch })), restored.index);
-    this.serverPos = restored.index;
-    this.states = cloneStates(this.timeline.current?.states ?? identityStates(s.groups.length));
-    this.updateUndoButtons();
+    this.history.restore(s, info, n);
     this.settings.updateMethodAvailability();
     this.frames.recolor();
     this.setStatus(`Session ${creds.sessionId.slice(0, 8)}… · ${info.vertices.toLocaleString("en")} vertices`);
@@ -370,7 +377,7 @@ class App {
     if (on) {
       this.settings.showRigidity();
       this.settings.updateMethodAvailability();
-      this.updateUndoButtons();
+      this.history.updateButtons();
       this.updateGroupButtons();
     }
   }
@@ -406,11 +413,11 @@ class App {
     } else if (problem && s.draft.roles().every((r) => r === "fixed")) {
       text = "No handle group: nothing can move. Pick a point on the mesh and drag it, or paint a handle (Brush, mode handle).";
       if (this.tool !== "grab") actions.push(pick);
-      if (this.timeline.canUndo) actions.push({ id: "notice-undo", label: "Undo", run: () => this.undoRedo(false) });
+      if (this.timeline.canUndo) actions.push({ id: "notice-undo", label: "Undo", run: () => this.history.undoRedo(false) });
     } else if (problem) {
       text = "No fixed region: a handle alone would carry the whole mesh along. Fix the side of the mesh away from the handles, or paint a fixed region.";
       actions.push({ id: "notice-fix-far", label: "Fix the far side", run: () => void this.fixFarSide() });
-      if (this.timeline.canUndo) actions.push({ id: "notice-undo", label: "Undo", run: () => this.undoRedo(false) });
+      if (this.timeline.canUndo) actions.push({ id: "notice-undo", label: "Undo", run: () => this.history.undoRedo(false) });
     } else if (this.dirty) {
       text = this.tool === "move"
         ? "The painted groups are not applied yet: apply them to drag."
@@ -483,18 +490,6 @@ class App {
     return (this.session?.groups ?? []).map((g) => ({ role: g.role === HandleRole.FIXED ? "fixed" : "handle", vertices: [...g.vertices] }));
   }
 
-  /** The server's step revisions for the live epoch's history entries (before the server's
-   * history is replaced: a SetHandles, or a restore that drops its redo branch). */
-  private async captureRevisions(): Promise<void> {
-    const s = this.session;
-    if (!s) return;
-    const r = await client.getSessionInfo({ sessionId: s.creds.sessionId, token: s.creds.token });
-    const edit = r.info?.edit;
-    if (!edit) return;
-    this.timeline.takeRevisions(edit.steps.map((st) => (st.revision === undefined ? null : Number(st.revision))));
-    this.serverPos = edit.position;
-  }
-
   /** SetHandles for `specs` on the current shape: a new epoch of the history (not a step). */
   private async setHandlesRaw(specs: GroupSpec[]): Promise<void> {
     const s = this.session!;
@@ -517,7 +512,7 @@ class App {
     });
     this.timeline.addEpoch({ groups: this.appliedSpecs(), anchors: s.anchors.map((a) => a.positions) });
     this.states = identityStates(s.groups.length);
-    this.serverPos = 0;
+    this.history.restarted();
     this.coalescer.reset();
   }
 
@@ -527,14 +522,14 @@ class App {
     const s = this.session!;
     await this.coalescer.idle();
     const first = s.groups.length === 0;
-    if (capture && !first && this.timeline.current) await this.captureRevisions();
+    if (capture && !first && this.timeline.current) await this.history.captureRevisions();
     await this.setHandlesRaw(specs);
     if (first) this.timeline.clearEntries();
     this.timeline.push({
       epoch: this.timeline.live, serverPos: 0, states: cloneStates(this.states), settings: this.settings.currentSettings(), draft: null,
       revision: s.state.revision,
     });
-    this.updateUndoButtons();
+    this.history.updateButtons();
     this.frames.recolor();
     this.updateReady();
     if (this.tool !== "move" && this.tool !== "grab") this.setTool("move");
@@ -596,8 +591,16 @@ class App {
     if (cur) this.timeline.push(derive(cur, { draft: this.dirty ? s.draft.specs() : null }));
     this.renderGroups();
     this.frames.recolor();
-    this.updateUndoButtons();
+    this.history.updateButtons();
     this.updateReady();
+  }
+
+  /** A history state's painted groups (null: the applied ones), the first handle selected. */
+  private showDraft(specs: GroupSpec[] | null): void {
+    const s = this.session!;
+    s.draft = new GroupSet(s.state.vertexCount, specs ?? this.appliedSpecs());
+    s.draft.select(this.handleIndices()[0] ?? -1);
+    this.dirty = !s.draft.equals(this.appliedSpecs());
   }
 
   /** "Fix the far side": a fixed group on the side of each handle's part away from the handles. */
@@ -674,7 +677,7 @@ class App {
     const entry = derive(cur, { settings: this.settings.currentSettings(), serverPos: -1, revision: null, draft: null });
     this.submitMove(this.states, performance.now(), { force: true, entry });
     this.timeline.push(entry);
-    this.updateUndoButtons();
+    this.history.updateButtons();
   }
 
   // ---------- moves ----------
@@ -706,15 +709,8 @@ class App {
 
   /** A move's answer: its server step (for the history) and the latency bookkeeping. */
   private onMoveResult(r: MoveHandlesResponse, t: MoveTarget | null): void {
+    this.history.answered(r, t);
     const rev = Number(r.result?.revision ?? -1);
-    if (r.result?.historyPosition !== undefined) {
-      this.serverPos = r.result.historyPosition;
-      if (t?.entry) {
-        t.entry.serverPos = this.serverPos;
-        t.entry.epoch = this.timeline.live;
-        t.entry.revision = rev >= 0 ? rev : null;
-      }
-    }
     if (rev < 0 || !t) return;
     // Geometry comes from Watch only (in order); the response is for flow control and latency.
     this.dragToFrame.answered(rev, t.t0, this.session?.state.revision ?? -1);
@@ -775,7 +771,7 @@ class App {
     }
     this.dragEntry = null;
     this.dragSent = false;
-    this.updateUndoButtons();
+    this.history.updateButtons();
     this.updateReady();
   }
 
@@ -802,7 +798,7 @@ class App {
   /** A press on the mesh with Grab: the groups it adds are set, and the drag goes on meanwhile. */
   private pickStart(hit: PickHit): boolean {
     const s = this.session;
-    if (!s || this.dirty || this.historyBusy) return false;
+    if (!s || this.dirty || this.history.busy) return false;
     const topo = this.topology(s);
     const specs = this.appliedSpecs();
     const res = pickGroups({
@@ -845,199 +841,6 @@ class App {
     return true;
   }
 
-  // ---------- reset ----------
-
-  /** Every handle back to its rest position, the mesh back to the rest pose exactly: the
-   * server commits revision 0's positions again (restore_revision), no solve. */
-  private async resetToRest(): Promise<void> {
-    const s = this.session;
-    if (!s || s.role !== "edit" || s.gone || this.handleIndices().length === 0) return;
-    if (this.dirty && !(await this.applyHandles())) return;
-    const plan = planReset(s.restKnown, s.anchorsAtRest);
-    if (plan === "unavailable") {
-      this.banner.message("Reset is not possible: the server no longer keeps this session's rest mesh.");
-      return;
-    }
-    this.modal.close();
-    await this.runHistoryOp(async () => {
-      $in("magnify").value = "1";
-      $("magnify-val").textContent = "1.00";
-      if (plan === "identity") {
-        const id = identityStates(s.groups.length);
-        const entry = derive(this.timeline.current!, { states: id, settings: this.settings.currentSettings(), serverPos: -1, revision: null, draft: null });
-        const r = await this.historyMove({ moves: this.groupMoves(id), restoreRevision: 0n });
-        this.states = id;
-        this.onMoveResult(r, null);
-        entry.serverPos = this.serverPos;
-        entry.revision = Number(r.result?.revision ?? -1);
-        this.timeline.push(entry);
-      } else {
-        // The anchors are a deformed shape: the rest pose first, then the same groups set again
-        // there (anchors = rest): one step of the history. The steps' revisions are taken
-        // before the restore makes the rest pose the server's current one.
-        await this.captureRevisions();
-        const r = await this.historyMove({ moves: [], restoreRevision: 0n });
-        this.onMoveResult(r, null);
-        await this.waitForRevision(s, Number(r.result?.revision ?? 0));
-        await this.setHandles(this.appliedSpecs(), false);
-      }
-      this.banner.status("Reset to rest");
-    }, "Reset failed", "reset");
-  }
-
-  /** Resolves once the frame of `revision` (or a later one) is on screen (bounded: 30 s). */
-  private waitForRevision(s: Session, revision: number): Promise<void> {
-    return new Promise((resolve) => {
-      const t0 = performance.now();
-      const tick = () => (s.state.revision >= revision || performance.now() - t0 > 30_000 || s.gone ? resolve() : setTimeout(tick, 20));
-      tick();
-    });
-  }
-
-  // ---------- undo / redo ----------
-
-  private updateUndoButtons(): void {
-    const edit = this.session?.role === "edit" && !this.session.gone;
-    $btn("undo").disabled = !edit || !this.timeline.canUndo;
-    $btn("redo").disabled = !edit || !this.timeline.canRedo;
-    this.hooks.historyBusy = this.historyBusy;
-  }
-
-  /** A MoveHandles outside the coalescer (history steps, restores), with the controls' settings. */
-  private historyMove(parts: Omit<Partial<MoveHandlesRequest>, "$typeName" | "$unknown">): Promise<MoveHandlesResponse> {
-    const s = this.session!;
-    return client.moveHandles({ sessionId: s.creds.sessionId, token: s.creds.token, ...this.settings.request(), ...parts }, { timeoutMs: 60_000 });
-  }
-
-  /** Runs `op` after every queued move and history step, with moves held meanwhile. */
-  private runHistoryOp(op: () => Promise<void>, prefix: string, action: Action): Promise<void> {
-    const run = async () => {
-      const s = this.session;
-      if (!s || s.gone) return;
-      await this.coalescer.idle();
-      this.historyBusy = true;
-      this.updateUndoButtons();
-      try {
-        await op();
-      } catch (e) {
-        this.fail(prefix, e, action);
-      } finally {
-        // The server's state is no longer the last move sent: the same target must be sent again.
-        this.coalescer.reset();
-        this.historyBusy = false;
-        this.updateUndoButtons();
-        this.frames.recolor();
-        this.renderGroups();
-        this.updateReady();
-        this.placeGizmo();
-      }
-    };
-    this.historyChain = this.historyChain.then(run, run);
-    return this.historyChain;
-  }
-
-  undoRedo(redo: boolean): void {
-    if (this.session?.role !== "edit" || this.session.gone) return;
-    this.modal.close();
-    void this.runHistoryOp(() => this.stepHistory(redo), redo ? "Redo failed" : "Undo failed", "move");
-  }
-
-  /** One step of the page's history (timeline.ts says how it stays exact). */
-  private async stepHistory(redo: boolean): Promise<void> {
-    const s = this.session!;
-    const to = this.timeline.target(redo);
-    const from = this.timeline.current;
-    if (!to || !from) return;
-    let plan = this.timeline.plan(to, s.state.revision, this.appliedSpecs());
-    if (plan.setGroups || plan.shape.kind === "restore" || plan.shape.kind === "solve") {
-      await this.captureRevisions();
-      plan = this.timeline.plan(to, s.state.revision, this.appliedSpecs());
-    }
-    const fromPos = this.serverPos;
-    if (plan.setGroups) await this.setHandlesRaw(plan.setGroups);
-    this.settings.applySettings(to.settings);
-    const live = this.timeline.live;
-    const states = to.epoch === live ? cloneStates(to.states) : plan.setGroups && plan.shape.kind === "none" ? identityStates(s.groups.length) : this.rebase(to);
-    const shape = plan.shape;
-    if (shape.kind === "history") {
-      const r = await this.historyMove({ history: shape.action === "undo" ? HistoryAction.UNDO : HistoryAction.REDO });
-      this.onMoveResult(r, null);
-      to.revision = Number(r.result?.revision ?? -1);
-      if (this.serverPos !== to.serverPos) {
-        // The server's history was not where the page thought (it drops its oldest steps past
-        // 100): put the state back by its positions instead.
-        await this.restoreOrSolve(to, states, fromPos);
-      }
-    } else if (shape.kind === "restore" || shape.kind === "solve") {
-      await this.restoreOrSolve(to, states, plan.setGroups ? 0 : fromPos);
-    } else if (plan.setGroups) {
-      to.epoch = live;
-      to.serverPos = 0;
-      to.revision = s.state.revision;
-    }
-    this.states = states;
-    to.states = cloneStates(states);
-    // The painted groups of that state.
-    s.draft = new GroupSet(s.state.vertexCount, to.draft ?? this.appliedSpecs());
-    s.draft.select(this.handleIndices()[0] ?? -1);
-    this.dirty = !s.draft.equals(this.appliedSpecs());
-    this.timeline.step(redo);
-    if (to.revision !== null) await this.waitForRevision(s, to.revision);
-  }
-
-  /** Commits `to`'s kept positions again (restore_revision) with `states` as its moves, or, when
-   * the server no longer keeps them, solves for those moves. */
-  private async restoreOrSolve(to: Entry, states: GroupStates, fromPos: number): Promise<void> {
-    let r: MoveHandlesResponse | null = null;
-    if (to.revision !== null) {
-      try {
-        r = await this.historyMove({ moves: this.groupMoves(states), restoreRevision: BigInt(to.revision) });
-      } catch (e) {
-        if (errorCode(e) !== Code.FailedPrecondition) throw e;
-        r = null; // no longer kept: solve
-      }
-    }
-    if (!r) {
-      this.banner.status("That step's shape is no longer kept by the server: solved again (close to it, not exact)");
-      r = await this.historyMove({ moves: this.groupMoves(states) });
-    }
-    this.onMoveResult(r, null);
-    this.timeline.recorded(to, this.serverPos, fromPos);
-    to.revision = Number(r.result?.revision ?? -1);
-  }
-
-  /** `e`'s moves re-expressed about the live anchors: each group's targets (its moves applied to
-   * its own epoch's anchors) fitted by a similarity of the live anchors. */
-  private rebase(e: Entry): GroupStates {
-    const s = this.session!;
-    const ep = this.timeline.epoch(e.epoch);
-    return s.groups.map((g, i) => {
-      if (g.role !== HandleRole.HANDLE || !ep || !ep.anchors[i] || !e.states[i]) return identityStates(1)[0];
-      const from = ep.anchors[i];
-      const c = centroidOfRows(from)!;
-      const targets: number[] = [];
-      for (let k = 0; k < from.length; k += 3) targets.push(...applyMove(e.states[i], [c.x, c.y, c.z], [from[k], from[k + 1], from[k + 2]]));
-      return fitSimilarity(s.anchors[i].positions, targets);
-    });
-  }
-
-  /** A cancelled G / R / S command whose moves reached the server: its step undone there. */
-  private revertModal(base: GroupStates): void {
-    void this.runHistoryOp(async () => {
-      const cur = this.timeline.current;
-      if (this.serverPos === (cur?.serverPos ?? -1) + 1 && cur && cur.epoch === this.timeline.live) {
-        const r = await this.historyMove({ history: HistoryAction.UNDO });
-        this.onMoveResult(r, null);
-      } else if (cur?.revision !== null && cur) {
-        const r = await this.historyMove({ moves: this.groupMoves(base), restoreRevision: BigInt(cur.revision) });
-        this.onMoveResult(r, null);
-        this.timeline.recorded(cur, this.serverPos, this.serverPos - 1);
-        cur.revision = Number(r.result?.revision ?? -1);
-      }
-      this.states = cloneStates(base);
-    }, "Cancel failed", "move");
-  }
-
   // ---------- keys ----------
 
   private onKey(e: KeyboardEvent): void {
@@ -1051,12 +854,12 @@ class App {
     }
     if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "z") {
       e.preventDefault();
-      this.undoRedo(e.shiftKey);
+      this.history.undoRedo(e.shiftKey);
       return;
     }
     if ((e.ctrlKey || e.metaKey) && e.key.toLowerCase() === "y") {
       e.preventDefault();
-      this.undoRedo(true);
+      this.history.undoRedo(true);
       return;
     }
     const view = !e.altKey && !e.metaKey ? viewForKey(e.code, e.key, e.ctrlKey) : null;
@@ -1123,7 +926,7 @@ class App {
       this.afterDraftChange();
     });
     $("delete-group").addEventListener("click", () => void this.deleteGroup(this.session?.draft.selected ?? -1));
-    $("reset-rest").addEventListener("click", () => void this.resetToRest());
+    $("reset-rest").addEventListener("click", () => void this.history.resetToRest());
     const radius = () => ($("brush-radius-val").textContent = `${(Number($in("brush-radius").value) * 100).toFixed(1)}% of size`);
     $in("brush-radius").addEventListener("input", radius);
     radius();
@@ -1134,8 +937,8 @@ class App {
     $("view-front").addEventListener("click", () => this.viewer.setView("front"));
     $("view-side").addEventListener("click", () => this.viewer.setView("right"));
     $("view-top").addEventListener("click", () => this.viewer.setView("top"));
-    $("undo").addEventListener("click", () => this.undoRedo(false));
-    $("redo").addEventListener("click", () => this.undoRedo(true));
+    $("undo").addEventListener("click", () => this.history.undoRedo(false));
+    $("redo").addEventListener("click", () => this.history.undoRedo(true));
     window.addEventListener("keydown", (e) => this.onKey(e));
     $("share").addEventListener("click", () => this.toggleShare());
     for (const b of document.querySelectorAll<HTMLButtonElement>("[data-copy]")) {
