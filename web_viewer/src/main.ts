@@ -1,14 +1,12 @@
-// Wiring: session lifecycle, moves, tools and the test hooks (the G/R/S commands, the Watch worker
-// and its frames on screen, the undo history, file transfers, the address settings and the
-// settings panel are in app/).
+// Wiring: session lifecycle, moves and the test hooks (the G/R/S commands, the Watch worker and
+// its frames on screen, the undo history, the handle groups with the tools and painting, file
+// transfers, the address settings and the settings panel are in app/).
 import * as THREE from "three";
-import { create } from "@bufbuild/protobuf";
-import { Code, ConnectError, createContextValues } from "@connectrpc/connect";
+import { Code, ConnectError } from "@connectrpc/connect";
 import {
-  HandleGroupSchema, HandleRole, MeshFormat,
-  type CreateSessionResponse, type HandleGroup, type MoveHandlesResponse, type SessionInfo, type SetHandlesResponse,
+  HandleRole, MeshFormat,
+  type CreateSessionResponse, type MoveHandlesResponse, type SessionInfo,
 } from "./gen/meshdeform/v1/deformation_pb";
-import { kSessionId } from "./client";
 import { progressText, readWithProgress } from "./progress";
 import { MoveCoalescer } from "./coalescer";
 import { rampCss } from "./distortion";
@@ -17,21 +15,19 @@ import { GroupSet, groupColor, type GroupSpec } from "./groups";
 import { parseGlb } from "./glb";
 import { newGesture, settingsView } from "./edit_state";
 import { derive, Timeline, type Entry } from "./timeline";
-import { Interaction, type HandleGroupView, type PickHit, type Tool } from "./interaction";
+import { Interaction, type PickHit } from "./interaction";
 import {
-  applyMove, cloneStates, identityStates, planReset, statesKey, toGroupMove,
+  applyMove, cloneStates, statesKey, toGroupMove,
   type GroupStates,
 } from "./moves";
-import { buildAdjacency, components, farSide, pickGroups } from "./pick";
+import { pickGroups } from "./pick";
 import { Viewer3D } from "./scene";
-import { SelectionState, type PaintMode } from "./selection";
+import { SelectionState } from "./selection";
 import { formatHash, parseLink, shareLink, type Credentials } from "./share";
-import { Banner, $, $btn, $in, $sel } from "./ui/dom";
-import { renderGroupList } from "./ui/groupsPanel";
+import { Banner, $, $in } from "./ui/dom";
 import { showCounts } from "./ui/metrics";
 import { dismissFirstHint, hideLinkProblem, showFirstHint, showLinkProblem } from "./ui/notice";
 import { ColorPainter } from "./ui/colors";
-import { clearStateNotice, showStateNotice, type NoticeAction } from "./ui/stateNotice";
 import { decoderReady, PositionState } from "./updates";
 import { viewForKey } from "./views";
 import { DragToFrame } from "./frame_latency";
@@ -40,9 +36,10 @@ import { ModalTransform } from "./app/modal_transform";
 import { createSessionFromFile, downloadMesh, formatOfName } from "./app/mesh_files";
 import { client, EDIT_CONTROLS, GONE_TEXT, LAMBDA, query } from "./app/config";
 import { FramesView } from "./app/frames_view";
+import { GroupsController } from "./app/groups_controller";
 import { HistorySync } from "./app/history_sync";
 import { SettingsPanel } from "./app/settings_panel";
-import { centroidOfRows, type MoveTarget, type PendingPick, type Session } from "./app/session";
+import type { MoveTarget, PendingPick, Session } from "./app/session";
 import "./style.css";
 
 class App {
@@ -54,23 +51,21 @@ class App {
   interaction!: Interaction;
   colors!: ColorPainter;
   session: Session | null = null;
-  tool: Tool = "move";
   /** Every applied group's move (identity for fixed groups), absolute from its anchors. */
   states: GroupStates = [];
   readonly timeline = new Timeline();
-  dirty = false; // the painted groups differ from the applied ones
   readonly modal = new ModalTransform({
     viewer: () => this.viewer,
     states: () => this.states,
     setStates: (st) => { this.states = st; },
-    blocked: () => ({ dirty: this.dirty, busy: this.history.busy || !!this.pendingPick }),
+    blocked: () => ({ dirty: this.groups.dirty, busy: this.history.busy || !!this.pendingPick }),
     lastPointer: () => this.interaction.lastPointer,
-    selectedHandle: () => this.selectedHandle(),
-    handleIndices: () => this.handleIndices(),
-    selectGroup: (i) => this.selectGroup(i),
+    selectedHandle: () => this.groups.selectedHandle(),
+    handleIndices: () => this.groups.handleIndices(),
+    selectGroup: (i) => this.groups.selectGroup(i),
     explainBlocked: () => {
-      if (this.dirty) this.updateReady();
-      else if (this.handleIndices().length === 0) this.banner.message("Nothing to move with G, R or S yet: pick a point and drag it (Grab), or paint a handle.");
+      if (this.groups.dirty) this.groups.updateReady();
+      else if (this.groups.handleIndices().length === 0) this.banner.message("Nothing to move with G, R or S yet: pick a point and drag it (Grab), or paint a handle.");
     },
     anchorCentroid: (i) => this.session?.anchors[i]?.centroid ?? null,
     newGestureEntry: () => this.newGestureEntry(),
@@ -93,7 +88,6 @@ class App {
   private pendingPick: PendingPick | null = null;
   private sessionStatus = "";
   private targetTimer: ReturnType<typeof setTimeout> | undefined;
-  noticeText = "";
   readonly metrics: PageMetrics = newPageMetrics();
   private readonly dragToFrame = new DragToFrame(this.metrics.dragToFrameMs);
   private readonly settings: SettingsPanel = new SettingsPanel({
@@ -129,34 +123,60 @@ class App {
     session: () => this.session,
     states: () => this.states,
     setStates: (st) => { this.states = st; },
-    dirty: () => this.dirty,
+    dirty: () => this.groups.dirty,
     closeModal: () => this.modal.close(),
     fail: (prefix, e, action) => this.fail(prefix, e, action),
-    handleIndices: () => this.handleIndices(),
-    appliedSpecs: () => this.appliedSpecs(),
-    applyHandles: () => this.applyHandles(),
-    setHandlesRaw: (specs) => this.setHandlesRaw(specs),
-    setHandles: (specs, capture) => this.setHandles(specs, capture),
-    showDraft: (specs) => this.showDraft(specs),
+    handleIndices: () => this.groups.handleIndices(),
+    appliedSpecs: () => this.groups.appliedSpecs(),
+    applyHandles: () => this.groups.applyHandles(),
+    setHandlesRaw: (specs) => this.groups.setHandlesRaw(specs),
+    setHandles: (specs, capture) => this.groups.setHandles(specs, capture),
+    showDraft: (specs) => this.groups.showDraft(specs),
     groupMoves: (st) => this.groupMoves(st),
     settingsRequest: () => this.settings.request(),
     currentSettings: () => this.settings.currentSettings(),
     applySettings: (st) => this.settings.applySettings(st),
     recolor: () => this.frames.recolor(),
-    renderGroups: () => this.renderGroups(),
-    updateReady: () => this.updateReady(),
+    renderGroups: () => this.groups.renderGroups(),
+    updateReady: () => this.groups.updateReady(),
     placeGizmo: () => this.placeGizmo(),
   });
 
+  private readonly groups: GroupsController = new GroupsController({
+    banner: this.banner, hooks: this.hooks, timeline: this.timeline, coalescer: this.coalescer,
+    session: () => this.session,
+    viewer: () => this.viewer,
+    states: () => this.states,
+    setStates: (st) => { this.states = st; },
+    meshScale: () => this.meshScale(),
+    setStatus: (text) => this.setStatus(text),
+    fail: (prefix, e, action) => this.fail(prefix, e, action),
+    method: () => this.settings.method(),
+    currentSettings: () => this.settings.currentSettings(),
+    updateMethodAvailability: () => this.settings.updateMethodAvailability(),
+    resolveWithSettings: () => this.resolveWithSettings(),
+    captureRevisions: () => this.history.captureRevisions(),
+    historyRestarted: () => this.history.restarted(),
+    undo: () => this.history.undoRedo(false),
+    updateUndoButtons: () => this.history.updateButtons(),
+    recolor: () => this.frames.recolor(),
+    placeGizmo: () => this.placeGizmo(),
+  });
+
+  /** The state notice shown (the test hooks read it). */
+  get noticeText(): string {
+    return this.groups.noticeText;
+  }
+
   start(): void {
     this.interaction = new Interaction(() => this.viewer, this.canvas, {
-      tool: () => this.tool,
+      tool: () => this.groups.tool,
       canEdit: () => this.canEdit(),
-      canMove: () => !this.dirty && !this.history.busy && !this.pendingPick,
+      canMove: () => !this.groups.dirty && !this.history.busy && !this.pendingPick,
       positions: () => this.session?.state.positions ?? null,
-      handleGroups: () => this.handleGroupViews(),
+      handleGroups: () => this.groups.handleGroupViews(),
       groupOf: (v) => this.session?.draft.groupOf(v) ?? -1,
-      select: (g) => this.selectGroup(g),
+      select: (g) => this.groups.selectGroup(g),
       dragStart: (g) => this.dragStart(g),
       dragMove: (d, t0) => this.dragMove(d, t0),
       dragEnd: () => this.dragEnd(),
@@ -170,9 +190,9 @@ class App {
       modalPointer: (x, y) => this.modal.pointer(x, y),
       modalConfirm: () => this.modal.confirm(),
       modalCancel: () => this.modal.cancel(),
-      paintStart: (extend) => this.paintStart(extend),
-      paint: (ix) => this.paint(ix),
-      paintEnd: () => this.paintEnd(),
+      paintStart: (extend) => this.groups.paintStart(extend),
+      paint: (ix) => this.groups.paint(ix),
+      paintEnd: () => this.groups.paintEnd(),
       brushRadius: () => Number($in("brush-radius").value) * this.meshScale(),
       inputDelay: (ms) => { if (this.metrics.inputDelayMs.length < 100_000) this.metrics.inputDelayMs.push(ms); },
     }, $("lasso-line") as unknown as SVGPolylineElement);
@@ -228,10 +248,9 @@ class App {
     this.hooks.ready = false;
     this.setEditEnabled(false);
     $("role").textContent = this.session ? "Session gone" : "No session";
-    this.renderGroups();
+    this.groups.renderGroups();
     this.banner.status("No session open");
-    clearStateNotice();
-    this.noticeText = "";
+    this.groups.clearNotice();
     showLinkProblem(detail, () => {
       // Same page without the fragment: a fresh demo session (the query, e.g. ?sample=, is kept).
       location.assign(location.pathname + location.search);
@@ -269,9 +288,9 @@ class App {
     const creds = { sessionId: r.sessionId, token: r.editToken };
     await this.load(creds, "edit", r.info!, r.viewToken, r.editToken);
     if (r.suggestedGroups.length) {
-      await this.setHandles(r.suggestedGroups.map((g) => ({ role: g.role === HandleRole.FIXED ? "fixed" as const : "handle" as const, vertices: [...g.vertices] })));
+      await this.groups.setHandles(r.suggestedGroups.map((g) => ({ role: g.role === HandleRole.FIXED ? "fixed" as const : "handle" as const, vertices: [...g.vertices] })));
     }
-    this.startTool();
+    this.groups.startTool();
     history.replaceState(null, "", location.pathname + location.search + formatHash(creds));
   }
 
@@ -283,7 +302,7 @@ class App {
     // The server hands out the groups' anchors, settings and undo history: the page continues
     // exactly where the last one left off, without setting the handles again.
     await this.load(creds, role, info, r.canEdit ? r.viewToken : creds.token, r.canEdit ? creds.token : null);
-    this.startTool();
+    this.groups.startTool();
   }
 
   /** Loads faces + rest positions, switches the screen to this session, opens Watch. */
@@ -332,7 +351,7 @@ class App {
       s.selection.clear();
       s.selection.paint(settings.magnifyVertices.filter((v) => v < n), "magnify");
     }
-    this.adoptGroups(info.groups, info.groupAnchors);
+    this.groups.adoptGroups(info.groups, info.groupAnchors);
     // The session's undo history and the groups' current moves, as the server keeps them.
     this.history.restore(s, info, n);
     this.settings.updateMethodAvailability();
@@ -341,14 +360,8 @@ class App {
     this.frames.startStream(s, mesh.indices);
     await gotSnapshot;
     // Opened at revision 0 (the normal case for a new session): the groups' anchors are the rest pose.
-    s.anchorsAtRest = (restKnown && s.state.revision === 0) || (restKnown && this.anchorsAreRest(s));
-    this.updateReady();
-  }
-
-  /** Nothing to drag on a mesh without groups (an upload): start with pick and drag. */
-  private startTool(): void {
-    const s = this.session;
-    if (s && s.role === "edit" && !s.gone && s.groups.length === 0 && s.draft.size === 0) this.setTool("grab");
+    s.anchorsAtRest = (restKnown && s.state.revision === 0) || (restKnown && this.groups.anchorsAreRest(s));
+    this.groups.updateReady();
   }
 
   private closeCurrent(): void {
@@ -378,7 +391,7 @@ class App {
       this.settings.showRigidity();
       this.settings.updateMethodAvailability();
       this.history.updateButtons();
-      this.updateGroupButtons();
+      this.groups.updateGroupButtons();
     }
   }
 
@@ -387,293 +400,13 @@ class App {
     this.banner.status(text);
   }
 
-  /** Readiness, the tool hint and the state notice: what is missing and the way out of it. */
-  private updateReady(): void {
-    const s = this.session;
-    this.hooks.ready = !!s && !s.gone && s.state.hasSnapshot && this.handleIndices().length > 0 && !this.dirty;
-    const edit = !!s && s.role === "edit" && !s.gone;
-    const hint = $("hint");
-    hint.hidden = true;
-    if (!s || !edit) {
-      clearStateNotice();
-      this.noticeText = "";
-      this.updateGroupButtons();
-      this.placeGizmo();
-      return;
-    }
-    const actions: NoticeAction[] = [];
-    let text = "";
-    const pick: NoticeAction = { id: "notice-pick", label: "Pick & drag", run: () => this.setTool("grab") };
-    const problem = s.draft.validate();
-    if (s.draft.size === 0) {
-      text = this.tool === "grab"
-        ? "Nothing to drag yet: press on the mesh and drag. A handle forms around the point (its size: the wheel over the mesh, or Grab radius) and the far side stays fixed."
-        : "Nothing to drag yet: pick a point and drag it, or paint a fixed region and a handle (Brush or Lasso).";
-      if (this.tool !== "grab") actions.push(pick);
-    } else if (problem && s.draft.roles().every((r) => r === "fixed")) {
-      text = "No handle group: nothing can move. Pick a point on the mesh and drag it, or paint a handle (Brush, mode handle).";
-      if (this.tool !== "grab") actions.push(pick);
-      if (this.timeline.canUndo) actions.push({ id: "notice-undo", label: "Undo", run: () => this.history.undoRedo(false) });
-    } else if (problem) {
-      text = "No fixed region: a handle alone would carry the whole mesh along. Fix the side of the mesh away from the handles, or paint a fixed region.";
-      actions.push({ id: "notice-fix-far", label: "Fix the far side", run: () => void this.fixFarSide() });
-      if (this.timeline.canUndo) actions.push({ id: "notice-undo", label: "Undo", run: () => this.history.undoRedo(false) });
-    } else if (this.dirty) {
-      text = this.tool === "move"
-        ? "The painted groups are not applied yet: apply them to drag."
-        : "The painted groups are not applied yet: apply them (or switch to Move) to drag.";
-      actions.push({ id: "notice-apply", label: "Apply handles", run: () => void this.applyHandles() });
-    }
-    if (text) showStateNotice(text, actions);
-    else clearStateNotice();
-    this.noticeText = text;
-    this.updateGroupButtons();
-    this.placeGizmo();
-  }
-
-  // ---------- handle groups ----------
-
-  /** Indices (into the applied groups) of the HANDLE groups. */
-  private handleIndices(): number[] {
-    const out: number[] = [];
-    this.session?.groups.forEach((g, i) => { if (g.role === HandleRole.HANDLE) out.push(i); });
-    return out;
-  }
-
-  private isHandle(i: number): boolean {
-    return this.session?.groups[i]?.role === HandleRole.HANDLE;
-  }
-
-  /** The selected group if it is an applied handle group (moves, gizmo, G/R/S), else -1. */
-  private selectedHandle(): number {
-    const s = this.session;
-    if (!s || this.dirty) return -1;
-    const i = s.draft.selected;
-    return this.isHandle(i) ? i : -1;
-  }
-
-  /** Adopts the applied groups; their anchors are `anchors` (the server's, 3 per vertex in group
-   * order) when given, else the positions on screen (right after SetHandles they are the same). */
-  private adoptGroups(groups: HandleGroup[], anchors?: number[]): void {
-    const s = this.session!;
-    const prevSelected = s.draft.selected;
-    s.groups = groups.map((g) => create(HandleGroupSchema, { role: g.role, vertices: [...g.vertices] }));
-    s.draft = new GroupSet(s.state.vertexCount, this.appliedSpecs());
-    s.draft.select(prevSelected >= 0 && prevSelected < s.groups.length ? prevSelected : this.handleIndices()[0] ?? -1);
-    const total = s.groups.reduce((n, g) => n + g.vertices.length, 0);
-    const fromServer = anchors && anchors.length === 3 * total ? anchors : null;
-    const p = s.state.positions;
-    let row = 0;
-    s.anchors = s.groups.map((g) => {
-      const a = new Float32Array(g.vertices.length * 3);
-      if (fromServer) {
-        a.set(fromServer.slice(row * 3, (row + g.vertices.length) * 3));
-        row += g.vertices.length;
-      } else {
-        g.vertices.forEach((v, k) => a.set(p.subarray(v * 3, v * 3 + 3), k * 3));
-      }
-      return { centroid: centroidOfRows(a), positions: a };
-    });
-    this.dirty = false;
-    this.renderGroups();
-  }
-
-  /** True when every group's anchor is its rest position (to float precision): identity moves
-   * then give the rest pose, and Reset can use them. */
-  private anchorsAreRest(s: Session): boolean {
-    const tol = 1e-6 * Math.max(this.meshScale(), 1e-12);
-    return s.groups.every((g, i) => g.vertices.every((v, k) =>
-      [0, 1, 2].every((c) => Math.abs(s.anchors[i].positions[k * 3 + c] - s.rest[v * 3 + c]) <= tol)));
-  }
-
-  private appliedSpecs(): GroupSpec[] {
-    return (this.session?.groups ?? []).map((g) => ({ role: g.role === HandleRole.FIXED ? "fixed" : "handle", vertices: [...g.vertices] }));
-  }
-
-  /** SetHandles for `specs` on the current shape: a new epoch of the history (not a step). */
-  private async setHandlesRaw(specs: GroupSpec[]): Promise<void> {
-    const s = this.session!;
-    const groups = specs.map((g) => create(HandleGroupSchema, { role: g.role === "fixed" ? HandleRole.FIXED : HandleRole.HANDLE, vertices: g.vertices }));
-    await this.banner.progress("Factorizing…", async () => {
-      this.banner.status("Factorizing…");
-      const t = performance.now();
-      // The streaming form reports the precompute's phases (seconds on a big mesh).
-      const r = await readWithProgress<SetHandlesResponse>(
-        client.setHandlesWithProgress(
-          { sessionId: s.creds.sessionId, token: s.creds.token, groups, prepare: this.settings.method() },
-          { contextValues: createContextValues().set(kSessionId, s.creds.sessionId) },
-        ),
-        (p) => this.banner.status(progressText("Factorizing…", p)),
-      );
-      const nh = groups.filter((g) => g.role === HandleRole.HANDLE).length;
-      this.setStatus(`Handles set (${nh} handle group${nh === 1 ? "" : "s"}, ${groups.length - nh} fixed) in ${((performance.now() - t) / 1000).toFixed(2)} s — drag a handle`);
-      s.anchorsAtRest = s.state.revision === 0 && s.restKnown;
-      this.adoptGroups(r.info?.groups.length ? r.info.groups : groups);
-    });
-    this.timeline.addEpoch({ groups: this.appliedSpecs(), anchors: s.anchors.map((a) => a.positions) });
-    this.states = identityStates(s.groups.length);
-    this.history.restarted();
-    this.coalescer.reset();
-  }
-
-  /** Sets new groups as a step of the history (the server's own history starts again). The
-   * first groups of a session start the history: there is no state without groups to go back to. */
-  private async setHandles(specs: GroupSpec[], capture = true): Promise<void> {
-    const s = this.session!;
-    await this.coalescer.idle();
-    const first = s.groups.length === 0;
-    if (capture && !first && this.timeline.current) await this.history.captureRevisions();
-    await this.setHandlesRaw(specs);
-    if (first) this.timeline.clearEntries();
-    this.timeline.push({
-      epoch: this.timeline.live, serverPos: 0, states: cloneStates(this.states), settings: this.settings.currentSettings(), draft: null,
-      revision: s.state.revision,
-    });
-    this.history.updateButtons();
-    this.frames.recolor();
-    this.updateReady();
-    if (this.tool !== "move" && this.tool !== "grab") this.setTool("move");
-  }
-
-  /** Sends the painted groups (SetHandles). Returns false if they are not valid or the call failed. */
-  private async applyHandles(): Promise<boolean> {
-    const s = this.session;
-    if (!s || s.role !== "edit" || s.gone) return false;
-    const msg = s.draft.validate();
-    if (msg) {
-      this.updateReady(); // the notice says what is missing, with its way out
-      return false;
-    }
-    this.banner.clearError();
-    try {
-      await this.setHandles(s.draft.specs());
-      return true;
-    } catch (e) {
-      this.fail("Apply handles failed", e, "handles");
-      return false;
-    }
-  }
-
-  private selectGroup(i: number): void {
-    const s = this.session;
-    if (!s) return;
-    s.draft.select(i);
-    this.renderGroups();
-    this.frames.recolor();
-    this.placeGizmo();
-  }
-
-  private async deleteGroup(i: number): Promise<void> {
-    const s = this.session;
-    if (!s || s.role !== "edit" || s.gone || i < 0 || i >= s.draft.size) return;
-    s.draft.delete(i);
-    // Deleting takes effect at once when the rest is a valid set; else the notice says what is
-    // missing (with one click to fix it, or undo).
-    if (!s.draft.validate()) {
-      this.banner.clearError();
-      try {
-        await this.setHandles(s.draft.specs());
-      } catch (e) {
-        this.fail("Delete failed", e, "handles");
-        this.afterDraftChange(); // not applied: the painted groups say so
-      }
-      return;
-    }
-    this.afterDraftChange();
-  }
-
-  /** The painted groups changed: a step of the history (undo brings them back). */
-  private afterDraftChange(): void {
-    const s = this.session;
-    if (!s) return;
-    this.dirty = !s.draft.equals(this.appliedSpecs());
-    const cur = this.timeline.current;
-    if (cur) this.timeline.push(derive(cur, { draft: this.dirty ? s.draft.specs() : null }));
-    this.renderGroups();
-    this.frames.recolor();
-    this.history.updateButtons();
-    this.updateReady();
-  }
-
-  /** A history state's painted groups (null: the applied ones), the first handle selected. */
-  private showDraft(specs: GroupSpec[] | null): void {
-    const s = this.session!;
-    s.draft = new GroupSet(s.state.vertexCount, specs ?? this.appliedSpecs());
-    s.draft.select(this.handleIndices()[0] ?? -1);
-    this.dirty = !s.draft.equals(this.appliedSpecs());
-  }
-
-  /** "Fix the far side": a fixed group on the side of each handle's part away from the handles. */
-  private async fixFarSide(): Promise<void> {
-    const s = this.session;
-    if (!s) return;
-    const topo = this.topology(s);
-    const specs = s.draft.specs();
-    const taken = new Set(specs.flatMap((g) => g.vertices));
-    const handles = specs.filter((g) => g.role === "handle").flatMap((g) => g.vertices);
-    if (handles.length === 0) return;
-    const c = centroidOfRows(handles.flatMap((v) => [...s.state.positions.subarray(v * 3, v * 3 + 3)]))!;
-    const comp = topo.components.id[handles[0]];
-    const far = farSide(s.state.positions, topo.components.id, comp, [c.x, c.y, c.z], (v) => taken.has(v));
-    if (far.length === 0) return;
-    s.draft.beginStroke("fixed", false);
-    s.draft.paint(far);
-    s.draft.endStroke();
-    this.afterDraftChange();
-    await this.applyHandles();
-  }
-
-  private renderGroups(): void {
-    const s = this.session;
-    const editable = !!s && s.role === "edit" && !s.gone;
-    renderGroupList(s?.draft ?? null, this.dirty, editable, { select: (i) => this.selectGroup(i), remove: (i) => void this.deleteGroup(i) });
-    this.hooks.selectedGroup = s?.draft.selected ?? -1;
-    this.updateGroupButtons();
-  }
-
-  private updateGroupButtons(): void {
-    const s = this.session;
-    const edit = !!s && s.role === "edit" && !s.gone;
-    $btn("delete-group").disabled = !edit || s!.draft.selected < 0;
-    const plan = s ? planReset(s.restKnown, s.anchorsAtRest) : "unavailable";
-    $btn("reset-rest").disabled = !edit || this.handleIndices().length === 0 || plan === "unavailable";
-    $btn("reset-rest").title = plan === "unavailable"
-      ? "The server no longer keeps this session's rest mesh (revision 0), so the rest pose is unknown here."
-      : "Every handle back to its rest position; the mesh returns to the rest pose exactly (undoable)";
-  }
-
-  private centroidOf(vs: ArrayLike<number>): THREE.Vector3 | null {
-    const p = this.session?.state.positions;
-    if (!p || vs.length === 0) return null;
-    const c = new THREE.Vector3();
-    for (let k = 0; k < vs.length; k++) c.add(new THREE.Vector3(p[vs[k] * 3], p[vs[k] * 3 + 1], p[vs[k] * 3 + 2]));
-    return c.divideScalar(vs.length);
-  }
-
-  /** The applied handle groups with their rendered centroids, the selected one first. */
-  private handleGroupViews(): HandleGroupView[] {
-    const s = this.session;
-    if (!s) return [];
-    const sel = this.selectedHandle();
-    const idx = this.handleIndices().sort((a, b) => (a === sel ? -1 : b === sel ? 1 : a - b));
-    return idx.map((i) => ({ index: i, vertices: s.groups[i].vertices, centroid: this.centroidOf(s.groups[i].vertices) }));
-  }
-
-  private topology(s: Session): NonNullable<Session["topology"]> {
-    if (!s.topology) {
-      const adjacency = buildAdjacency(s.indices, s.state.vertexCount);
-      s.topology = { adjacency, components: components(adjacency, s.state.vertexCount) };
-    }
-    return s.topology;
-  }
-
   // ---------- settings ----------
 
   /** A setting changed: solve again with it, as a step of the history (the server also keeps it
    * for the next page that opens the session). */
   private resolveWithSettings(): void {
     const cur = this.timeline.current;
-    if (this.handleIndices().length === 0 || !cur || this.dirty) return;
+    if (this.groups.handleIndices().length === 0 || !cur || this.groups.dirty) return;
     const entry = derive(cur, { settings: this.settings.currentSettings(), serverPos: -1, revision: null, draft: null });
     this.submitMove(this.states, performance.now(), { force: true, entry });
     this.timeline.push(entry);
@@ -684,7 +417,7 @@ class App {
 
   private submitMove(states: GroupStates, t0: number, o: { force?: boolean; gesture?: bigint; entry?: Entry | null } = {}): void {
     const s = this.session;
-    if (!s || s.gone || this.handleIndices().length === 0 || s.role !== "edit") return;
+    if (!s || s.gone || this.groups.handleIndices().length === 0 || s.role !== "edit") return;
     this.states = cloneStates(states);
     this.coalescer.submit({ states: cloneStates(states), t0, opts: this.settings.optsKey(), gesture: o.gesture ?? 0n, entry: o.entry ?? null }, o.force ?? false);
     this.scheduleTargetGhost();
@@ -693,7 +426,7 @@ class App {
   /** The moves of every handle group about the live anchors (moves are absolute). */
   private groupMoves(states: GroupStates) {
     const s = this.session!;
-    return this.handleIndices().map((i) => {
+    return this.groups.handleIndices().map((i) => {
       const c = s.anchors[i]?.centroid ?? new THREE.Vector3();
       return toGroupMove(i, states[i], [c.x, c.y, c.z]);
     });
@@ -746,7 +479,7 @@ class App {
       if (!pick.applied) return;
     }
     const i = this.dragGroup;
-    if (!this.isHandle(i)) return;
+    if (!this.groups.isHandle(i)) return;
     const st = cloneStates(this.dragBase);
     const b = this.dragBase[i].translation;
     st[i].translation = [b[0] + delta.x, b[1] + delta.y, b[2] + delta.z];
@@ -772,7 +505,7 @@ class App {
     this.dragEntry = null;
     this.dragSent = false;
     this.history.updateButtons();
-    this.updateReady();
+    this.groups.updateReady();
   }
 
   // ---------- pick and drag ----------
@@ -798,9 +531,9 @@ class App {
   /** A press on the mesh with Grab: the groups it adds are set, and the drag goes on meanwhile. */
   private pickStart(hit: PickHit): boolean {
     const s = this.session;
-    if (!s || this.dirty || this.history.busy) return false;
-    const topo = this.topology(s);
-    const specs = this.appliedSpecs();
+    if (!s || this.groups.dirty || this.history.busy) return false;
+    const topo = this.groups.topology(s);
+    const specs = this.groups.appliedSpecs();
     const res = pickGroups({
       positions: s.state.positions, adjacency: topo.adjacency, components: topo.components, groupOf: (v) => s.draft.groupOf(v),
       roles: specs.map((g) => g.role), point: [hit.point.x, hit.point.y, hit.point.z], faceVertices: hit.face, radius: this.grabRadius(),
@@ -820,7 +553,7 @@ class App {
     dismissFirstHint();
     void (async () => {
       try {
-        await this.setHandles(next);
+        await this.groups.setHandles(next);
       } catch (e) {
         pick.failed = true;
         this.pendingPick = null;
@@ -828,7 +561,7 @@ class App {
         return;
       }
       if (this.pendingPick !== pick) return;
-      this.selectGroup(handleIndex);
+      this.groups.selectGroup(handleIndex);
       this.dragBase = cloneStates(this.states);
       this.dragGroup = handleIndex;
       this.dragGesture = newGesture();
@@ -878,7 +611,7 @@ class App {
         const i = this.session!.draft.selected;
         if (i >= 0) {
           e.preventDefault();
-          void this.deleteGroup(i);
+          void this.groups.deleteGroup(i);
         }
       } else if (this.modal.start(e.key)) {
         e.preventDefault();
@@ -888,44 +621,19 @@ class App {
 
   // ---------- controls ----------
 
-  private setTool(t: Tool): void {
-    // Back to Move with painted changes: apply them (that is what the user wants to drag).
-    if ((t === "move" || t === "grab") && this.tool !== "move" && this.tool !== "grab" && this.dirty && this.session?.draft.validate() === null) {
-      this.tool = t;
-      void this.applyHandles();
-    }
-    this.tool = t;
-    this.hooks.tool = t;
-    for (const x of ["move", "grab", "brush", "lasso"] as const) $(`tool-${x}`).classList.toggle("on", x === t);
-    $("paint-opts").hidden = t === "move" || t === "grab";
-    $("gizmo-modes").hidden = t !== "move";
-    $("brush-radius-row").hidden = t !== "brush";
-    $("grab-radius-row").hidden = t !== "grab";
-    this.viewer.orbit.enabled = true;
-    if (t !== "grab") this.viewer.setGrabPreview(null, 0);
-    this.placeGizmo();
-    this.updateReady();
-  }
-
   private setGizmoMode(m: "translate" | "rotate" | "scale"): void {
     this.viewer.gizmo.setMode(m);
     for (const x of ["translate", "rotate", "scale"]) $(`gizmo-${x}`).classList.toggle("on", x === m);
   }
 
   private wireControls(): void {
-    for (const t of ["move", "grab", "brush", "lasso"] as const) $(`tool-${t}`).addEventListener("click", () => this.setTool(t));
+    for (const t of ["move", "grab", "brush", "lasso"] as const) $(`tool-${t}`).addEventListener("click", () => this.groups.setTool(t));
     $("gizmo-translate").addEventListener("click", () => this.setGizmoMode("translate"));
     $("gizmo-rotate").addEventListener("click", () => this.setGizmoMode("rotate"));
     $("gizmo-scale").addEventListener("click", () => this.setGizmoMode("scale"));
-    $("apply-handles").addEventListener("click", () => void this.applyHandles());
-    $("clear-selection").addEventListener("click", () => {
-      this.banner.clearError();
-      this.session?.selection.clear();
-      this.session?.draft.clear();
-      this.settings.updateMethodAvailability();
-      this.afterDraftChange();
-    });
-    $("delete-group").addEventListener("click", () => void this.deleteGroup(this.session?.draft.selected ?? -1));
+    $("apply-handles").addEventListener("click", () => void this.groups.applyHandles());
+    $("clear-selection").addEventListener("click", () => this.groups.clearSelection());
+    $("delete-group").addEventListener("click", () => void this.groups.deleteGroup(this.session?.draft.selected ?? -1));
     $("reset-rest").addEventListener("click", () => void this.history.resetToRest());
     const radius = () => ($("brush-radius-val").textContent = `${(Number($in("brush-radius").value) * 100).toFixed(1)}% of size`);
     $in("brush-radius").addEventListener("input", radius);
@@ -995,7 +703,7 @@ class App {
         const r = await createSessionFromFile(file, format, (text) => this.banner.status(text));
         const creds = { sessionId: r.sessionId, token: r.editToken };
         await this.load(creds, "edit", r.info!, r.viewToken, r.editToken);
-        this.startTool();
+        this.groups.startTool();
         history.replaceState(null, "", location.pathname + location.search + formatHash(creds));
         this.setStatus(`Uploaded ${file.name}: ${r.info!.vertices.toLocaleString("en")} vertices${r.weldedVertices ? `, ${r.weldedVertices} welded` : ""}`);
       });
@@ -1024,7 +732,7 @@ class App {
     g.attach(this.viewer.pivotObject);
     g.addEventListener("objectChange", () => {
       const o = this.viewer.pivotObject;
-      const i = this.selectedHandle();
+      const i = this.groups.selectedHandle();
       const c = i >= 0 ? this.session?.anchors[i]?.centroid : null;
       if (!c) return;
       // Uniform scale: take the axis the user pulled (largest change from the current scale).
@@ -1059,9 +767,9 @@ class App {
   private placeGizmo(): void {
     const s = this.session;
     const o = this.viewer.pivotObject;
-    const i = this.selectedHandle();
+    const i = this.groups.selectedHandle();
     const c = i >= 0 ? s?.anchors[i]?.centroid : null;
-    const show = !!c && s!.role === "edit" && !s!.gone && this.tool === "move" && !this.modal.active;
+    const show = !!c && s!.role === "edit" && !s!.gone && this.groups.tool === "move" && !this.modal.active;
     this.viewer.gizmo.getHelper().visible = show;
     this.viewer.gizmo.enabled = show;
     if (c && this.states[i]) {
@@ -1075,13 +783,13 @@ class App {
 
   private placeMarkers(): void {
     const s = this.session;
-    if (!s || s.role !== "edit" || s.gone || (this.tool !== "move" && this.tool !== "grab")) {
+    if (!s || s.role !== "edit" || s.gone || (this.groups.tool !== "move" && this.groups.tool !== "grab")) {
       this.viewer.setMarkers([]);
       return;
     }
-    const sel = this.selectedHandle();
+    const sel = this.groups.selectedHandle();
     const items = [];
-    for (const i of this.handleIndices()) {
+    for (const i of this.groups.handleIndices()) {
       const c = s.anchors[i]?.centroid;
       const t = this.states[i]?.translation;
       if (!c || !t) continue;
@@ -1097,7 +805,7 @@ class App {
       const s = this.session;
       if (!s || !this.coalescer.busy) return;
       const pts: number[] = [];
-      for (const i of this.handleIndices()) {
+      for (const i of this.groups.handleIndices()) {
         const a = s.anchors[i];
         const c = a?.centroid;
         if (!a || !c || !this.states[i]) continue;
@@ -1107,52 +815,6 @@ class App {
       }
       this.viewer.setTargets(Float32Array.from(pts));
     }, 250);
-  }
-
-  // ---------- painting ----------
-
-  private paintStart(extend: boolean): void {
-    const s = this.session;
-    const mode = $sel("paint-mode").value as PaintMode;
-    if (!s || (mode !== "fixed" && mode !== "handle")) return;
-    s.draft.beginStroke(mode, extend || $in("extend-group").checked);
-  }
-
-  private magnifyPainted = false;
-
-  private paint(ix: number[]): void {
-    const s = this.session;
-    if (!s) return;
-    const mode = $sel("paint-mode").value as PaintMode;
-    if (ix.length === 0) {
-      if (this.tool === "lasso") this.banner.message("The lasso selected no vertex facing the camera.");
-      return;
-    }
-    if (mode === "fixed" || mode === "handle") s.draft.paint(ix);
-    else if (mode === "erase") s.draft.erase(ix);
-    s.selection.paint(ix, mode);
-    if (mode === "magnify" || mode === "erase") this.magnifyPainted = true;
-    this.frames.recolor();
-  }
-
-  private paintEnd(): void {
-    const s = this.session;
-    if (!s) return;
-    s.draft.endStroke();
-    if (this.magnifyPainted) {
-      // The magnify region is a setting: one re-solve (one step) per stroke.
-      this.magnifyPainted = false;
-      this.settings.updateMethodAvailability();
-      this.dirty = !s.draft.equals(this.appliedSpecs());
-      if (!this.dirty) {
-        this.resolveWithSettings();
-        this.renderGroups();
-        this.frames.recolor();
-        this.updateReady();
-        return;
-      }
-    }
-    this.afterDraftChange();
   }
 
   private meshScale(): number {
@@ -1168,13 +830,13 @@ class App {
   }
 
   hookHandlePoint(): { x: number; y: number } | null {
-    const views = this.handleGroupViews();
+    const views = this.groups.handleGroupViews();
     return this.screenPoint(views[0]?.centroid ?? null);
   }
 
   hookGroupPoint(i: number): { x: number; y: number } | null {
     const g = this.session?.groups[i];
-    return g ? this.screenPoint(this.centroidOf(g.vertices)) : null;
+    return g ? this.screenPoint(this.groups.centroidOf(g.vertices)) : null;
   }
 
   hookVertexPoint(v: number): { x: number; y: number } | null {
