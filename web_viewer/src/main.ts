@@ -1,6 +1,6 @@
-// Wiring: session lifecycle, moves and the test hooks (the G/R/S commands, the Watch worker and
-// its frames on screen, the undo history, the handle groups with the tools and painting, file
-// transfers, the address settings and the settings panel are in app/).
+// Wiring: session lifecycle, keys and the test hooks (the G/R/S commands, the Watch worker and its
+// frames on screen, the undo history, the handle groups with the tools and painting, moves with
+// drags and the gizmo, file transfers, the address settings and the settings panel are in app/).
 import * as THREE from "three";
 import { Code, ConnectError } from "@connectrpc/connect";
 import {
@@ -11,16 +11,12 @@ import { progressText, readWithProgress } from "./progress";
 import { MoveCoalescer } from "./coalescer";
 import { rampCss } from "./distortion";
 import { errorCode, type Action } from "./errors";
-import { GroupSet, groupColor, type GroupSpec } from "./groups";
+import { GroupSet } from "./groups";
 import { parseGlb } from "./glb";
-import { newGesture, settingsView } from "./edit_state";
-import { derive, Timeline, type Entry } from "./timeline";
-import { Interaction, type PickHit } from "./interaction";
-import {
-  applyMove, cloneStates, statesKey, toGroupMove,
-  type GroupStates,
-} from "./moves";
-import { pickGroups } from "./pick";
+import { settingsView } from "./edit_state";
+import { Timeline } from "./timeline";
+import { Interaction } from "./interaction";
+import { statesKey, type GroupStates } from "./moves";
 import { Viewer3D } from "./scene";
 import { SelectionState } from "./selection";
 import { formatHash, parseLink, shareLink, type Credentials } from "./share";
@@ -38,8 +34,9 @@ import { client, EDIT_CONTROLS, GONE_TEXT, LAMBDA, query } from "./app/config";
 import { FramesView } from "./app/frames_view";
 import { GroupsController } from "./app/groups_controller";
 import { HistorySync } from "./app/history_sync";
+import { MovesController } from "./app/moves_controller";
 import { SettingsPanel } from "./app/settings_panel";
-import type { MoveTarget, PendingPick, Session } from "./app/session";
+import type { MoveTarget, Session } from "./app/session";
 import "./style.css";
 
 class App {
@@ -58,7 +55,7 @@ class App {
     viewer: () => this.viewer,
     states: () => this.states,
     setStates: (st) => { this.states = st; },
-    blocked: () => ({ dirty: this.groups.dirty, busy: this.history.busy || !!this.pendingPick }),
+    blocked: () => ({ dirty: this.groups.dirty, busy: this.history.busy || this.moves.picking }),
     lastPointer: () => this.interaction.lastPointer,
     selectedHandle: () => this.groups.selectedHandle(),
     handleIndices: () => this.groups.handleIndices(),
@@ -68,11 +65,11 @@ class App {
       else if (this.groups.handleIndices().length === 0) this.banner.message("Nothing to move with G, R or S yet: pick a point and drag it (Grab), or paint a handle.");
     },
     anchorCentroid: (i) => this.session?.anchors[i]?.centroid ?? null,
-    newGestureEntry: () => this.newGestureEntry(),
-    setGizmoMode: (m) => this.setGizmoMode(m),
+    newGestureEntry: () => this.moves.newGestureEntry(),
+    setGizmoMode: (m) => this.moves.setGizmoMode(m),
     opened: () => dismissFirstHint(),
-    placeGizmo: () => this.placeGizmo(),
-    submitMove: (st, t0, o) => this.submitMove(st, t0, o),
+    placeGizmo: () => this.moves.placeGizmo(),
+    submitMove: (st, t0, o) => this.moves.submitMove(st, t0, o),
     afterCommand: (entry) => {
       if (entry) this.timeline.push(entry);
       this.history.updateButtons();
@@ -85,15 +82,13 @@ class App {
       this.hooks.modal = text;
     },
   });
-  private pendingPick: PendingPick | null = null;
   private sessionStatus = "";
-  private targetTimer: ReturnType<typeof setTimeout> | undefined;
   readonly metrics: PageMetrics = newPageMetrics();
   private readonly dragToFrame = new DragToFrame(this.metrics.dragToFrameMs);
   private readonly settings: SettingsPanel = new SettingsPanel({
     session: () => this.session,
     viewer: () => this.viewer,
-    resolve: () => this.resolveWithSettings(),
+    resolve: () => this.moves.resolveWithSettings(),
     recolor: () => this.frames.recolor(),
     message: (text) => this.banner.message(text),
   });
@@ -108,13 +103,13 @@ class App {
     heatMetric: () => this.settings.heatMetric(),
     heatMax: (metric) => this.settings.heatMax(metric),
     markGone: (s, detail) => this.markGone(s, detail),
-    placeGizmo: () => this.placeGizmo(),
+    placeGizmo: () => this.moves.placeGizmo(),
   });
 
   readonly coalescer = new MoveCoalescer<MoveTarget, MoveHandlesResponse>({
     key: (t) => statesKey(t.states) + "|" + t.opts,
-    send: (t) => this.sendMove(t),
-    onResult: (r, t) => this.onMoveResult(r, t),
+    send: (t) => this.moves.send(t),
+    onResult: (r, t) => this.moves.onMoveResult(r, t),
     onError: (e) => this.fail("Move failed", e, "move"),
   });
 
@@ -132,14 +127,14 @@ class App {
     setHandlesRaw: (specs) => this.groups.setHandlesRaw(specs),
     setHandles: (specs, capture) => this.groups.setHandles(specs, capture),
     showDraft: (specs) => this.groups.showDraft(specs),
-    groupMoves: (st) => this.groupMoves(st),
+    groupMoves: (st) => this.moves.groupMoves(st),
     settingsRequest: () => this.settings.request(),
     currentSettings: () => this.settings.currentSettings(),
     applySettings: (st) => this.settings.applySettings(st),
     recolor: () => this.frames.recolor(),
     renderGroups: () => this.groups.renderGroups(),
     updateReady: () => this.groups.updateReady(),
-    placeGizmo: () => this.placeGizmo(),
+    placeGizmo: () => this.moves.placeGizmo(),
   });
 
   private readonly groups: GroupsController = new GroupsController({
@@ -154,13 +149,42 @@ class App {
     method: () => this.settings.method(),
     currentSettings: () => this.settings.currentSettings(),
     updateMethodAvailability: () => this.settings.updateMethodAvailability(),
-    resolveWithSettings: () => this.resolveWithSettings(),
+    resolveWithSettings: () => this.moves.resolveWithSettings(),
     captureRevisions: () => this.history.captureRevisions(),
     historyRestarted: () => this.history.restarted(),
     undo: () => this.history.undoRedo(false),
     updateUndoButtons: () => this.history.updateButtons(),
     recolor: () => this.frames.recolor(),
-    placeGizmo: () => this.placeGizmo(),
+    placeGizmo: () => this.moves.placeGizmo(),
+  });
+
+  private readonly moves: MovesController = new MovesController({
+    banner: this.banner, timeline: this.timeline, coalescer: this.coalescer, dragToFrame: this.dragToFrame,
+    session: () => this.session,
+    viewer: () => this.viewer,
+    interaction: () => this.interaction,
+    modalActive: () => this.modal.active,
+    states: () => this.states,
+    setStates: (st) => { this.states = st; },
+    tool: () => this.groups.tool,
+    dirty: () => this.groups.dirty,
+    historyBusy: () => this.history.busy,
+    handleIndices: () => this.groups.handleIndices(),
+    isHandle: (i) => this.groups.isHandle(i),
+    selectedHandle: () => this.groups.selectedHandle(),
+    appliedSpecs: () => this.groups.appliedSpecs(),
+    topology: (s) => this.groups.topology(s),
+    setHandles: (specs) => this.groups.setHandles(specs),
+    selectGroup: (i) => this.groups.selectGroup(i),
+    fail: (prefix, e, action) => this.fail(prefix, e, action),
+    optsKey: () => this.settings.optsKey(),
+    currentSettings: () => this.settings.currentSettings(),
+    settingsRequest: () => this.settings.request(),
+    answered: (r, t) => this.history.answered(r, t),
+    endCoarse: () => this.frames.endCoarse(),
+    updateUndoButtons: () => this.history.updateButtons(),
+    updateReady: () => this.groups.updateReady(),
+    meshScale: () => this.meshScale(),
   });
 
   /** The state notice shown (the test hooks read it). */
@@ -172,20 +196,20 @@ class App {
     this.interaction = new Interaction(() => this.viewer, this.canvas, {
       tool: () => this.groups.tool,
       canEdit: () => this.canEdit(),
-      canMove: () => !this.groups.dirty && !this.history.busy && !this.pendingPick,
+      canMove: () => !this.groups.dirty && !this.history.busy && !this.moves.picking,
       positions: () => this.session?.state.positions ?? null,
       handleGroups: () => this.groups.handleGroupViews(),
       groupOf: (v) => this.session?.draft.groupOf(v) ?? -1,
       select: (g) => this.groups.selectGroup(g),
-      dragStart: (g) => this.dragStart(g),
-      dragMove: (d, t0) => this.dragMove(d, t0),
-      dragEnd: () => this.dragEnd(),
-      pickStart: (hit) => this.pickStart(hit),
+      dragStart: (g) => this.moves.dragStart(g),
+      dragMove: (d, t0) => this.moves.dragMove(d, t0),
+      dragEnd: () => this.moves.dragEnd(),
+      pickStart: (hit) => this.moves.pickStart(hit),
       hover: (hit) => {
         this.hooks.hovering = !!hit;
-        this.viewer.setGrabPreview(hit ? hit.point : null, this.grabRadius());
+        this.viewer.setGrabPreview(hit ? hit.point : null, this.moves.grabRadius());
       },
-      radiusWheel: (dy) => this.radiusWheel(dy),
+      radiusWheel: (dy) => this.moves.radiusWheel(dy),
       modalActive: () => this.modal.active,
       modalPointer: (x, y) => this.modal.pointer(x, y),
       modalConfirm: () => this.modal.confirm(),
@@ -198,7 +222,7 @@ class App {
     }, $("lasso-line") as unknown as SVGPolylineElement);
     this.viewer = new Viewer3D(this.canvas, () => this.interaction.attach());
     this.colors = new ColorPainter(this.viewer);
-    this.wireGizmo();
+    this.moves.wireGizmo();
     this.wireControls();
     $("legend-bar").style.background = rampCss();
     void this.boot();
@@ -266,7 +290,7 @@ class App {
     this.coalescer.reset();
     this.modal.close();
     this.linkProblem(detail);
-    this.placeGizmo();
+    this.moves.placeGizmo();
   }
 
   /** Reports a failed call in plain words; NOT_FOUND on the open session means it is gone. */
@@ -373,7 +397,7 @@ class App {
     this.hooks.ready = false;
     this.coalescer.reset();
     this.modal.close();
-    this.pendingPick = null;
+    this.moves.clearPick();
   }
 
   private setRole(role: Role): void {
@@ -398,180 +422,6 @@ class App {
   private setStatus(text: string): void {
     this.sessionStatus = text;
     this.banner.status(text);
-  }
-
-  // ---------- settings ----------
-
-  /** A setting changed: solve again with it, as a step of the history (the server also keeps it
-   * for the next page that opens the session). */
-  private resolveWithSettings(): void {
-    const cur = this.timeline.current;
-    if (this.groups.handleIndices().length === 0 || !cur || this.groups.dirty) return;
-    const entry = derive(cur, { settings: this.settings.currentSettings(), serverPos: -1, revision: null, draft: null });
-    this.submitMove(this.states, performance.now(), { force: true, entry });
-    this.timeline.push(entry);
-    this.history.updateButtons();
-  }
-
-  // ---------- moves ----------
-
-  private submitMove(states: GroupStates, t0: number, o: { force?: boolean; gesture?: bigint; entry?: Entry | null } = {}): void {
-    const s = this.session;
-    if (!s || s.gone || this.groups.handleIndices().length === 0 || s.role !== "edit") return;
-    this.states = cloneStates(states);
-    this.coalescer.submit({ states: cloneStates(states), t0, opts: this.settings.optsKey(), gesture: o.gesture ?? 0n, entry: o.entry ?? null }, o.force ?? false);
-    this.scheduleTargetGhost();
-  }
-
-  /** The moves of every handle group about the live anchors (moves are absolute). */
-  private groupMoves(states: GroupStates) {
-    const s = this.session!;
-    return this.groups.handleIndices().map((i) => {
-      const c = s.anchors[i]?.centroid ?? new THREE.Vector3();
-      return toGroupMove(i, states[i], [c.x, c.y, c.z]);
-    });
-  }
-
-  private sendMove(t: MoveTarget): Promise<MoveHandlesResponse> {
-    const s = this.session!;
-    return client.moveHandles(
-      { sessionId: s.creds.sessionId, token: s.creds.token, moves: this.groupMoves(t.states), gesture: t.gesture, ...this.settings.request() },
-      { timeoutMs: 60_000 },
-    );
-  }
-
-  /** A move's answer: its server step (for the history) and the latency bookkeeping. */
-  private onMoveResult(r: MoveHandlesResponse, t: MoveTarget | null): void {
-    this.history.answered(r, t);
-    const rev = Number(r.result?.revision ?? -1);
-    if (rev < 0 || !t) return;
-    // Geometry comes from Watch only (in order); the response is for flow control and latency.
-    this.dragToFrame.answered(rev, t.t0, this.session?.state.revision ?? -1);
-  }
-
-  private dragBase: GroupStates = [];
-  private dragGroup = -1;
-  private dragGesture = 0n;
-  private dragEntry: Entry | null = null;
-  private dragSent = false;
-  private gizmoGesture = 0n;
-
-  /** A gesture's entry: the current state's, to be filled in at its end. */
-  private newGestureEntry(): Entry | null {
-    const cur = this.timeline.current;
-    return cur ? derive(cur, { serverPos: -1, revision: null, draft: null, settings: this.settings.currentSettings() }) : null;
-  }
-
-  private dragStart(group: number): void {
-    this.dragBase = cloneStates(this.states);
-    this.dragGroup = group;
-    this.dragGesture = newGesture();
-    this.dragEntry = this.newGestureEntry();
-    this.dragSent = false;
-    dismissFirstHint();
-  }
-  private dragMove(delta: THREE.Vector3, t0: number): void {
-    const pick = this.pendingPick;
-    if (pick) {
-      // The handles are still being set: keep the newest travel, sent once they are.
-      pick.delta = delta.clone();
-      pick.t0 = t0;
-      if (!pick.applied) return;
-    }
-    const i = this.dragGroup;
-    if (!this.groups.isHandle(i)) return;
-    const st = cloneStates(this.dragBase);
-    const b = this.dragBase[i].translation;
-    st[i].translation = [b[0] + delta.x, b[1] + delta.y, b[2] + delta.z];
-    this.submitMove(st, t0, { gesture: this.dragGesture, entry: this.dragEntry });
-    this.dragSent = true;
-    this.placeGizmo();
-  }
-  private dragEnd(): void {
-    const pick = this.pendingPick;
-    if (pick && !pick.applied) {
-      pick.released = true; // finished once the handles are set
-      return;
-    }
-    this.finishGesture();
-  }
-  private finishGesture(): void {
-    this.pendingPick = null;
-    this.frames.endCoarse();
-    if (this.dragSent && this.dragEntry) {
-      this.dragEntry.states = cloneStates(this.states);
-      this.timeline.push(this.dragEntry);
-    }
-    this.dragEntry = null;
-    this.dragSent = false;
-    this.history.updateButtons();
-    this.groups.updateReady();
-  }
-
-  // ---------- pick and drag ----------
-
-  private grabRadius(): number {
-    return Number($in("grab-radius").value) * this.meshScale();
-  }
-
-  private showGrabRadius(): void {
-    $("grab-radius-val").textContent = `${(Number($in("grab-radius").value) * 100).toFixed(1)}% of size`;
-  }
-
-  private radiusWheel(dy: number): void {
-    const el = $in("grab-radius");
-    // Wheel up (negative) grows it, as Blender's proportional size.
-    const v = Math.min(Number(el.max), Math.max(Number(el.min), Number(el.value) * Math.exp(-dy / 600)));
-    el.value = String(v);
-    this.showGrabRadius();
-    const hit = this.interaction.lastPointer && this.interaction.pickAt(this.viewer, this.interaction.lastPointer.x, this.interaction.lastPointer.y);
-    this.viewer.setGrabPreview(hit ? hit.point : null, this.grabRadius());
-  }
-
-  /** A press on the mesh with Grab: the groups it adds are set, and the drag goes on meanwhile. */
-  private pickStart(hit: PickHit): boolean {
-    const s = this.session;
-    if (!s || this.groups.dirty || this.history.busy) return false;
-    const topo = this.groups.topology(s);
-    const specs = this.groups.appliedSpecs();
-    const res = pickGroups({
-      positions: s.state.positions, adjacency: topo.adjacency, components: topo.components, groupOf: (v) => s.draft.groupOf(v),
-      roles: specs.map((g) => g.role), point: [hit.point.x, hit.point.y, hit.point.z], faceVertices: hit.face, radius: this.grabRadius(),
-    });
-    if ("reason" in res) {
-      this.banner.message(res.reason);
-      return false;
-    }
-    this.banner.clearError();
-    const next: GroupSpec[] = [...specs, { role: "handle", vertices: res.handle }];
-    const handleIndex = next.length - 1;
-    if (res.farFixed.length) next.push({ role: "fixed", vertices: res.farFixed });
-    if (res.otherParts.length) next.push({ role: "fixed", vertices: res.otherParts });
-    const pick: PendingPick = { delta: null, t0: performance.now(), applied: false, released: false, failed: false };
-    this.pendingPick = pick;
-    this.viewer.setGrabPreview(null, 0);
-    dismissFirstHint();
-    void (async () => {
-      try {
-        await this.groups.setHandles(next);
-      } catch (e) {
-        pick.failed = true;
-        this.pendingPick = null;
-        this.fail("Pick failed", e, "handles");
-        return;
-      }
-      if (this.pendingPick !== pick) return;
-      this.groups.selectGroup(handleIndex);
-      this.dragBase = cloneStates(this.states);
-      this.dragGroup = handleIndex;
-      this.dragGesture = newGesture();
-      this.dragEntry = this.newGestureEntry();
-      this.dragSent = false;
-      pick.applied = true;
-      if (pick.delta) this.dragMove(pick.delta, pick.t0);
-      if (pick.released) this.finishGesture();
-    })();
-    return true;
   }
 
   // ---------- keys ----------
@@ -621,16 +471,11 @@ class App {
 
   // ---------- controls ----------
 
-  private setGizmoMode(m: "translate" | "rotate" | "scale"): void {
-    this.viewer.gizmo.setMode(m);
-    for (const x of ["translate", "rotate", "scale"]) $(`gizmo-${x}`).classList.toggle("on", x === m);
-  }
-
   private wireControls(): void {
     for (const t of ["move", "grab", "brush", "lasso"] as const) $(`tool-${t}`).addEventListener("click", () => this.groups.setTool(t));
-    $("gizmo-translate").addEventListener("click", () => this.setGizmoMode("translate"));
-    $("gizmo-rotate").addEventListener("click", () => this.setGizmoMode("rotate"));
-    $("gizmo-scale").addEventListener("click", () => this.setGizmoMode("scale"));
+    $("gizmo-translate").addEventListener("click", () => this.moves.setGizmoMode("translate"));
+    $("gizmo-rotate").addEventListener("click", () => this.moves.setGizmoMode("rotate"));
+    $("gizmo-scale").addEventListener("click", () => this.moves.setGizmoMode("scale"));
     $("apply-handles").addEventListener("click", () => void this.groups.applyHandles());
     $("clear-selection").addEventListener("click", () => this.groups.clearSelection());
     $("delete-group").addEventListener("click", () => void this.groups.deleteGroup(this.session?.draft.selected ?? -1));
@@ -638,8 +483,8 @@ class App {
     const radius = () => ($("brush-radius-val").textContent = `${(Number($in("brush-radius").value) * 100).toFixed(1)}% of size`);
     $in("brush-radius").addEventListener("input", radius);
     radius();
-    $in("grab-radius").addEventListener("input", () => this.showGrabRadius());
-    this.showGrabRadius();
+    $in("grab-radius").addEventListener("input", () => this.moves.showGrabRadius());
+    this.moves.showGrabRadius();
     this.settings.wire();
     $("reset-view").addEventListener("click", () => this.viewer.frame());
     $("view-front").addEventListener("click", () => this.viewer.setView("front"));
@@ -723,98 +568,6 @@ class App {
     } catch (e) {
       this.fail("Download failed", e, "download");
     }
-  }
-
-  // ---------- gizmo, markers, target ghost ----------
-
-  private wireGizmo(): void {
-    const g = this.viewer.gizmo;
-    g.attach(this.viewer.pivotObject);
-    g.addEventListener("objectChange", () => {
-      const o = this.viewer.pivotObject;
-      const i = this.groups.selectedHandle();
-      const c = i >= 0 ? this.session?.anchors[i]?.centroid : null;
-      if (!c) return;
-      // Uniform scale: take the axis the user pulled (largest change from the current scale).
-      const prev = this.states[i].scale;
-      const axes = [o.scale.x, o.scale.y, o.scale.z];
-      let sc = axes.reduce((a, b) => (Math.abs(b - prev) > Math.abs(a - prev) ? b : a), prev);
-      sc = Math.max(0.05, sc);
-      o.scale.setScalar(sc);
-      const q = o.quaternion;
-      const st = cloneStates(this.states);
-      st[i] = { translation: [o.position.x - c.x, o.position.y - c.y, o.position.z - c.z], rotation: [q.w, q.x, q.y, q.z], scale: sc };
-      // One gizmo drag is one undo step on the server too.
-      this.submitMove(st, performance.now(), { gesture: this.gizmoGesture, entry: this.dragEntry });
-      this.dragSent = true;
-      this.placeMarkers();
-    });
-    g.addEventListener("dragging-changed", (e: any) => {
-      if (e.value) {
-        this.gizmoGesture = newGesture();
-        this.dragEntry = this.newGestureEntry();
-        this.dragSent = false;
-        dismissFirstHint();
-      } else {
-        this.gizmoGesture = 0n;
-        this.finishGesture();
-      }
-    });
-  }
-
-  /** Gizmo on the selected handle group, at pivot + translation (the centroid of its moved
-   * anchors) with its R and s; a marker sphere on every other handle group. */
-  private placeGizmo(): void {
-    const s = this.session;
-    const o = this.viewer.pivotObject;
-    const i = this.groups.selectedHandle();
-    const c = i >= 0 ? s?.anchors[i]?.centroid : null;
-    const show = !!c && s!.role === "edit" && !s!.gone && this.groups.tool === "move" && !this.modal.active;
-    this.viewer.gizmo.getHelper().visible = show;
-    this.viewer.gizmo.enabled = show;
-    if (c && this.states[i]) {
-      const m = this.states[i];
-      o.position.set(c.x + m.translation[0], c.y + m.translation[1], c.z + m.translation[2]);
-      o.quaternion.set(m.rotation[1], m.rotation[2], m.rotation[3], m.rotation[0]);
-      o.scale.setScalar(m.scale);
-    }
-    this.placeMarkers();
-  }
-
-  private placeMarkers(): void {
-    const s = this.session;
-    if (!s || s.role !== "edit" || s.gone || (this.groups.tool !== "move" && this.groups.tool !== "grab")) {
-      this.viewer.setMarkers([]);
-      return;
-    }
-    const sel = this.groups.selectedHandle();
-    const items = [];
-    for (const i of this.groups.handleIndices()) {
-      const c = s.anchors[i]?.centroid;
-      const t = this.states[i]?.translation;
-      if (!c || !t) continue;
-      items.push({ at: [c.x + t[0], c.y + t[1], c.z + t[2]] as [number, number, number], color: groupColor("handle", s.draft.ordinal(i)), selected: i === sel });
-    }
-    this.viewer.setMarkers(items);
-  }
-
-  /** While a move waits on a slow solve, dots show where the handle vertices are headed. */
-  private scheduleTargetGhost(): void {
-    clearTimeout(this.targetTimer);
-    this.targetTimer = setTimeout(() => {
-      const s = this.session;
-      if (!s || !this.coalescer.busy) return;
-      const pts: number[] = [];
-      for (const i of this.groups.handleIndices()) {
-        const a = s.anchors[i];
-        const c = a?.centroid;
-        if (!a || !c || !this.states[i]) continue;
-        for (let k = 0; k < a.positions.length; k += 3) {
-          pts.push(...applyMove(this.states[i], [c.x, c.y, c.z], [a.positions[k], a.positions[k + 1], a.positions[k + 2]]));
-        }
-      }
-      this.viewer.setTargets(Float32Array.from(pts));
-    }, 250);
   }
 
   private meshScale(): number {

@@ -105,6 +105,13 @@ export function isIdentity(s: MoveState): boolean {
   return moveKey(s) === moveKey(IDENTITY);
 }
 
+/** The gizmo's scale made uniform: of its three axes' scales, the one the user pulled (the
+ * largest change from the group's scale `prev`; `prev` when none changed), at least 0.05. */
+export function pulledScale(prev: number, axes: readonly number[]): number {
+  const sc = axes.reduce((a, b) => (Math.abs(b - prev) > Math.abs(a - prev) ? b : a), prev);
+  return Math.max(0.05, sc);
+}
+
 /**
  * How "Reset to rest" gets the mesh back to its rest pose:
  * - "identity": the groups' anchors are the rest positions (handles were set on the rest mesh), so

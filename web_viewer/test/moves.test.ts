@@ -54,3 +54,25 @@ describe("reset plan", () => {
     expect(planReset(false, false)).toBe("unavailable");
   });
 });
+
+import { pulledScale } from "../src/moves";
+describe("gizmo scale made uniform", () => {
+  it("keeps the group's scale when no axis changed", () => {
+    expect(pulledScale(1, [1, 1, 1])).toBe(1);
+    expect(pulledScale(2.5, [2.5, 2.5, 2.5])).toBe(2.5);
+  });
+  it("takes the axis the user pulled, whichever it is", () => {
+    expect(pulledScale(1, [1.5, 1, 1])).toBe(1.5);
+    expect(pulledScale(1, [1, 0.75, 1])).toBe(0.75);
+    expect(pulledScale(2, [2, 2, 3])).toBe(3);
+  });
+  it("takes the largest change from the group's scale, the first of equal ones", () => {
+    expect(pulledScale(1, [1.2, 0.5, 1.1])).toBe(0.5);
+    expect(pulledScale(1, [1.5, 0.5, 1])).toBe(1.5);
+  });
+  it("never goes below 0.05 (a collapsed or flipped axis)", () => {
+    expect(pulledScale(1, [0.01, 1, 1])).toBe(0.05);
+    expect(pulledScale(0.2, [0.2, -3, 0.2])).toBe(0.05);
+    expect(pulledScale(0.04, [0.04, 0.04, 0.04])).toBe(0.05);
+  });
+});
