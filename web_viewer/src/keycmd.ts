@@ -3,7 +3,7 @@
 // (the same axis again unlocks); a typed number replaces the pointer's amount; Enter or a click
 // confirms, Esc or a right-click cancels. G, R or S while a command is open starts that command
 // afresh, with an empty number (typed digits never carry over from one command to the next). A
-// pure state machine: main.ts feeds it keys and the pointer's amount.
+// pure state machine: app/modal_transform.ts feeds it keys and the pointer's amount.
 
 export type CommandKind = "translate" | "rotate" | "scale";
 export type Axis = "x" | "y" | "z";

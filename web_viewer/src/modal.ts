@@ -1,7 +1,7 @@
 // The amount of a modal transform (G / R / S, src/keycmd.ts) from the pointer or a typed number,
-// composed with the group's state at the command's start. Pure: main.ts supplies the screen and
-// world quantities (where the pointer started and is now, the group's centre on screen, the
-// pointer's travel on the plane through the group's centre facing the camera).
+// composed with the group's state at the command's start. Pure: app/modal_transform.ts supplies
+// the screen and world quantities (where the pointer started and is now, the group's centre on
+// screen, the pointer's travel on the plane through the group's centre facing the camera).
 import type { Axis, CommandKind } from "./keycmd";
 import { AXES, composeCommand, translateBy, type MoveState, type Vec3 } from "./moves";
 

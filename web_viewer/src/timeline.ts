@@ -9,7 +9,7 @@
 // them again, and across a handle change the page sets the other groups again (on the current
 // shape) and asks for the revision's positions back (MoveHandlesRequest.restore_revision), with
 // the moves re-expressed about the new anchors. Only a state whose positions the server no longer
-// keeps is solved again. Pure: main.ts carries the plans out.
+// keeps is solved again. Pure: app/history_sync.ts carries the plans out.
 import type { GroupSpec } from "./groups";
 import { cloneStates, type GroupStates } from "./moves";
 

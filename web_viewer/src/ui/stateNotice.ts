@@ -1,6 +1,7 @@
 // The state notice (issue 44: every state has a way out): what is missing for dragging (no
 // groups, no handle, no fixed region, groups painted but not applied), in words, with the buttons
-// that fix it. main.ts recomputes it on every change, so it never outlives its cause.
+// that fix it. app/groups_controller.ts recomputes it on every change, so it never outlives
+// its cause.
 import { $ } from "./dom";
 
 export interface NoticeAction {
