@@ -2,10 +2,20 @@
 // result, updates per second while dragging, and bytes per update in each position encoding,
 // for the 4,802-vertex cylinder, the 40,401-vertex bumpy plane and the same plane at 187,489
 // vertices (issue 15: a multiresolution session, moves answered on a coarse level and the full
-// resolution streamed by the background refinement after the drag), on loopback, in one run.
+// resolution streamed by the background refinement after the drag), on loopback or through an
+// emulated link (--via-link), in one run.
 //
 //   node bench/viewer_latency.mjs [--build build] [--moves 90] [--out bench/results] [--model NAME]
-//       [--baseline-dist DIR] [--name viewer]
+//       [--baseline-dist DIR] [--name viewer] [--via-link SPEC]
+//
+// Through a link (issue 45): --via-link SPEC (e.g. 20mbit,40ms; the items of meshdeform-link
+// --help) starts <build>/linkemu/meshdeform-link in front of each server's HTTP port, on
+// loopback, and points Chromium at it, so that the page, its gRPC-Web calls and its Watch stream
+// all cross the emulated line. The emulator models each TCP connection as its own line (rate and
+// delay per direction, per connection, not shared): the browser's HTTP/1.1 connections (page,
+// moves, the Watch stream) each get SPEC. The results name the link ("loopback" without the
+// option) and carry the emulator's description and its byte and stall counters for the run. The
+// "service alone" rows (the C++ load tester) stay on loopback either way.
 //
 // The coarse level (issue 44): on the multiresolution model the viewer draws the level the moves
 // solved on while the button is down; "this, ?coarse=off" is the same build drawing the full mesh
@@ -47,8 +57,84 @@ const serverPath = path.join(build, "server/transport/meshdeform-server");
 const loadtestPath = path.join(build, "client_cpp/loadtest/meshdeform-loadtest");
 const dist = path.join(repo, "web_viewer/dist");
 const baselineDist = args["baseline-dist"] ? path.resolve(args["baseline-dist"]) : null;
+const viaLink = args["via-link"] ?? null;
+const linkPath = path.join(build, "linkemu/meshdeform-link");
+if ("via-link" in args && (!viaLink || viaLink.startsWith("--"))) {
+  console.error("--via-link needs a link description, e.g. --via-link 20mbit,40ms"); process.exit(2);
+}
 for (const f of [serverPath, path.join(dist, "index.html"), ...(baselineDist ? [path.join(baselineDist, "index.html")] : [])]) {
   if (!existsSync(f)) { console.error(`missing ${f}: run ./scripts/build.sh and ./scripts/build-viewer.sh`); process.exit(2); }
+}
+if (viaLink && !existsSync(linkPath)) {
+  console.error(`missing ${linkPath} (--via-link): build the meshdeform-link target (linkemu/) in ${build}, or give --build`); process.exit(2);
+}
+
+// Every server and emulator this bench starts, so that none outlives it (an error, an exit, a signal).
+const children = new Set();
+function track(child) {
+  children.add(child);
+  child.once("exit", () => children.delete(child));
+  return child;
+}
+process.once("exit", () => { for (const c of children) c.kill("SIGTERM"); });
+for (const signal of ["SIGINT", "SIGTERM"]) {
+  process.once(signal, () => { console.error(`${signal}: stopping`); process.exit(130); });
+}
+/** Resolves when `child` has exited, or after `ms` (then false). */
+function exited(child, ms) {
+  if (child.exitCode !== null || child.signalCode !== null) return Promise.resolve(true);
+  return new Promise((resolve) => {
+    const timer = setTimeout(() => resolve(false), ms);
+    child.once("exit", () => { clearTimeout(timer); resolve(true); });
+  });
+}
+/** SIGTERM, a bounded wait, then SIGKILL. @return whether it exited on SIGTERM. */
+async function stopChild(child, ms) {
+  if (child.exitCode !== null || child.signalCode !== null) return true;
+  child.kill("SIGTERM");
+  if (await exited(child, ms)) return true;
+  child.kill("SIGKILL");
+  await exited(child, 2000);
+  return false;
+}
+
+/** meshdeform-link in front of 127.0.0.1:`targetPort`, on loopback: resolves once it listens. */
+function startLink(targetPort) {
+  return new Promise((resolve, reject) => {
+    const link = track(spawn(linkPath, ["--target", `127.0.0.1:${targetPort}`, "--link", viaLink, "--listen", "127.0.0.1:0"],
+      { stdio: ["ignore", "pipe", "pipe"] }));
+    let log = "", stdout = "", listening = false;
+    link.stdout.on("data", (d) => { stdout += d; });
+    const fail = (why) => {
+      if (listening) return;
+      listening = true;  // settled
+      clearTimeout(timer);
+      link.kill("SIGKILL");
+      reject(new Error(`meshdeform-link (${linkPath}) ${why}${log ? "\n" + log.trim() : ""}`));
+    };
+    const timer = setTimeout(() => fail("did not report listening within 10 s"), 10_000);
+    link.once("error", (e) => fail(`could not start: ${e.message}`));
+    link.once("close", (code, signal) => fail(`exited (${code ?? signal}) before listening`));
+    link.stderr.on("data", (d) => {
+      log += d;
+      const m = log.match(/\{"event":"listening"[^\n]*\}/);
+      if (!m || listening) return;
+      listening = true;
+      clearTimeout(timer);
+      const event = JSON.parse(m[0]);
+      const startedAt = performance.now();
+      resolve({
+        process: link, port: event.port, description: event.link,
+        /** Stops the emulator and returns its counters (null when it printed none). */
+        async stop() {
+          const clean = await stopChild(link, 5000);
+          let counters = null;
+          try { counters = JSON.parse(stdout.trim().split("\n").pop()); } catch { /* killed, or no output */ }
+          return { seconds: (performance.now() - startedAt) / 1000, stopped_cleanly: clean, counters };
+        },
+      });
+    });
+  });
 }
 
 // settle: how long the page is watched after the mouse is released (refinement revisions).
@@ -60,19 +146,58 @@ const models = [
   { sample: "bumpy_plane_large", vertices: 187489, encodings: ["float32", "meshopt"], settleMs: Number(args.settle ?? 20_000), multires: true },
 ].filter((m) => !args.model || m.sample === args.model);
 
-function startServer(webRoot = dist) {
+function startServerAlone(webRoot) {
   return new Promise((resolve, reject) => {
-    const server = spawn(serverPath, ["--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0", "--web-root", webRoot, "--log-level", "info"],
-      { stdio: ["ignore", "ignore", "pipe"] });
-    let log = "";
-    const timer = setTimeout(() => reject(new Error("server did not start\n" + log)), 20_000);
+    const server = track(spawn(serverPath, ["--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0", "--web-root", webRoot, "--log-level", "info"],
+      { stdio: ["ignore", "ignore", "pipe"] }));
+    let log = "", done = false;
+    const fail = (why) => {
+      if (done) return;
+      done = true;
+      clearTimeout(timer);
+      server.kill("SIGKILL");
+      reject(new Error(`server ${why}\n${log}`));
+    };
+    const timer = setTimeout(() => fail("did not start"), 20_000);
+    server.once("error", (e) => fail(`could not start: ${e.message}`));
+    server.once("close", (code, signal) => fail(`exited (${code ?? signal}) before listening`));
     server.stderr.on("data", (d) => {
+      if (done) return;
       log += d;
       const m = log.match(/"event":"http_listening"[^\n]*"port":(\d+)/);
       const g = log.match(/"event":"listening"[^\n]*"port":(\d+)/);
-      if (m && g) { clearTimeout(timer); resolve({ server, url: `http://127.0.0.1:${m[1]}`, grpc: `127.0.0.1:${g[1]}` }); }
+      if (m && g) {
+        done = true;
+        clearTimeout(timer);
+        resolve({ server, url: `http://127.0.0.1:${m[1]}`, grpc: `127.0.0.1:${g[1]}`, httpPort: Number(m[1]) });
+      }
     });
   });
+}
+
+/** A server, and with --via-link the emulator in front of its HTTP port: `url` is what Chromium
+ * opens (the emulator's port then), `grpc` the server's own gRPC port (the load tester's). */
+async function startServer(webRoot = dist) {
+  const s = await startServerAlone(webRoot);
+  if (!viaLink) return { ...s, link: null };
+  try {
+    const link = await startLink(s.httpPort);
+    return { ...s, url: `http://127.0.0.1:${link.port}`, direct_url: s.url, link };
+  } catch (e) {
+    await stopChild(s.server, 5000);
+    throw e;
+  }
+}
+
+/** Stops the emulator (first: its counters), then the server. @return the link's record or null. */
+async function stopServer(s, viewer) {
+  let link = null;
+  if (s.link) {
+    const r = await s.link.stop();
+    link = { viewer, server_http_port: s.httpPort, emulator_port: s.link.port, ...r };
+  }
+  if (!(await stopChild(s.server, 10_000))) console.error("the server did not exit on SIGTERM within 10 s: killed");
+  return link;
 }
 
 const quantile = (xs, q) => {
@@ -130,13 +255,13 @@ async function measure(browser, url, model, encoding, viewer = "this", query = "
   const after = m.renderedAt.map((t, i) => ({ t: t - upAt, refinement: m.renderedRefinement[i], converged: m.renderedConverged[i] }))
     .filter((u) => u.t >= 0 && u.refinement);
   return {
-    model: model.sample, vertices: model.vertices, encoding, viewer,
+    model: model.sample, vertices: model.vertices, encoding, viewer, link: viaLink ?? "loopback",
     drag_events: moves, drag_seconds: dragSeconds, nominal_drag_seconds: moves / 60,
     input_delay_ms: { p50: quantile(probe.delays, 0.5), p95: quantile(probe.delays, 0.95), max: probe.delays.length ? Math.max(...probe.delays) : NaN },
     pointer_events_handled: probe.events,
     worker_frames: m.workerMs?.length ?? 0,
     own_frames: frames.length, updates_per_second: frames.length / dragSeconds,
-    drag_to_frame_ms: { p50: quantile(frames, 0.5), p95: quantile(frames, 0.95), max: Math.max(...frames) },
+    drag_to_frame_ms: { p50: quantile(frames, 0.5), p95: quantile(frames, 0.95), max: Math.max(...frames), p99: quantile(frames, 0.99) },
     updates_received: m.updateBytes.length,
     frame_work_ms: { p50: quantile(m.frameWorkMs, 0.5), p95: quantile(m.frameWorkMs, 0.95), frames: m.frameWorkMs.length },
     bytes_per_update_mean: mean(m.updateBytes),
@@ -160,11 +285,17 @@ function serviceAlone(grpc, model) {
   execSync(`${loadtestPath} --server ${grpc} --sessions 1 --sample ${model.sample} --rate 60 --duration 10 --watchers 1 --iterations 2 --json ${json}`,
     { stdio: "ignore", timeout: 120_000 });
   const j = JSON.parse(readFileSync(json, "utf8"));
-  return { model: model.sample, moves_per_second: j.moves.per_second_total, latency_ms: j.moves.latency_ms, server_solve_ms: j.moves.server_solve_ms };
+  return { model: model.sample, moves_per_second: j.moves.per_second_total, latency_ms: j.moves.latency_ms, server_solve_ms: j.moves.server_solve_ms,
+    link: "loopback" };
 }
 
-const { server, url, grpc } = await startServer();
+const main = await startServer();
+const { url, grpc } = main;
 const baseline = baselineDist ? await startServer(baselineDist) : null;
+if (viaLink) {
+  console.log(`through meshdeform-link ${viaLink} (${main.link.description}): ${url} -> ${main.direct_url}` +
+    (baseline ? `; baseline ${baseline.url} -> ${baseline.direct_url}` : ""));
+}
 const browser = await chromium.launch({
   executablePath: process.env.CHROMIUM_PATH || "/usr/bin/chromium",
   args: ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
@@ -172,6 +303,7 @@ const browser = await chromium.launch({
 });
 const rows = [];
 const alone = [];
+const linkRuns = [];
 try {
   for (const model of models) {
     const a = serviceAlone(grpc, model);
@@ -197,10 +329,17 @@ try {
     }
   }
 } finally {
-  const version = browser.version();
-  await browser.close();
-  server.kill("SIGTERM");
-  baseline?.server.kill("SIGTERM");
+  let version = "unknown";
+  try {
+    version = browser.version();
+    await browser.close();
+  } finally {
+    // The emulator goes first (after the browser's connections closed): its counters cover the run.
+    for (const [s, viewer] of [[main, "this"], [baseline, "baseline"]]) {
+      const link = s ? await stopServer(s, viewer) : null;
+      if (link) linkRuns.push(link);
+    }
+  }
   var chromiumVersion = version;
 }
 
@@ -211,13 +350,24 @@ const machine = {
   load_average: os.loadavg().map((x) => x.toFixed(2)).join(" "), chromium: chromiumVersion, node: process.version, git_revision: git,
   rendering: "headless Chromium, SwiftShader (CPU) WebGL", drag: `${moves} mouse events at 60 Hz on a loop of 60 x 80 px`,
 };
+// The link every browser row used: "loopback", or the emulator's settings and counters per server.
+const link = !viaLink ? "loopback" : {
+  spec: viaLink, description: main.link.description, emulator: path.relative(repo, linkPath), listen: "127.0.0.1 (loopback)",
+  per_connection: "each TCP connection is its own emulated line (rate, delay, queue per direction per connection, not shared)",
+  service_alone: "loopback (the load tester connects to the server's gRPC port directly)",
+  servers: linkRuns,
+};
 mkdirSync(out, { recursive: true });
-writeFileSync(path.join(out, `${name}.json`), JSON.stringify({ machine, rows, service_alone: alone }, null, 2) + "\n");
+writeFileSync(path.join(out, `${name}.json`), JSON.stringify({ machine, rows, service_alone: alone, link }, null, 2) + "\n");
 const f = (x, d = 0) => (Number.isFinite(x) ? x.toFixed(d) : "-");
 let md = `# Viewer: drag to frame, updates per second, bytes per update\n\n`;
 md += `Made by \`node bench/viewer_latency.mjs ${process.argv.slice(2).join(" ")}\` on ${machine.date_utc} (${machine.cpu_model}, ${machine.hardware_threads} threads, ` +
   `load ${machine.load_average}; Chromium ${machine.chromium}, ${machine.rendering}; git ${machine.git_revision}). ` +
-  `Server and browser on one machine, loopback; ${machine.drag}; 2 outer iterations per move, one move in flight, newest target wins.\n\n`;
+  (viaLink
+    ? `Server and browser on one machine; the browser through meshdeform-link \`--link ${viaLink}\` (${link.description}; each TCP connection its own line), ` +
+      `the service-alone rows on loopback`
+    : `Server and browser on one machine, loopback`) +
+  `; ${machine.drag}; 2 outer iterations per move, one move in flight, newest target wins.\n\n`;
 md += `| model | #V | encoding | viewer | updates/s while dragging | drag -> frame p50 / p95 / max (ms) | frame work p50 (ms) | bytes / update (mean) | dense doubles | dense float32 |\n`;
 md += `|---|---:|---|---|---:|---|---:|---:|---:|---:|\n`;
 for (const r of rows) {
@@ -246,5 +396,21 @@ if (alone.length) {
 }
 md += `\nbytes / update: the serialized DeformUpdate of every Watch message received during and right after the drag ` +
   `(deltas of the changed vertices: indices + positions; refinement revisions included). Dense: every position, for comparison.\n`;
+if (!viaLink) {
+  md += `\nLink: loopback (no emulator).\n`;
+} else {
+  md += `\nLink: \`${viaLink}\` through \`${link.emulator}\` on loopback: ${link.description}. ` +
+    `Each TCP connection the browser opens is its own line with these settings (not a shared bottleneck). ` +
+    `drag -> frame p99 is in the JSON (\`drag_to_frame_ms.p99\`). The emulator's counters over the whole run ` +
+    `(page loads, every row of its server; "down" is server to browser):\n\n`;
+  md += `| server | ran (s) | connections | down: bytes delivered / mean / max chunk delay (ms) | up: bytes delivered / mean / max chunk delay (ms) | full-queue waits down / up |\n`;
+  md += `|---|---:|---:|---|---|---:|\n`;
+  for (const l of linkRuns) {
+    const c = l.counters;
+    const dir = (d) => `${d.bytes_delivered.toLocaleString("en")} / ${f(d.mean_chunk_delay_ms, 1)} / ${f(d.max_chunk_delay_ms, 1)}`;
+    md += c ? `| ${l.viewer} | ${f(l.seconds, 1)} | ${c.connections_accepted} | ${dir(c.down)} | ${dir(c.up)} | ${c.down.full_queue_waits} / ${c.up.full_queue_waits} |\n`
+      : `| ${l.viewer} | ${f(l.seconds, 1)} | - | no counters (the emulator did not exit cleanly) | - | - |\n`;
+  }
+}
 writeFileSync(path.join(out, `${name}.md`), md);
 console.log(`wrote ${path.join(out, `${name}.md`)}`);
