@@ -5,7 +5,7 @@
 // painting, readiness), moves_controller.ts (moves, drags, pick-and-drag, the gizmo),
 // history_sync.ts (undo / redo kept in step with the server's history, Reset),
 // settings_panel.ts (solver settings and view preferences), modal_transform.ts (G / R / S),
-// keys.ts (the keyboard); watch_stream.ts, mesh_files.ts, config.ts and session.ts are theirs.
+// keys.ts (the keyboard), page.ts (what several parts share); watch_stream.ts, mesh_files.ts, config.ts and session.ts are theirs.
 import * as THREE from "three";
 import type { MoveHandlesResponse } from "./gen/meshdeform/v1/deformation_pb";
 import { MoveCoalescer } from "./coalescer";
@@ -27,6 +27,7 @@ import { onKey, type KeysHost } from "./app/keys";
 import { MovesController } from "./app/moves_controller";
 import { SessionLifecycle } from "./app/session_lifecycle";
 import { SettingsPanel } from "./app/settings_panel";
+import type { PageState } from "./app/page";
 import type { MoveTarget, Session } from "./app/session";
 import "./style.css";
 
@@ -105,11 +106,17 @@ class App {
     onError: (e) => this.sessions.fail("Move failed", e, "move"),
   });
 
-  private readonly history: HistorySync = new HistorySync({
+  /** What the history, the groups and the moves all read (app/page.ts). */
+  private readonly page: PageState = {
     banner: this.banner, hooks: this.hooks, timeline: this.timeline, coalescer: this.coalescer,
     session: () => this.session,
+    viewer: () => this.viewer,
     states: () => this.states,
     setStates: (st) => { this.states = st; },
+  };
+
+  private readonly history: HistorySync = new HistorySync({
+    ...this.page,
     dirty: () => this.groups.dirty,
     closeModal: () => this.modal.close(),
     fail: (prefix, e, action) => this.sessions.fail(prefix, e, action),
@@ -130,11 +137,7 @@ class App {
   });
 
   private readonly groups: GroupsController = new GroupsController({
-    banner: this.banner, hooks: this.hooks, timeline: this.timeline, coalescer: this.coalescer,
-    session: () => this.session,
-    viewer: () => this.viewer,
-    states: () => this.states,
-    setStates: (st) => { this.states = st; },
+    ...this.page,
     meshScale: () => this.meshScale(),
     setStatus: (text) => this.sessions.setStatus(text),
     fail: (prefix, e, action) => this.sessions.fail(prefix, e, action),
@@ -151,13 +154,9 @@ class App {
   });
 
   private readonly moves: MovesController = new MovesController({
-    banner: this.banner, timeline: this.timeline, coalescer: this.coalescer, dragToFrame: this.dragToFrame,
-    session: () => this.session,
-    viewer: () => this.viewer,
+    ...this.page, dragToFrame: this.dragToFrame,
     interaction: () => this.interaction,
     modalActive: () => this.modal.active,
-    states: () => this.states,
-    setStates: (st) => { this.states = st; },
     tool: () => this.groups.tool,
     dirty: () => this.groups.dirty,
     historyBusy: () => this.history.busy,

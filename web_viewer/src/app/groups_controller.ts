@@ -7,37 +7,26 @@ import * as THREE from "three";
 import { create } from "@bufbuild/protobuf";
 import { createContextValues } from "@connectrpc/connect";
 import {
-  HandleGroupSchema, HandleRole, type HandleGroup, type Method, type MoveHandlesResponse, type SetHandlesResponse,
+  HandleGroupSchema, HandleRole, type HandleGroup, type Method, type SetHandlesResponse,
 } from "../gen/meshdeform/v1/deformation_pb";
 import { kSessionId } from "../client";
-import type { MoveCoalescer } from "../coalescer";
 import type { Action } from "../errors";
 import { GroupSet, type GroupSpec } from "../groups";
 import type { HandleGroupView, Tool } from "../interaction";
-import { cloneStates, identityStates, planReset, type GroupStates } from "../moves";
+import { cloneStates, identityStates, planReset } from "../moves";
 import { buildAdjacency, components, farSide } from "../pick";
 import { progressText, readWithProgress } from "../progress";
-import type { Viewer3D } from "../scene";
 import type { PaintMode } from "../selection";
-import type { Hooks } from "../test_hooks";
-import { derive, type Settings, type Timeline } from "../timeline";
-import { $, $btn, $in, $sel, type Banner } from "../ui/dom";
+import { derive, type Settings } from "../timeline";
+import { $, $btn, $in, $sel } from "../ui/dom";
 import { renderGroupList } from "../ui/groupsPanel";
 import { clearStateNotice, showStateNotice, type NoticeAction } from "../ui/stateNotice";
 import { client } from "./config";
-import { centroidOfRows, type MoveTarget, type Session } from "./session";
+import type { PageState } from "./page";
+import { centroidOfRows, type Session } from "./session";
 
 /** What the groups need from the page. */
-export interface GroupsHost {
-  readonly banner: Banner;
-  readonly hooks: Hooks;
-  readonly timeline: Timeline;
-  readonly coalescer: MoveCoalescer<MoveTarget, MoveHandlesResponse>;
-  session(): Session | null;
-  viewer(): Viewer3D;
-  /** Every applied group's move, as the page holds it (read and replaced). */
-  states(): GroupStates;
-  setStates(states: GroupStates): void;
+export interface GroupsHost extends PageState {
   /** The mesh's size (its bounding box's diagonal). */
   meshScale(): number;
   setStatus(text: string): void;

@@ -9,30 +9,21 @@ import {
   HandleRole, HistoryAction, Method,
   type GroupMove, type MoveHandlesRequest, type MoveHandlesResponse, type SessionInfo,
 } from "../gen/meshdeform/v1/deformation_pb";
-import type { MoveCoalescer } from "../coalescer";
 import { entriesFromEdit } from "../edit_state";
 import { errorCode, type Action } from "../errors";
 import type { GroupSpec } from "../groups";
 import { DEFAULT_ITERATIONS } from "../iterations";
 import { applyMove, cloneStates, fitSimilarity, identityStates, planReset, type GroupStates, type Vec3 } from "../moves";
 import { rigidityStep } from "../rigidity";
-import type { Hooks } from "../test_hooks";
-import { derive, type Entry, type Settings, type Timeline } from "../timeline";
-import { $, $btn, $in, type Banner } from "../ui/dom";
+import { derive, type Entry, type Settings } from "../timeline";
+import { $, $btn, $in } from "../ui/dom";
 import { client } from "./config";
+import type { PageState } from "./page";
 import type { SettingsRequest } from "./settings_panel";
 import { centroidOfRows, type MoveTarget, type Session } from "./session";
 
 /** What the history needs from the page. */
-export interface HistoryHost {
-  readonly banner: Banner;
-  readonly hooks: Hooks;
-  readonly timeline: Timeline;
-  readonly coalescer: MoveCoalescer<MoveTarget, MoveHandlesResponse>;
-  session(): Session | null;
-  /** Every applied group's move, as the page holds it (read and replaced). */
-  states(): GroupStates;
-  setStates(states: GroupStates): void;
+export interface HistoryHost extends PageState {
   /** The painted groups differ from the applied ones. */
   dirty(): boolean;
   closeModal(): void;

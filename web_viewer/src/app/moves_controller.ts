@@ -6,7 +6,6 @@
 // and the pick whose handles are being set.
 import * as THREE from "three";
 import type { GroupMove, MoveHandlesResponse } from "../gen/meshdeform/v1/deformation_pb";
-import type { MoveCoalescer } from "../coalescer";
 import { newGesture } from "../edit_state";
 import type { Action } from "../errors";
 import type { DragToFrame } from "../frame_latency";
@@ -14,27 +13,19 @@ import { groupColor, type GroupSpec } from "../groups";
 import type { Interaction, PickHit, Tool } from "../interaction";
 import { applyMove, cloneStates, pulledScale, toGroupMove, type GroupStates } from "../moves";
 import { pickGroups } from "../pick";
-import type { Viewer3D } from "../scene";
-import { derive, type Entry, type Settings, type Timeline } from "../timeline";
-import { $, $in, type Banner } from "../ui/dom";
+import { derive, type Entry, type Settings } from "../timeline";
+import { $, $in } from "../ui/dom";
 import { dismissFirstHint } from "../ui/notice";
 import { client } from "./config";
+import type { PageState } from "./page";
 import type { SettingsRequest } from "./settings_panel";
 import type { MoveTarget, PendingPick, Session } from "./session";
 
 /** What the moves need from the page. */
-export interface MovesHost {
-  readonly banner: Banner;
-  readonly timeline: Timeline;
-  readonly coalescer: MoveCoalescer<MoveTarget, MoveHandlesResponse>;
+export interface MovesHost extends PageState {
   readonly dragToFrame: DragToFrame;
-  session(): Session | null;
-  viewer(): Viewer3D;
   interaction(): Interaction;
   modalActive(): boolean;
-  /** Every applied group's move, as the page holds it (read and replaced). */
-  states(): GroupStates;
-  setStates(states: GroupStates): void;
   tool(): Tool;
   /** The painted groups differ from the applied ones. */
   dirty(): boolean;
