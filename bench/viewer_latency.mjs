@@ -6,7 +6,11 @@
 // emulated link (--via-link), in one run.
 //
 //   node bench/viewer_latency.mjs [--build build] [--moves 90] [--out bench/results] [--model NAME]
-//       [--baseline-dist DIR] [--name viewer] [--via-link SPEC]
+//       [--baseline-dist DIR] [--name viewer] [--via-link SPEC] [--page-query PARAMS]
+//
+// --page-query PARAMS (e.g. "updates=quantized&budget=149000") adds the viewer's own address
+// parameters (web_viewer/src/app/config.ts) to every page the bench opens: its link-sized Watch
+// updates (issue 45) among them. The results record it (JSON `page_query`, the .md's header).
 //
 // Through a link (issue 45): --via-link SPEC (e.g. 20mbit,40ms; the items of meshdeform-link
 // --help) starts <build>/linkemu/meshdeform-link in front of each server's HTTP port, on
@@ -58,6 +62,10 @@ const loadtestPath = path.join(build, "client_cpp/loadtest/meshdeform-loadtest")
 const dist = path.join(repo, "web_viewer/dist");
 const baselineDist = args["baseline-dist"] ? path.resolve(args["baseline-dist"]) : null;
 const viaLink = args["via-link"] ?? null;
+const pageQuery = args["page-query"] ?? "";
+if ("page-query" in args && (!pageQuery || pageQuery.startsWith("--") || /[?#\s]/.test(pageQuery))) {
+  console.error('--page-query needs address parameters without "?", e.g. --page-query "updates=quantized&budget=149000"'); process.exit(2);
+}
 const linkPath = path.join(build, "linkemu/meshdeform-link");
 if ("via-link" in args && (!viaLink || viaLink.startsWith("--"))) {
   console.error("--via-link needs a link description, e.g. --via-link 20mbit,40ms"); process.exit(2);
@@ -223,7 +231,7 @@ async function measure(browser, url, model, encoding, viewer = "this", query = "
   await ctx.addInitScript(inputProbe);
   const page = await ctx.newPage();
   page.setDefaultTimeout(300_000);
-  await page.goto(`${url}/?sample=${model.sample}&encoding=${encoding}${query}`);
+  await page.goto(`${url}/?sample=${model.sample}&encoding=${encoding}${query}${pageQuery ? `&${pageQuery}` : ""}`);
   await page.waitForFunction(() => window.__meshdeform?.ready, null, { timeout: 300_000, polling: 100 });
   await page.waitForTimeout(1500);  // let the first refinement of nothing settle
   await page.evaluate(() => window.__meshdeform.resetMetrics());
@@ -255,7 +263,7 @@ async function measure(browser, url, model, encoding, viewer = "this", query = "
   const after = m.renderedAt.map((t, i) => ({ t: t - upAt, refinement: m.renderedRefinement[i], converged: m.renderedConverged[i] }))
     .filter((u) => u.t >= 0 && u.refinement);
   return {
-    model: model.sample, vertices: model.vertices, encoding, viewer, link: viaLink ?? "loopback",
+    model: model.sample, vertices: model.vertices, encoding, viewer, link: viaLink ?? "loopback", page_query: pageQuery,
     drag_events: moves, drag_seconds: dragSeconds, nominal_drag_seconds: moves / 60,
     input_delay_ms: { p50: quantile(probe.delays, 0.5), p95: quantile(probe.delays, 0.95), max: probe.delays.length ? Math.max(...probe.delays) : NaN },
     pointer_events_handled: probe.events,
@@ -358,7 +366,7 @@ const link = !viaLink ? "loopback" : {
   servers: linkRuns,
 };
 mkdirSync(out, { recursive: true });
-writeFileSync(path.join(out, `${name}.json`), JSON.stringify({ machine, rows, service_alone: alone, link }, null, 2) + "\n");
+writeFileSync(path.join(out, `${name}.json`), JSON.stringify({ machine, rows, service_alone: alone, link, page_query: pageQuery }, null, 2) + "\n");
 const f = (x, d = 0) => (Number.isFinite(x) ? x.toFixed(d) : "-");
 let md = `# Viewer: drag to frame, updates per second, bytes per update\n\n`;
 md += `Made by \`node bench/viewer_latency.mjs ${process.argv.slice(2).join(" ")}\` on ${machine.date_utc} (${machine.cpu_model}, ${machine.hardware_threads} threads, ` +
@@ -367,7 +375,8 @@ md += `Made by \`node bench/viewer_latency.mjs ${process.argv.slice(2).join(" ")
     ? `Server and browser on one machine; the browser through meshdeform-link \`--link ${viaLink}\` (${link.description}; each TCP connection its own line), ` +
       `the service-alone rows on loopback`
     : `Server and browser on one machine, loopback`) +
-  `; ${machine.drag}; 2 outer iterations per move, one move in flight, newest target wins.\n\n`;
+  `; ${machine.drag}; 2 outer iterations per move, one move in flight, newest target wins` +
+  (pageQuery ? `; every page opened with \`&${pageQuery}\`` : "") + `.\n\n`;
 md += `| model | #V | encoding | viewer | updates/s while dragging | drag -> frame p50 / p95 / max (ms) | frame work p50 (ms) | bytes / update (mean) | dense doubles | dense float32 |\n`;
 md += `|---|---:|---|---|---:|---|---:|---:|---:|---:|\n`;
 for (const r of rows) {
