@@ -106,43 +106,58 @@ async function stopChild(child, ms) {
   return false;
 }
 
-/** meshdeform-link in front of 127.0.0.1:`targetPort`, on loopback: resolves once it listens. */
-function startLink(targetPort) {
+/**
+ * Starts `file` (tracked) and resolves with `ready(stderr so far)`'s first non-null value, read
+ * as its stderr grows (the server and the emulator announce their ports there). Rejects, with
+ * the child killed and its stderr, when it fails to start, exits first or takes over `ms`.
+ */
+function spawnUntilReady(file, argv, stdio, what, ms, ready) {
   return new Promise((resolve, reject) => {
-    const link = track(spawn(linkPath, ["--target", `127.0.0.1:${targetPort}`, "--link", viaLink, "--listen", "127.0.0.1:0"],
-      { stdio: ["ignore", "pipe", "pipe"] }));
-    let log = "", stdout = "", listening = false;
-    link.stdout.on("data", (d) => { stdout += d; });
+    const child = track(spawn(file, argv, { stdio }));
+    let log = "", settled = false;
     const fail = (why) => {
-      if (listening) return;
-      listening = true;  // settled
+      if (settled) return;
+      settled = true;
       clearTimeout(timer);
-      link.kill("SIGKILL");
-      reject(new Error(`meshdeform-link (${linkPath}) ${why}${log ? "\n" + log.trim() : ""}`));
+      child.kill("SIGKILL");
+      reject(new Error(`${what} ${why}${log ? "\n" + log.trim() : ""}`));
     };
-    const timer = setTimeout(() => fail("did not report listening within 10 s"), 10_000);
-    link.once("error", (e) => fail(`could not start: ${e.message}`));
-    link.once("close", (code, signal) => fail(`exited (${code ?? signal}) before listening`));
-    link.stderr.on("data", (d) => {
+    const timer = setTimeout(() => fail(`did not report listening within ${ms / 1000} s`), ms);
+    child.once("error", (e) => fail(`could not start: ${e.message}`));
+    child.once("close", (code, signal) => fail(`exited (${code ?? signal}) before listening`));
+    child.stderr.on("data", (d) => {
+      if (settled) return;
       log += d;
-      const m = log.match(/\{"event":"listening"[^\n]*\}/);
-      if (!m || listening) return;
-      listening = true;
+      const value = ready(log);
+      if (value === null) return;
+      settled = true;
       clearTimeout(timer);
-      const event = JSON.parse(m[0]);
-      const startedAt = performance.now();
-      resolve({
-        process: link, port: event.port, description: event.link,
-        /** Stops the emulator and returns its counters (null when it printed none). */
-        async stop() {
-          const clean = await stopChild(link, 5000);
-          let counters = null;
-          try { counters = JSON.parse(stdout.trim().split("\n").pop()); } catch { /* killed, or no output */ }
-          return { seconds: (performance.now() - startedAt) / 1000, stopped_cleanly: clean, counters };
-        },
-      });
+      resolve({ child, value });
     });
   });
+}
+
+/** meshdeform-link in front of 127.0.0.1:`targetPort`, on loopback: resolves once it listens. */
+async function startLink(targetPort) {
+  const { child: link, value: event } = await spawnUntilReady(linkPath,
+    ["--target", `127.0.0.1:${targetPort}`, "--link", viaLink, "--listen", "127.0.0.1:0"],
+    ["ignore", "pipe", "pipe"], `meshdeform-link (${linkPath})`, 10_000, (log) => {
+      const m = log.match(/\{"event":"listening"[^\n]*\}/);
+      return m ? JSON.parse(m[0]) : null;
+    });
+  let stdout = "";
+  link.stdout.on("data", (d) => { stdout += d; });
+  const startedAt = performance.now();
+  return {
+    process: link, port: event.port, description: event.link,
+    /** Stops the emulator and returns its counters (null when it printed none). */
+    async stop() {
+      const clean = await stopChild(link, 5000);
+      let counters = null;
+      try { counters = JSON.parse(stdout.trim().split("\n").pop()); } catch { /* killed, or no output */ }
+      return { seconds: (performance.now() - startedAt) / 1000, stopped_cleanly: clean, counters };
+    },
+  };
 }
 
 // settle: how long the page is watched after the mouse is released (refinement revisions).
@@ -154,33 +169,15 @@ const models = [
   { sample: "bumpy_plane_large", vertices: 187489, encodings: ["float32", "meshopt"], settleMs: Number(args.settle ?? 20_000), multires: true },
 ].filter((m) => !args.model || m.sample === args.model);
 
-function startServerAlone(webRoot) {
-  return new Promise((resolve, reject) => {
-    const server = track(spawn(serverPath, ["--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0", "--web-root", webRoot, "--log-level", "info"],
-      { stdio: ["ignore", "ignore", "pipe"] }));
-    let log = "", done = false;
-    const fail = (why) => {
-      if (done) return;
-      done = true;
-      clearTimeout(timer);
-      server.kill("SIGKILL");
-      reject(new Error(`server ${why}\n${log}`));
-    };
-    const timer = setTimeout(() => fail("did not start"), 20_000);
-    server.once("error", (e) => fail(`could not start: ${e.message}`));
-    server.once("close", (code, signal) => fail(`exited (${code ?? signal}) before listening`));
-    server.stderr.on("data", (d) => {
-      if (done) return;
-      log += d;
+async function startServerAlone(webRoot) {
+  const { child: server, value: ports } = await spawnUntilReady(serverPath,
+    ["--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0", "--web-root", webRoot, "--log-level", "info"],
+    ["ignore", "ignore", "pipe"], "server", 20_000, (log) => {
       const m = log.match(/"event":"http_listening"[^\n]*"port":(\d+)/);
       const g = log.match(/"event":"listening"[^\n]*"port":(\d+)/);
-      if (m && g) {
-        done = true;
-        clearTimeout(timer);
-        resolve({ server, url: `http://127.0.0.1:${m[1]}`, grpc: `127.0.0.1:${g[1]}`, httpPort: Number(m[1]) });
-      }
+      return m && g ? { http: Number(m[1]), grpc: g[1] } : null;
     });
-  });
+  return { server, url: `http://127.0.0.1:${ports.http}`, grpc: `127.0.0.1:${ports.grpc}`, httpPort: ports.http };
 }
 
 /** A server, and with --via-link the emulator in front of its HTTP port: `url` is what Chromium
