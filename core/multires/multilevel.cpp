@@ -39,6 +39,9 @@ Status check_settings(const MultilevelSettings& s) {
   if (!std::isfinite(s.level_tolerance)) {
     return Error(ErrorCode::InvalidArgument, "multilevel level_tolerance must be finite");
   }
+  if (!std::isfinite(s.start_level_tolerance)) {
+    return Error(ErrorCode::InvalidArgument, "multilevel start_level_tolerance must be finite");
+  }
   if (s.fine_start_max_iterations < 1) {
     return Error(ErrorCode::InvalidArgument,
                  "multilevel fine_start_max_iterations must be >= 1, got " +
@@ -394,6 +397,10 @@ Result<SolveReport> MultilevelSolver::solve(const Positions& targets, const Solv
       if (i == 0) {
         arap_options.max_iterations =
             std::min(arap_options.max_iterations, s.settings.fine_start_max_iterations);
+      }
+      if (s.settings.start_level_tolerance > 0) {
+        arap_options.stopping_rule = StoppingRule::Remaining;
+        arap_options.tolerance = s.settings.start_level_tolerance;
       }
       MD_ASSIGN_OR_RETURN(const Positions prolonged,
                           s.prolongation[static_cast<size_t>(i)].apply(

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <limits>
 #include <map>
 #include <stop_token>
 #include <string>
@@ -15,6 +16,7 @@
 #include "core/io/mesh_io.h"
 #include "core/mesh/measures.h"
 #include "core/mesh/topology.h"
+#include "core/methods/convergence.h"
 #include "core/methods/deformer.h"
 #include "core/methods/scale_aware.h"
 #include "core/samples/generators.h"
@@ -121,6 +123,52 @@ TEST(MultilevelSolver, TheFullResolutionStartKeepsToItsOwnBudget) {
   // Still a deformation that reaches its handles and folds nothing.
   EXPECT_LT(report->levels.back().handle_error, 1e-3);
   EXPECT_EQ(report->folded_edges, 0);
+}
+
+TEST(MultilevelSolver, TheStartAboveTheCoarsestLevelStopsByTheRemainingRule) {
+  // Each level's ARAP energies as the start phase reports them (iteration 0: its start).
+  using Energies = std::map<int, std::vector<double>>;
+  const auto run = [](double tolerance, Energies& energies) {
+    MultilevelSettings settings = three_levels();
+    settings.start_level_tolerance = tolerance;
+    auto solver = MultilevelSolver::create(cactus().mesh.V, cactus().mesh.F,
+                                           cactus().setup.constrained, settings);
+    EXPECT_TRUE(solver.ok()) << solver.status().to_string();
+    auto report = solver->solve(cactus().setup.targets, {}, [&](const IterationInfo& info) {
+      if (info.phase == SolvePhase::Start) energies[info.level].push_back(info.energy);
+    });
+    EXPECT_TRUE(report.ok()) << report.status().to_string();
+    return std::move(report).value();
+  };
+  Energies loose, tight;
+  const SolveReport by_rule = run(1e-3, loose);
+  const SolveReport before = run(0, tight);  // the default: every level to a 1e-6 change
+  ASSERT_EQ(by_rule.levels.size(), 3u);
+  ASSERT_EQ(before.levels.size(), 3u);
+  // The coarsest level (from its Laplacian guess) keeps the rigid start's tolerance.
+  EXPECT_EQ(loose[2], tight[2]);
+  for (int level = 0; level <= 1; ++level) {
+    const std::vector<double>& e = loose[level];
+    ASSERT_GE(e.size(), 4u) << level;  // the rule's earliest stop is at iteration 3
+    // It stops at the first iteration where the Remaining rule holds at 1e-3.
+    ConvergenceMonitor monitor(StoppingRule::Remaining, 1e-3, 0.0);
+    EXPECT_FALSE(monitor.start(e[0]));
+    for (size_t k = 1; k + 1 < e.size(); ++k) EXPECT_FALSE(monitor.add(e[k])) << level << " " << k;
+    EXPECT_TRUE(monitor.add(e.back())) << level;
+    // Earlier than the old rule, on the same energies up to there (the same iteration).
+    EXPECT_LT(e.size(), tight[level].size()) << level;
+    const std::vector<double> prefix(tight[level].begin(),
+                                     tight[level].begin() + static_cast<std::ptrdiff_t>(
+                                                                std::min(e.size(), tight[level].size())));
+    if (level == 1) {
+      EXPECT_EQ(prefix, e);  // level 1 starts from the same coarsest result
+    }
+    // ARAP's energy never rises on the way.
+    for (size_t k = 1; k < e.size(); ++k) EXPECT_LE(e[k], e[k - 1] * (1 + 1e-12)) << level;
+  }
+  // The result is still a deformation that reaches its handles and folds nothing.
+  EXPECT_LT(by_rule.levels.back().handle_error, 1e-3);
+  EXPECT_EQ(by_rule.folded_edges, 0);
 }
 
 TEST(MultilevelSolver, RigidMotionsAndUniformScalingsAreExactThroughEveryLevel) {
@@ -306,6 +354,11 @@ TEST(MultilevelSolver, RejectsBadSettingsAndTargets) {
   made = MultilevelSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained, bad);
   ASSERT_FALSE(made.ok());
   EXPECT_NE(made.status().message().find("fine_start_max_iterations"), std::string::npos);
+  bad = three_levels();
+  bad.start_level_tolerance = std::numeric_limits<double>::quiet_NaN();
+  made = MultilevelSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained, bad);
+  ASSERT_FALSE(made.ok());
+  EXPECT_NE(made.status().message().find("start_level_tolerance"), std::string::npos);
 
   auto solver = MultilevelSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained,
                                          three_levels());
