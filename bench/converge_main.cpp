@@ -686,12 +686,11 @@ Status run(int argc, char** argv) {
         v.fine_corrections = 2;
         variants.push_back({"+ 2 coarse-grid corrections in the fine iteration", v});
       }
-      for (const double tolerance : {3e-4, 1e-3}) {
+      for (const auto& [tolerance, name] :
+           {std::pair{3e-4, "3e-4"}, std::pair{1e-3, "1e-3"}}) {
         core::MultilevelSettings v = base;
         v.start_level_tolerance = tolerance;
-        variants.push_back({"start above the coarsest level to the rule at " +
-                                std::string(tolerance == 3e-4 ? "3e-4" : "1e-3"),
-                            v});
+        variants.push_back({std::string("start above the coarsest level to the rule at ") + name, v});
       }
       for (const int its : {5, 15, 40}) {
         core::MultilevelSettings v = base;

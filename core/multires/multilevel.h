@@ -141,8 +141,9 @@ class MultilevelSolver {
   /// options.start is not used (the cascade is the cold Auto solve); every other option applies
   /// to the full-resolution solve (max_iterations and tolerance its budget and stop, ORA and
   /// magnification after it), the start phase uses rigid_start_iterations on every level and
-  /// rigid_start_tolerance on the coarsest (the levels above it: the settings'
-  /// start_level_tolerance), the coarse levels the settings' level budget and tolerance. With one level (a mesh too small to decimate) it is the single-level Auto solve.
+  /// rigid_start_tolerance (the levels above the coarsest: the settings' start_level_tolerance
+  /// when it is set), the coarse levels the settings' level budget and tolerance. With one
+  /// level (a mesh too small to decimate) it is the single-level Auto solve.
   /// @param[in] progress  after every iteration of every phase and level (IterationInfo's phase,
   ///                      level and level_vertices say which; elapsed_seconds from the start of
   ///                      the cascade).
