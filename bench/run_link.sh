@@ -61,6 +61,7 @@ write(sys.argv[1], V, F)
 PY
 "$build/cli/meshdeform-cli" generate --model cylinder --out-dir "$scratch" >/dev/null
 
+window=(--fixed-receive-window)  # the receive window of every link case but the one below
 drag() {  # NAME MESH|sample:NAME EXTRA_LOADTEST_FLAGS...
   local name=$1 source=(--mesh "$2")
   [[ $2 == sample:* ]] && source=(--sample "${2#sample:}")
@@ -69,7 +70,7 @@ drag() {  # NAME MESH|sample:NAME EXTRA_LOADTEST_FLAGS...
   echo "== $name"
   "$loadtest" --server "127.0.0.1:$port" "${source[@]}" --sessions 1 --rate 10 \
     --iterations 1 --watchers 1 --duration "$seconds" --move-deadline-ms 60000 \
-    --max-message-mib 256 --via-link 20mbit,40ms --fixed-receive-window "$@" \
+    --max-message-mib 256 --via-link 20mbit,40ms "${window[@]}" "$@" \
     --json "$out/$name.json" --markdown "$out/$name.md"
   stop_server
 }
@@ -78,6 +79,10 @@ drag link_spot187k_20mbit_budget149k "$scratch/spot187k.obj" --updates quantized
   --max-update-bytes 149000
 drag link_spot187k_20mbit_budget149k_send_on_response "$scratch/spot187k.obj" --updates quantized \
   --max-update-bytes 149000 --send-on-response
+window=()
+drag link_spot187k_20mbit_budget149k_send_on_response_adaptive_window "$scratch/spot187k.obj" \
+  --updates quantized --max-update-bytes 149000 --send-on-response
+window=(--fixed-receive-window)
 drag link_spot187k_20mbit_budget149k_coarse_preview "$scratch/spot187k.obj" --updates quantized \
   --max-update-bytes 149000 --coarse-preview
 drag link_spot47k_20mbit_quantized "$scratch/spot47k.obj" --updates quantized
