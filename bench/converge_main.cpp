@@ -699,6 +699,17 @@ Status run(int argc, char** argv) {
       }
       {
         core::MultilevelSettings v = base;
+        v.transfer = core::LevelTransfer::Detail;
+        variants.push_back({"detail transfer", v});
+        for (const int its : {15, 40}) {
+          v.start_max_iterations = its;
+          v.fine_start_max_iterations = its;
+          variants.push_back({"detail transfer, starts above the coarsest at most " +
+                                  std::to_string(its) + " ARAP its", v});
+        }
+      }
+      {
+        core::MultilevelSettings v = base;
         v.coarsest_vertices = 4000;
         variants.push_back({"fewer levels: coarsest 4000", v});
       }

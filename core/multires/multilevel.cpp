@@ -84,6 +84,8 @@ struct MultilevelSolver::Impl {
   std::vector<MeshTopology> level_topology;
   /// prolongation[i]: level used[i + 1] -> level used[i].
   std::vector<Prolongation> prolongation;
+  /// coarse_rows[i]: the rows of level i + 1's vertices among level i's.
+  std::vector<Eigen::VectorXi> coarse_rows;
   std::optional<ScaleAwareSolver> fine;
   double hierarchy_seconds = 0, prolongation_seconds = 0, fine_setup_seconds = 0;
 
@@ -244,6 +246,7 @@ Status MultilevelSolver::Impl::build(const Positions& V_in, const Triangles& F_i
                         Prolongation::create_checked(here.V, here.F, topology_of(i), coarse_rows,
                                                      stop, settings.threads, nullptr));
     prolongation.push_back(std::move(p));
+    this->coarse_rows.push_back(std::move(coarse_rows));
     report_progress(progress, "prolongation",
                     static_cast<double>(i + 1) / static_cast<double>(top()));
   }
@@ -271,7 +274,15 @@ Result<Positions> MultilevelSolver::Impl::transfer(int i, const Positions& coars
   const Prolongation& p = prolongation[static_cast<size_t>(i)];
   MD_ASSIGN_OR_RETURN(Positions prolonged, p.apply(coarse_result));
   if (settings.transfer == LevelTransfer::Prolong) return prolonged;
-  MD_ASSIGN_OR_RETURN(const Positions arap_prolonged, p.apply(arap_coarse));
+  Positions restricted;
+  if (settings.transfer == LevelTransfer::Detail) {
+    const Eigen::VectorXi& rows = coarse_rows[static_cast<size_t>(i)];
+    restricted.resize(rows.size(), 3);
+    for (Eigen::Index r = 0; r < rows.size(); ++r) restricted.row(r) = arap_here.row(rows(r));
+  }
+  MD_ASSIGN_OR_RETURN(const Positions arap_prolonged,
+                      p.apply(settings.transfer == LevelTransfer::Detail ? restricted
+                                                                          : arap_coarse));
   Positions out = arap_here + prolonged - arap_prolonged;
   if (!out.allFinite()) {
     return Error(ErrorCode::NumericalFailure,

@@ -55,6 +55,10 @@ enum class LevelTransfer {
   Correction,
   /// x_k = P_k(S_(k+1)): the plain prolongation (measured slower; kept for the study).
   Prolong,
+  /// x_k = A_k + P_k(S_(k+1)) - P_k(R_k A_k), R_k A_k the rows of A_k at level k+1's vertices:
+  /// only A_k's details relative to its own coarse vertices are carried, so an A_k whose start
+  /// stopped early (its smooth part not converged) adds no smooth error (a study variant).
+  Detail,
 };
 
 /// How a MultilevelSolver is built and how its cascade runs.
