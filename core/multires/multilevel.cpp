@@ -84,8 +84,9 @@ struct MultilevelSolver::Impl {
   std::vector<MeshTopology> level_topology;
   /// prolongation[i]: level used[i + 1] -> level used[i].
   std::vector<Prolongation> prolongation;
-  /// coarse_rows[i]: the rows of level i + 1's vertices among level i's.
-  std::vector<Eigen::VectorXi> coarse_rows;
+  /// restriction_rows[i]: the rows of level i + 1's vertices among level i's (what
+  /// prolongation[i] was built with); kept for LevelTransfer::Detail only.
+  std::vector<Eigen::VectorXi> restriction_rows;
   std::optional<ScaleAwareSolver> fine;
   double hierarchy_seconds = 0, prolongation_seconds = 0, fine_setup_seconds = 0;
 
@@ -246,7 +247,9 @@ Status MultilevelSolver::Impl::build(const Positions& V_in, const Triangles& F_i
                         Prolongation::create_checked(here.V, here.F, topology_of(i), coarse_rows,
                                                      stop, settings.threads, nullptr));
     prolongation.push_back(std::move(p));
-    this->coarse_rows.push_back(std::move(coarse_rows));
+    if (settings.transfer == LevelTransfer::Detail) {
+      restriction_rows.push_back(std::move(coarse_rows));
+    }
     report_progress(progress, "prolongation",
                     static_cast<double>(i + 1) / static_cast<double>(top()));
   }
@@ -276,7 +279,7 @@ Result<Positions> MultilevelSolver::Impl::transfer(int i, const Positions& coars
   if (settings.transfer == LevelTransfer::Prolong) return prolonged;
   Positions restricted;
   if (settings.transfer == LevelTransfer::Detail) {
-    const Eigen::VectorXi& rows = coarse_rows[static_cast<size_t>(i)];
+    const Eigen::VectorXi& rows = restriction_rows[static_cast<size_t>(i)];
     restricted.resize(rows.size(), 3);
     for (Eigen::Index r = 0; r < rows.size(); ++r) restricted.row(r) = arap_here.row(rows(r));
   }
