@@ -85,7 +85,7 @@ struct MultilevelSolver::Impl {
   /// prolongation[i]: level used[i + 1] -> level used[i].
   std::vector<Prolongation> prolongation;
   /// restriction_rows[i]: the rows of level i + 1's vertices among level i's (what
-  /// prolongation[i] was built with); kept for LevelTransfer::Detail only.
+  /// prolongation[i] was built with).
   std::vector<Eigen::VectorXi> restriction_rows;
   std::optional<ScaleAwareSolver> fine;
   double hierarchy_seconds = 0, prolongation_seconds = 0, fine_setup_seconds = 0;
@@ -97,6 +97,10 @@ struct MultilevelSolver::Impl {
     return i == 0 ? static_cast<int>(V.rows()) : static_cast<int>(level(i).V.rows());
   }
   int top() const { return static_cast<int>(used.size()) - 1; }
+  /// The rows of level i's positions X at level i + 1's vertices (restriction by injection).
+  Positions restrict_to_coarse(int i, const Positions& X) const {
+    return X(restriction_rows[static_cast<size_t>(i)], Eigen::all);
+  }
   const MeshTopology& topology_of(int i) const {
     return i == 0 ? topology : level_topology[static_cast<size_t>(i)];
   }
@@ -137,7 +141,6 @@ Result<SolveReport> MultilevelSolver::Impl::solve_with_corrections(
     const Positions& targets, const SolveOptions& options, ScaleAwareSolver& level_one,
     const ProgressCallback& progress, const std::stop_token& stop) {
   MD_ASSIGN_OR_RETURN(const Positions level_targets, targets_of(1, targets));
-  const Eigen::VectorXi& rows = level(1).to_fine;  // level 1's vertices among the fine ones
   SolveReport merged;
   int budget = options.max_iterations;
   for (int cycle = 0; cycle <= settings.fine_corrections; ++cycle) {
@@ -164,8 +167,7 @@ Result<SolveReport> MultilevelSolver::Impl::solve_with_corrections(
     if (part.converged || budget <= 0 || cycle == settings.fine_corrections) break;
     // The coarse-grid correction.
     const Positions& x = fine->positions();
-    Positions restricted(rows.size(), 3);
-    for (Eigen::Index r = 0; r < rows.size(); ++r) restricted.row(r) = x.row(rows(r));
+    const Positions restricted = restrict_to_coarse(0, x);
     MD_RETURN_IF_ERROR(level_one.set_positions(restricted));
     SolveOptions coarse = options;
     coarse.start = StartFrom::Previous;
@@ -247,9 +249,7 @@ Status MultilevelSolver::Impl::build(const Positions& V_in, const Triangles& F_i
                         Prolongation::create_checked(here.V, here.F, topology_of(i), coarse_rows,
                                                      stop, settings.threads, nullptr));
     prolongation.push_back(std::move(p));
-    if (settings.transfer == LevelTransfer::Detail) {
-      restriction_rows.push_back(std::move(coarse_rows));
-    }
+    restriction_rows.push_back(std::move(coarse_rows));
     report_progress(progress, "prolongation",
                     static_cast<double>(i + 1) / static_cast<double>(top()));
   }
@@ -277,15 +277,10 @@ Result<Positions> MultilevelSolver::Impl::transfer(int i, const Positions& coars
   const Prolongation& p = prolongation[static_cast<size_t>(i)];
   MD_ASSIGN_OR_RETURN(Positions prolonged, p.apply(coarse_result));
   if (settings.transfer == LevelTransfer::Prolong) return prolonged;
-  Positions restricted;
-  if (settings.transfer == LevelTransfer::Detail) {
-    const Eigen::VectorXi& rows = restriction_rows[static_cast<size_t>(i)];
-    restricted.resize(rows.size(), 3);
-    for (Eigen::Index r = 0; r < rows.size(); ++r) restricted.row(r) = arap_here.row(rows(r));
-  }
   MD_ASSIGN_OR_RETURN(const Positions arap_prolonged,
-                      p.apply(settings.transfer == LevelTransfer::Detail ? restricted
-                                                                          : arap_coarse));
+                      settings.transfer == LevelTransfer::Detail
+                          ? p.apply(restrict_to_coarse(i, arap_here))
+                          : p.apply(arap_coarse));
   Positions out = arap_here + prolonged - arap_prolonged;
   if (!out.allFinite()) {
     return Error(ErrorCode::NumericalFailure,
