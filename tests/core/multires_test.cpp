@@ -359,24 +359,32 @@ TEST(MeshHierarchy, StopRequestStopsTheBuild) {
   EXPECT_LT(fractions.back(), 0.5) << "the decimation went on after the stop request";
 
   // The same with the first level decimated in two halves on two threads: the progress
-  // (reported on the calling thread only) counts both halves, and a stop ends both.
+  // (reported on the calling thread only) counts both halves, and a stop ends both. How far
+  // the other half has got by the calling thread's next report depends on how the two threads
+  // are scheduled (on a busy machine the first report past 0.3 was 0.63), so the check is
+  // that nothing is reported after the report that asked to stop.
   settings.split_above_vertices = 5000;
   settings.threads = 2;
   std::stop_source during_split;
   fractions.clear();
+  double requested_at = -1;
   auto stopped_split = MeshHierarchy::build(
       spot.mesh.V, spot.mesh.F, spot.setup.constrained, settings,
       [&, caller = std::this_thread::get_id()](std::string_view phase, double fraction) {
         EXPECT_EQ(std::this_thread::get_id(), caller);
         if (phase != "decimate") return;
         fractions.push_back(fraction);
-        if (fraction > 0.3) during_split.request_stop();
+        if (fraction > 0.3 && !during_split.stop_requested()) {
+          requested_at = fraction;
+          during_split.request_stop();
+        }
       },
       during_split.get_token());
   EXPECT_EQ(stopped_split.status().code(), ErrorCode::Cancelled);
   ASSERT_FALSE(fractions.empty());
   EXPECT_TRUE(std::is_sorted(fractions.begin(), fractions.end()));
-  EXPECT_LT(fractions.back(), 0.5) << "the decimation went on after the stop request";
+  EXPECT_GT(requested_at, 0.3);
+  EXPECT_EQ(fractions.back(), requested_at) << "the decimation went on after the stop request";
   settings.split_above_vertices = MultiresSettings{}.split_above_vertices;
 
   // Unstopped, the same callback reports the phase to its end.
