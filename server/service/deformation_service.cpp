@@ -547,8 +547,12 @@ void DeformationService::post(const std::shared_ptr<Session>& session, std::func
   Drain::schedule(&pool_, session, first);
 }
 
-core::ProgressCallback DeformationService::yield_point() {
-  return [this](const core::IterationInfo&) {
+core::ProgressCallback DeformationService::yield_point(std::chrono::milliseconds after) {
+  const double after_seconds = std::chrono::duration<double>(after).count();
+  return [this, after_seconds](const core::IterationInfo& info) {
+    // A short solve finishes soon: the moves queued after it wait their turn rather than
+    // run inside it (which would hold its result back by theirs).
+    if (info.elapsed_seconds < after_seconds) return;
     // A few at most: the solve that yields is paused while they run.
     constexpr int kMostPerYield = 8;
     int ran = 0;
@@ -626,7 +630,7 @@ void DeformationService::move_handles_async(const SessionId& id, const Token& ed
         Result<DeformResult> result = run_guarded("MoveHandles", [&]() -> Result<DeformResult> {
           const CallStop call_stop(stop, shutdown_.get_token(), request.deadline, deadlines_);
           const RunningSolve running(counters_->solves_running);
-          return session->move(request, call_stop.token(), yield_point());
+          return session->move(request, call_stop.token(), yield_point(options_.yield_after));
         });
         done(std::move(result));
         schedule_refinement(session, /*after_move=*/true);
@@ -673,7 +677,7 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
               "refinement", [&]() -> Result<std::optional<DeformResult>> {
                 const CallStop slice({}, shutdown_.get_token());
                 const RunningSolve running(counters_->solves_running);
-                return session->refine(slice.source(), yield_point());
+                return session->refine(slice.source(), yield_point(std::chrono::milliseconds{0}));
               });
           if (refined.ok() && refined->has_value()) {
             const DeformResult& r = **refined;

@@ -188,10 +188,10 @@ class DeformationService {
   /// when no edit of any session waits) and, after it, the next. `after_move`, or a move that
   /// arrived or committed within ServiceOptions::refine_delay: wait for that much rest first.
   void schedule_refinement(const std::shared_ptr<Session>& session, bool after_move);
-  /// What a solve calls between its iterations: runs short moves of other sessions that wait
-  /// while every worker is busy (WorkerPool::run_short_here), so that long solves share the
-  /// workers with them.
-  core::ProgressCallback yield_point();
+  /// What a solve calls between its iterations: once the solve has run `after` (its progress'
+  /// elapsed_seconds), runs short moves of other sessions that wait while every worker is busy
+  /// (WorkerPool::run_short_here), so that long solves share the workers with them.
+  core::ProgressCallback yield_point(std::chrono::milliseconds after);
   /// Starts the background build refinement needs (Session::take_background_build ->
   /// run_background_build). Strand only. @return true if one is running now (started here or
   /// before): refinement waits for its install, which schedules refinement again.

@@ -335,6 +335,12 @@ struct ServiceOptions {
   /// drags, every refinement revision would be a wasted solve and a full update to every
   /// watcher between two moves.
   std::chrono::milliseconds refine_delay{150};
+  /// A move's solve yields to other sessions' short moves between its iterations (its rigid
+  /// start's and coarse levels' included) only once it has run this long: a long solve shares
+  /// the workers, but a drag's move of a few milliseconds is not held back while the moves
+  /// queued after it run in its place (first come, first served among short moves). Background
+  /// refinement yields at every iteration.
+  std::chrono::milliseconds yield_after{25};
   /// Directory for session state files (persistence.h); empty = in memory only. Sessions whose
   /// file is younger than idle_ttl are restored on their first request after a restart (or on
   /// another replica sharing the directory).

@@ -134,6 +134,53 @@ TEST(FairnessTest, LongSolvesLetAnotherSessionsShortMoveThrough) {
   expect_code(done_b.get().status(), ErrorCode::Cancelled);
 }
 
+// Short moves of four sessions queued on one worker: each waits its turn. A move's solve runs the
+// moves queued after it at its yield points only once it has run ServiceOptions::yield_after
+// (a long solve), never sooner; with yield_after 0 it runs them at its first yield point. Every
+// move is answered either way. (Counted by yielded_tasks: no timing is measured.)
+TEST(FairnessTest, ShortMovesYieldOnlyOnceTheyHaveRunLong) {
+  for (const bool yields : {false, true}) {
+    SCOPED_TRACE(yields ? "yield_after 0" : "yield_after 1 h");
+    ServiceOptions options;
+    options.workers = 1;
+    options.yield_after = yields ? milliseconds(0) : milliseconds(3'600'000);
+    DeformationService service(options);
+    std::vector<Fixture> sessions;
+    for (int i = 0; i < 4; ++i) {
+      sessions.push_back(create_with_handles(service, "cylinder_small"));
+      // Warm: the moves below iterate from the previous result, no cold start.
+      ASSERT_TRUE(
+          service.move_handles(sessions.back().created.id, sessions.back().created.edit_token,
+                               twist(5, 1)).ok());
+    }
+    constexpr int kRounds = 5;
+    std::vector<std::promise<Result<DeformResult>>> promises(4 * kRounds);
+    std::vector<std::future<Result<DeformResult>>> futures;
+    for (auto& p : promises) futures.push_back(p.get_future());
+    // All queued at once: each session's strand posts its next move when the last one ends, so
+    // up to four moves (one per session) wait on the worker while another runs.
+    for (int round = 0; round < kRounds; ++round) {
+      for (int i = 0; i < 4; ++i) {
+        auto* promise = &promises[static_cast<std::size_t>(4 * round + i)];
+        service.move_handles_async(
+            sessions[static_cast<std::size_t>(i)].created.id,
+            sessions[static_cast<std::size_t>(i)].created.edit_token, twist(10 + round, 2), {},
+            [promise](Result<DeformResult> r) { promise->set_value(std::move(r)); });
+      }
+    }
+    for (auto& f : futures) {
+      ASSERT_EQ(f.wait_for(seconds(600)), std::future_status::ready);
+      const Result<DeformResult> r = f.get();
+      EXPECT_TRUE(r.ok()) << message_of(r);
+    }
+    if (yields) {
+      EXPECT_GE(service.stats().yielded_tasks, 1u);
+    } else {
+      EXPECT_EQ(service.stats().yielded_tasks, 0u);
+    }
+  }
+}
+
 // A yielding solve computes exactly what it computes alone.
 TEST(FairnessTest, YieldingDoesNotChangeTheResult) {
   ServiceOptions options;
