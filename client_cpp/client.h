@@ -254,6 +254,8 @@ struct DeformResult {
   int iterations = 0;
   bool converged = false;
   double solve_seconds = 0;
+  /// A move's response only (0 in watch updates): its wait on the server before the solve began.
+  double queue_seconds = 0;
   bool built_deformer = false;  ///< this move factored a new system
   std::string editor;
   bool refinement = false;  ///< committed by the server's background refinement

@@ -145,6 +145,7 @@ Result<DeformResult> result_from_proto(const v1::DeformResult& in, const char* r
   out.iterations = static_cast<int>(in.iterations());
   out.converged = in.converged();
   out.solve_seconds = in.solve_seconds();
+  out.queue_seconds = in.queue_seconds();
   out.built_deformer = in.built_deformer();
   out.editor = in.editor();
   out.refinement = in.refinement();

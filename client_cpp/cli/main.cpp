@@ -340,6 +340,7 @@ json result_json(const mc::DeformResult& r) {
           {"iterations", r.iterations},
           {"converged", r.converged},
           {"solve_seconds", r.solve_seconds},
+          {"queue_seconds", r.queue_seconds},
           {"built_deformer", r.built_deformer},
           {"editor", r.editor},
           {"refinement", r.refinement}};

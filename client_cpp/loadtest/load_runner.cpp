@@ -582,6 +582,7 @@ void LoadRun::send_move(SessionState& session, const ScriptedDrag& drag, double 
   if (result.latencies_ms.size() < kMaxSamplesPerSession) {
     result.latencies_ms.push_back(ms_between(sent, returned));
     result.solve_ms.push_back(1000.0 * deform.solve_seconds());
+    result.queue_ms.push_back(1000.0 * deform.queue_seconds());
   }
   result.iterations += deform.iterations();
   if (deform.converged()) ++result.converged;

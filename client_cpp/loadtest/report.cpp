@@ -126,7 +126,7 @@ std::string title(const RunResult& run) {
 Aggregate aggregate(const RunResult& run) {
   Aggregate totals;
   totals.sessions = static_cast<int>(run.sessions.size());
-  std::vector<double> setup, create, set_handles, latency, solve, per_session, delays, joins;
+  std::vector<double> setup, create, set_handles, latency, solve, queue, per_session, delays, joins;
   std::vector<double> delays_after_send, applied, update_bytes, max_error, decode_ms, coarse_bytes;
   double join_bytes = 0;
   std::int64_t iterations = 0;
@@ -156,6 +156,7 @@ Aggregate aggregate(const RunResult& run) {
     }
     latency.insert(latency.end(), session.latencies_ms.begin(), session.latencies_ms.end());
     solve.insert(solve.end(), session.solve_ms.begin(), session.solve_ms.end());
+    queue.insert(queue.end(), session.queue_ms.begin(), session.queue_ms.end());
     iterations += session.iterations;
     response_bytes += session.response_bytes;
     totals.converged += session.converged;
@@ -201,6 +202,7 @@ Aggregate aggregate(const RunResult& run) {
   totals.set_handles_ms = summarize(std::move(set_handles));
   totals.latency_ms = summarize(std::move(latency));
   totals.solve_ms = summarize(std::move(solve));
+  totals.queue_ms = summarize(std::move(queue));
   totals.moves_per_second_session = summarize(std::move(per_session));
   totals.watcher_delay_ms = summarize(std::move(delays));
   totals.watcher_delay_after_send_ms = summarize(std::move(delays_after_send));
@@ -262,7 +264,9 @@ std::string summary_text(const RunResult& run, const Aggregate& t) {
   out << "  latency     p50 " << ms_text(t.latency_ms.p50) << " ms, p95 "
       << ms_text(t.latency_ms.p95) << " ms, p99 " << ms_text(t.latency_ms.p99) << " ms, max "
       << ms_text(t.latency_ms.max) << " ms (OK moves, send to response); server solve p50 "
-      << ms_text(t.solve_ms.p50) << " ms, p99 " << ms_text(t.solve_ms.p99) << " ms\n";
+      << ms_text(t.solve_ms.p50) << " ms, p99 " << ms_text(t.solve_ms.p99)
+      << " ms; server queue p50 " << ms_text(t.queue_ms.p50) << " ms, p99 "
+      << ms_text(t.queue_ms.p99) << " ms\n";
   if (o.rate_hz > 0.0) {
     out << "  ticks       " << t.ticks << " ticks, " << t.skipped_ticks
         << " skipped (previous move still in flight; one move in flight per session)\n";
@@ -385,6 +389,7 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
                        {"per_second_per_session", summary_json(t.moves_per_second_session)},
                        {"latency_ms", summary_json(t.latency_ms)},
                        {"server_solve_ms", summary_json(t.solve_ms)},
+                       {"server_queue_ms", summary_json(t.queue_ms)},
                        {"mean_iterations", rounded(t.mean_iterations)},
                        {"mean_response_bytes", rounded(t.mean_response_bytes)},
                        {"converged", t.converged},
@@ -478,6 +483,7 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
         {"moves_per_second", rounded(phase > 0.0 ? static_cast<double>(s.moves_ok) / phase : 0.0)},
         {"latency_ms", summary_json(summarize(s.latencies_ms))},
         {"server_solve_ms", summary_json(summarize(s.solve_ms))},
+        {"server_queue_ms", summary_json(summarize(s.queue_ms))},
         {"revision_gaps", s.revision_gaps},
         {"last_revision", s.last_revision},
         {"close_status", s.close_status},
@@ -605,6 +611,7 @@ std::string report_markdown(const RunResult& run, const Aggregate& t) {
   };
   row("move, client side (OK moves, send to response)", t.latency_ms);
   row("move, server solve_seconds", t.solve_ms);
+  row("move, server queue_seconds (arrival to solve)", t.queue_ms);
   if (t.watchers > 0) {
     row("watcher receipt after the move response", t.watcher_delay_ms);
     row("watcher receipt after the move was sent", t.watcher_delay_after_send_ms);
@@ -679,7 +686,9 @@ std::string report_markdown(const RunResult& run, const Aggregate& t) {
         << " | " << updates << " | " << refinements << " |\n";
   }
   out << "\nLatency is client side, from sending MoveHandles to its response, over OK moves "
-         "only. Propagation is a watcher's receipt of a revision minus the editor's receipt of "
+         "only. The server's queue_seconds is a move's wait from its arrival to the start of "
+         "its solve (earlier edits of the session, then a free worker), solve_seconds the solve "
+         "itself. Propagation is a watcher's receipt of a revision minus the editor's receipt of "
          "the response that committed it (same process, steady clock; negative when the "
          "watcher was first), and the same receipt minus the time the move was sent. "
          "Refinement revisions have no move and are only counted. Watcher updates/s exclude the "

@@ -34,6 +34,7 @@ struct Aggregate {
   Summary moves_per_second_session;  ///< the same per set-up session
   Summary latency_ms;                ///< OK moves, client side
   Summary solve_ms;                  ///< OK moves, the server's solve_seconds
+  Summary queue_ms;                  ///< OK moves, the server's queue_seconds
   double mean_iterations = 0.0;
   double mean_response_bytes = 0.0;  ///< serialized MoveHandles response, OK moves
   std::int64_t converged = 0;

@@ -97,6 +97,7 @@ struct SessionResult {
   std::map<std::string, std::string> first_error;      ///< the first message per code
   std::vector<double> latencies_ms;                    ///< OK moves, send to response, client side
   std::vector<double> solve_ms;                        ///< OK moves, DeformResult.solve_seconds
+  std::vector<double> queue_ms;                        ///< OK moves, DeformResult.queue_seconds
   std::uint64_t response_bytes = 0;                    ///< serialized size of OK responses, summed
   std::int64_t iterations = 0;                         ///< sum of DeformResult.iterations
   std::int64_t converged = 0;

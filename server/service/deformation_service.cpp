@@ -614,6 +614,7 @@ Result<SessionInfo> DeformationService::set_handles(const SessionId& id, const T
 void DeformationService::move_handles_async(const SessionId& id, const Token& edit_token,
                                             MoveRequest request, std::stop_token stop,
                                             std::function<void(Result<DeformResult>)> done) {
+  const auto arrived = std::chrono::steady_clock::now();
   Result<std::shared_ptr<Session>> found = find_for_edit(id, edit_token);
   if (!found.ok()) {
     done(found.status());
@@ -626,12 +627,18 @@ void DeformationService::move_handles_async(const SessionId& id, const Token& ed
   post(
       session,
       [this, session, request = std::move(request), stop = std::move(stop),
-       done = std::move(done)] {
+       done = std::move(done), arrived] {
+        const double queue_seconds =
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - arrived).count();
         Result<DeformResult> result = run_guarded("MoveHandles", [&]() -> Result<DeformResult> {
           const CallStop call_stop(stop, shutdown_.get_token(), request.deadline, deadlines_);
           const RunningSolve running(counters_->solves_running);
           return session->move(request, call_stop.token(), yield_point(options_.yield_after));
         });
+        if (result.ok()) {
+          result->queue_seconds = queue_seconds;
+          counters_->metrics.record_move_queue_wait(queue_seconds);
+        }
         done(std::move(result));
         schedule_refinement(session, /*after_move=*/true);
       },

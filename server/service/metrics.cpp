@@ -110,6 +110,8 @@ void MetricsRegistry::record_solve(bool refinement, double seconds) {
   (refinement ? refinement_solve_ : move_solve_).observe(seconds);
 }
 
+void MetricsRegistry::record_move_queue_wait(double seconds) { move_queue_wait_.observe(seconds); }
+
 std::string MetricsRegistry::render(const ServiceStats& stats) const {
   std::string out;
   header(out, "meshdeform_rpc_requests_total", "counter", "Finished calls by front end, method and status code.");
@@ -134,6 +136,10 @@ std::string MetricsRegistry::render(const ServiceStats& stats) const {
          "Solver wall time of committed revisions (kind: move or refinement).");
   move_solve_.render("meshdeform_solve_seconds", "kind=\"move\"", out);
   refinement_solve_.render("meshdeform_solve_seconds", "kind=\"refinement\"", out);
+  header(out, "meshdeform_move_queue_seconds", "histogram",
+         "Wait of each move on the server before its solve began: the session's earlier edits, "
+         "then a free worker.");
+  move_queue_wait_.render("meshdeform_move_queue_seconds", "", out);
 
   auto gauge = [&](std::string_view name, std::string_view help, double value) {
     header(out, name, "gauge", help);

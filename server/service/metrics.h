@@ -53,6 +53,8 @@ class MetricsRegistry {
                   double seconds);
   /// One committed solve: a move or a background refinement slice.
   void record_solve(bool refinement, double seconds);
+  /// One move's wait on the server before its solve began (DeformResult::queue_seconds).
+  void record_move_queue_wait(double seconds);
 
   /// The whole exposition: RPC and solve metrics plus `stats` as gauges and counters, then the
   /// added sections.
@@ -68,6 +70,7 @@ class MetricsRegistry {
   std::vector<std::function<void(std::string&)>> sections_;
   Histogram move_solve_;
   Histogram refinement_solve_;
+  Histogram move_queue_wait_;
 };
 
 }  // namespace meshdeform::service

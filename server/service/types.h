@@ -158,6 +158,10 @@ struct DeformResult {
   int iterations = 0;           ///< outer iterations run
   bool converged = false;
   double solve_seconds = 0;     ///< wall time of the solve (without factorization)
+  /// A move's own result only (not the watchers' copy): how long the move waited on the server
+  /// between its arrival and the start of its solve (the session's earlier edits, then a free
+  /// worker). With solve_seconds it splits the server's part of a move's latency.
+  double queue_seconds = 0;
   bool built_deformer = false;  ///< this move had to factor a new system (new method/handle set)
   std::string editor;
   /// Committed by background refinement (ServiceOptions::refine_budget) on the previous

@@ -292,6 +292,7 @@ void result_metrics_to_proto(const service::DeformResult& result, v1::DeformResu
   out->set_iterations(static_cast<std::uint32_t>(result.iterations));
   out->set_converged(result.converged);
   out->set_solve_seconds(result.solve_seconds);
+  out->set_queue_seconds(result.queue_seconds);
   out->set_built_deformer(result.built_deformer);
   out->set_editor(result.editor);
   out->set_refinement(result.refinement);

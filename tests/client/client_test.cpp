@@ -320,6 +320,9 @@ TEST_F(ClientTest, MoveMatchesTheCoreSolveAndReportsExactDeltas) {
     EXPECT_TRUE(std::isfinite(result->e_phi));
     EXPECT_TRUE(std::isfinite(result->area_log_rms));
     EXPECT_GE(result->solve_seconds, 0.0);
+    // Carried from the server (0 would mean the field was lost on the way): a move waits at
+    // least its hand-off from the transport to a worker.
+    EXPECT_GT(result->queue_seconds, 0.0);
     previous = V;
   }
   // Without full_positions only the delta travels; a mirror fed the deltas stays exact.

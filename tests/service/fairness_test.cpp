@@ -181,6 +181,51 @@ TEST(FairnessTest, ShortMovesYieldOnlyOnceTheyHaveRunLong) {
   }
 }
 
+// A move's queue_seconds is its wait from arrival to the start of its solve: on one worker, a
+// move that arrives while another session's long solve runs waits at least until that solve
+// ends (no yielding here), and says so; the metric counts every move.
+TEST(FairnessTest, AMoveReportsItsWaitForAFreeWorker) {
+  ServiceOptions options;
+  options.workers = 1;
+  options.yield_after = milliseconds(3'600'000);
+  DeformationService service(options);
+  Fixture a = create_with_handles(service, "cylinder");
+  Fixture b = create_with_handles(service, "cylinder_small");
+  ASSERT_TRUE(service.move_handles(a.created.id, a.created.edit_token, twist(10, 1)).ok());
+  const Result<DeformResult> alone =
+      service.move_handles(b.created.id, b.created.edit_token, twist(5, 1));
+  ASSERT_TRUE(alone.ok()) << message_of(alone);
+  EXPECT_GE(alone->queue_seconds, 0.0);
+
+  using Clock = std::chrono::steady_clock;
+  std::promise<Clock::time_point> long_done;
+  std::promise<Result<DeformResult>> short_done;
+  auto long_future = long_done.get_future();
+  auto short_future = short_done.get_future();
+  std::stop_source stop_long;
+  service.move_handles_async(a.created.id, a.created.edit_token, twist(170, 1000, 0),
+                             stop_long.get_token(),
+                             [&](Result<DeformResult>) { long_done.set_value(Clock::now()); });
+  for (int i = 0; i < 60000 && service.stats().solves_running < 1; ++i) {
+    std::this_thread::sleep_for(milliseconds(5));
+  }
+  ASSERT_EQ(service.stats().solves_running, 1u);
+  service.move_handles_async(b.created.id, b.created.edit_token, twist(20, 1), {},
+                             [&](Result<DeformResult> r) { short_done.set_value(std::move(r)); });
+  const Clock::time_point posted = Clock::now();  // the short move arrived before this
+  stop_long.request_stop();
+  ASSERT_EQ(long_future.wait_for(seconds(600)), std::future_status::ready);
+  const Clock::time_point long_ended = long_future.get();
+  ASSERT_EQ(short_future.wait_for(seconds(600)), std::future_status::ready);
+  const Result<DeformResult> waited = short_future.get();
+  ASSERT_TRUE(waited.ok()) << message_of(waited);
+  EXPECT_GE(waited->queue_seconds,
+            std::chrono::duration<double>(long_ended - posted).count());
+  EXPECT_NE(service.render_metrics().find("meshdeform_move_queue_seconds_count 3"),
+            std::string::npos)
+      << "three moves answered OK (the cancelled one is not counted)";
+}
+
 // A yielding solve computes exactly what it computes alone.
 TEST(FairnessTest, YieldingDoesNotChangeTheResult) {
   ServiceOptions options;

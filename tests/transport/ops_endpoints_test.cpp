@@ -155,6 +155,7 @@ TEST_F(OpsTest, MetricsCountCallsByCodeAndExposeServiceCounters) {
   EXPECT_EQ(metric_value(body, R"(meshdeform_rpc_latency_seconds_count{frontend="grpc",method="MoveHandles"})"), 2);
   EXPECT_EQ(metric_value(body, R"(meshdeform_rpc_latency_seconds_bucket{frontend="grpc",method="MoveHandles",le="+Inf"})"), 2);
   EXPECT_EQ(metric_value(body, R"(meshdeform_solve_seconds_count{kind="move"})"), 1);
+  EXPECT_EQ(metric_value(body, "meshdeform_move_queue_seconds_count"), 1);
   EXPECT_EQ(metric_value(body, "meshdeform_sessions"), 1);
   EXPECT_EQ(metric_value(body, "meshdeform_factorizations_total"), 1);
   EXPECT_EQ(metric_value(body, "meshdeform_moves_committed_total"), 1);
