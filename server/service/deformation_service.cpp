@@ -654,9 +654,11 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
   // seconds at 10^5 vertices) is built off the strand at once, during the drag, so that
   // refinement can start as soon as the handles rest; its install schedules refinement again.
   if (start_background_build(session)) return;
-  // A move arrived or committed within the rest delay. (By value: the timer below keeps it.)
+  // A move arrived or committed within the rest delay (refinement_rest: the configured delay,
+  // longer when the drag's own moves come further apart). (By value: the timer keeps it.)
   auto dragging = [this, session] {
-    return std::chrono::steady_clock::now() - session->last_move_time() < options_.refine_delay;
+    return std::chrono::steady_clock::now() - session->last_move_time() <
+           refinement_rest(options_.refine_delay, session->drag_interval());
   };
   // A slice that starts while moves keep coming (e.g. the full-resolution solver of a
   // multiresolution session installed mid-drag) would be preempted by the next move after
@@ -665,7 +667,8 @@ void DeformationService::schedule_refinement(const std::shared_ptr<Session>& ses
     // Start once the handles rest: every move posts a timer, and only the one whose move is
     // still the last when it fires goes on (the others see a newer move, arrived or committed,
     // and drop out).
-    delays_.post_after(options_.refine_delay, [this, session, dragging] {
+    const auto rest = refinement_rest(options_.refine_delay, session->drag_interval());
+    delays_.post_after(rest, [this, session, dragging] {
       if (dragging()) return;
       post(session, [this, session] { schedule_refinement(session, /*after_move=*/false); },
            /*is_refinement=*/true);

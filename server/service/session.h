@@ -230,9 +230,23 @@ class Session : public std::enable_shared_from_this<Session> {
     return std::chrono::steady_clock::time_point(
         std::chrono::steady_clock::duration(last_move_ticks_.load()));
   }
-  /// Records a move's arrival (before it is queued on the strand).
+  /// Records a move's arrival (before it is queued on the strand), and the interval since the
+  /// previous one when that is under kDragGap (the moves of one drag; 0 otherwise).
   void note_move_arrival() {
-    last_move_ticks_.store(std::chrono::steady_clock::now().time_since_epoch().count());
+    const auto now = std::chrono::steady_clock::now().time_since_epoch().count();
+    last_move_ticks_.store(now);
+    const auto previous = last_arrival_ticks_.exchange(now);
+    const auto interval = now - previous;
+    drag_interval_ticks_.store(
+        previous != 0 && interval < std::chrono::steady_clock::duration(kDragGap).count()
+            ? interval
+            : 0);
+  }
+  /// The interval between the last two moves' arrivals when they belong to one drag (under
+  /// kDragGap apart); zero otherwise. Refinement waits for a rest longer than the drag's
+  /// own pauses (refinement_rest()).
+  std::chrono::steady_clock::duration drag_interval() const {
+    return std::chrono::steady_clock::duration(drag_interval_ticks_.load());
   }
   void touch(std::chrono::steady_clock::time_point now);
   /// Edits queued or running (the store only evicts sessions with none).
@@ -354,6 +368,8 @@ class Session : public std::enable_shared_from_this<Session> {
   std::mutex shared_mutex_;
   std::uint64_t shared_version_ = 0;  ///< the stored version this copy holds; shared_mutex_
   std::atomic<std::chrono::steady_clock::rep> last_move_ticks_{0};
+  std::atomic<std::chrono::steady_clock::rep> last_arrival_ticks_{0};   ///< moves only
+  std::atomic<std::chrono::steady_clock::rep> drag_interval_ticks_{0};  ///< drag_interval()
   /// Held while this copy replaces its state file and records the new stamp, while is_fresh()
   /// compares them, and while close() marks the session closed: a write is either done before
   /// the close returns or refused.

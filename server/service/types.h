@@ -4,6 +4,7 @@
 /// groups, move requests, results, watch updates, limits. Eigen and core types only: no gRPC, no
 /// protobuf, so every front end (gRPC, browser gateway, tests) shares them.
 
+#include <algorithm>
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
@@ -268,6 +269,22 @@ inline constexpr int kMaxMoveIterations = 1000;
 /// a drag is never queued behind another client's 1000-iteration solve (solver time is shared;
 /// a long solve is paused, not slowed, by what it runs).
 inline constexpr int kShortMoveIterations = 15;
+
+/// Moves that arrive less than this apart belong to one drag (Session::drag_interval()).
+inline constexpr std::chrono::milliseconds kDragGap{1000};
+
+/// How long a session's handles must rest after a move before background refinement starts:
+/// ServiceOptions::refine_delay, or twice the interval between the drag's last two moves if
+/// that is longer (a drag over a slow line pauses longer between its moves than the delay, and
+/// a slice started in such a pause would send a refinement revision between two moves and hold
+/// up the next one until it stops), at most kDragGap. A delay of 0 stays 0 (no wait).
+inline std::chrono::steady_clock::duration refinement_rest(
+    std::chrono::milliseconds refine_delay, std::chrono::steady_clock::duration drag_interval) {
+  if (refine_delay.count() <= 0) return std::chrono::steady_clock::duration::zero();
+  const std::chrono::steady_clock::duration delay = refine_delay;
+  return std::max(delay, std::min(2 * drag_interval,
+                                  std::chrono::steady_clock::duration(kDragGap)));
+}
 
 /// At most this many magnify regions per move (each is resolved over every face).
 inline constexpr int kMaxMagnifyRegions = 64;

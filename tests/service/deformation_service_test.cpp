@@ -857,5 +857,22 @@ TEST(RefinementTest, WaitsUntilTheHandlesRest) {
   EXPECT_GE(service.stats().refinements_committed, 1u);
 }
 
+TEST(RefinementTest, TheRestOutlastsTheDragsOwnPauses) {
+  using std::chrono::steady_clock;
+  const auto ms = [](int n) { return steady_clock::duration(milliseconds(n)); };
+  // No drag (a first move, or moves over kDragGap apart): the configured delay.
+  EXPECT_EQ(refinement_rest(milliseconds(150), steady_clock::duration::zero()), ms(150));
+  // A fast drag whose pauses are shorter than half the delay: the delay.
+  EXPECT_EQ(refinement_rest(milliseconds(150), ms(50)), ms(150));
+  // A drag over a slow line, a move every 250 ms: twice that, so no slice starts between two
+  // of its moves.
+  EXPECT_EQ(refinement_rest(milliseconds(150), ms(250)), ms(500));
+  // At most kDragGap, however slow the drag; a longer configured delay is kept.
+  EXPECT_EQ(refinement_rest(milliseconds(150), ms(900)), steady_clock::duration(kDragGap));
+  EXPECT_EQ(refinement_rest(milliseconds(5000), ms(900)), ms(5000));
+  // A delay of 0 means no wait, drag or not.
+  EXPECT_EQ(refinement_rest(milliseconds(0), ms(250)), steady_clock::duration::zero());
+}
+
 }  // namespace
 }  // namespace meshdeform::service

@@ -83,6 +83,26 @@ MoveRequest lift(double dz, core::Method method = core::Method::Arap) {
 
 // --- create / restore ----------------------------------------------------------------------------
 
+TEST(SessionTest, MovesUnderTheDragGapApartAreOneDrag) {
+  // drag_interval(): the interval between the last two moves' arrivals while they are one drag
+  // (under kDragGap apart), which refinement's rest outlasts (refinement_rest()); 0 otherwise.
+  Fixture f;
+  f.create();
+  using std::chrono::steady_clock;
+  EXPECT_EQ(f.session->drag_interval(), steady_clock::duration::zero());
+  const auto before = steady_clock::now();
+  f.session->note_move_arrival();
+  EXPECT_EQ(f.session->drag_interval(), steady_clock::duration::zero());  // the first move
+  std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  f.session->note_move_arrival();
+  const auto after = steady_clock::now();
+  EXPECT_GE(f.session->drag_interval(), std::chrono::milliseconds(2));
+  EXPECT_LE(f.session->drag_interval(), after - before);
+  std::this_thread::sleep_for(kDragGap + std::chrono::milliseconds(10));
+  f.session->note_move_arrival();  // a new drag
+  EXPECT_EQ(f.session->drag_interval(), steady_clock::duration::zero());
+}
+
 TEST(SessionTest, CreateDescribesTheMeshAtRevisionZero) {
   Fixture f;
   f.create();
