@@ -186,7 +186,8 @@ class DeformationService {
   /// If the session wants refinement: starts the background build refinement needs, if any, at
   /// once (run_background_build); otherwise queues one slice at background priority (it runs
   /// when no edit of any session waits) and, after it, the next. `after_move`, or a move that
-  /// arrived or committed within ServiceOptions::refine_delay: wait for that much rest first.
+  /// arrived or committed within the rest (refinement_rest(): ServiceOptions::refine_delay, or
+  /// longer for a drag whose moves come further apart): wait for that much rest first.
   void schedule_refinement(const std::shared_ptr<Session>& session, bool after_move);
   /// What a solve calls between its iterations: once the solve has run `after` (its progress'
   /// elapsed_seconds), runs short moves of other sessions that wait while every worker is busy

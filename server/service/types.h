@@ -160,8 +160,8 @@ struct DeformResult {
   bool converged = false;
   double solve_seconds = 0;     ///< wall time of the solve (without factorization)
   /// A move's own result only (not the watchers' copy): how long the move waited on the server
-  /// between its arrival and the start of its solve (the session's earlier edits, then a free
-  /// worker). With solve_seconds it splits the server's part of a move's latency.
+  /// between its arrival and the start of its solve (finding the session, its earlier edits, then
+  /// a free worker). With solve_seconds it splits the server's part of a move's latency.
   double queue_seconds = 0;
   bool built_deformer = false;  ///< this move had to factor a new system (new method/handle set)
   std::string editor;
@@ -352,9 +352,9 @@ struct ServiceOptions {
   /// the service keeps running outer iterations on the same targets (in slices, committing each
   /// improvement as a revision) up to this many in total; 0 = off.
   int refine_budget = 0;
-  /// ... and it starts only once the handles have rested this long after a move: while a user
-  /// drags, every refinement revision would be a wasted solve and a full update to every
-  /// watcher between two moves.
+  /// ... and it starts only once the handles have rested this long after a move (or longer:
+  /// refinement_rest()): while a user drags, every refinement revision would be a wasted solve
+  /// and a full update to every watcher between two moves.
   std::chrono::milliseconds refine_delay{150};
   /// A move's solve yields to other sessions' short moves between its iterations (its rigid
   /// start's and coarse levels' included) only once it has run this long: a long solve shares
