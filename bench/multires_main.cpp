@@ -74,6 +74,9 @@ struct Options {
   // Refinement as solves of this many iterations in a row (the server's background slices: 2);
   // 0 = one solve.
   int refine_slice = 0;
+  // The full-resolution solver is a MultilevelSolver and the first refinement runs its cascade
+  // (MultiresDeformerSettings::refine_cascade, the server's default above 20,000 vertices).
+  bool refine_cascade = false;
   std::string out_dir = MESHDEFORM_BENCH_RESULTS_DIR;
   std::string stem = "multires";
   std::string spot_path = std::string(MESHDEFORM_BENCH_SOURCE_DIR) + "/tests/data/spot.obj";
@@ -105,6 +108,10 @@ void print_usage(std::ostream& out) {
          "  --refine-slice N        run the refinement as solves of N iterations in a row,\n"
          "                          each continuing the last (the server's background slices\n"
          "                          are 2); 0: one solve (0)\n"
+         "  --refine-cascade        the first refinement runs the multilevel cascade toward\n"
+         "                          the edit instead of iterating from the refinement's start\n"
+         "                          (as make_deformer's multiresolution deformer does above\n"
+         "                          20000 vertices)\n"
          "  --out-dir DIR           (default "
       << MESHDEFORM_BENCH_RESULTS_DIR
       << ")\n"
@@ -158,6 +165,7 @@ Result<Options> parse_options(int argc, char** argv) {
     return Status::success();
   });
   flags.integer("--refine-slice", o.refine_slice, 0);
+  flags.flag("--refine-cascade", [&] { o.refine_cascade = true; });
   flags.text("--out-dir", o.out_dir);
   flags.text("--stem", o.stem);
   flags.text("--spot", o.spot_path);
@@ -223,6 +231,12 @@ json run_multires(const Model& model, const Options& options) {
       options.threads > 0 ? options.threads
                           : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
   settings.hierarchy.split_above_vertices = options.split_above;
+  if (options.refine_cascade) {
+    settings.refine_cascade = true;
+    settings.cascade.solver = settings.solver;
+    settings.cascade.coarsest_vertices = core::kDefaultMultilevelCoarsest;
+    settings.cascade.threads = settings.hierarchy.threads;
+  }
   auto start = std::chrono::steady_clock::now();
   core::MultiresDeformer deformer = value_or_throw(
       core::MultiresDeformer::create(V0, F, model.setup.constrained, settings));
@@ -287,6 +301,11 @@ json run_multires(const Model& model, const Options& options) {
       slice.max_iterations = std::min(options.refine_slice, options.max_iterations - iterations);
     }
     refined = value_or_throw(deformer.refine(model.setup.targets, slice));
+    if (solves == 0 && !refined.levels.empty()) {
+      out["refine_cascade_phases_s"] = {{"start", refined.phases.start},
+                                        {"levels", refined.phases.levels},
+                                        {"fine", refined.phases.fine}};
+    }
     // One history across the solves: each solve's iteration 0 is the last one's result.
     const double offset = seconds;
     for (std::size_t k = history.empty() ? 0 : 1; k < refined.history.size(); ++k) {
@@ -451,7 +470,10 @@ std::string markdown(const MachineInfo& machine, const std::string& load_end,
       << ", multires refinement from the "
       << (options.refine_from_drag_end ? "drag's last prolonged move"
                                        : "prolonged converged coarse solution")
-      << " (same full-resolution solver, ScaleAwareSolver::set_positions), "
+      << (options.refine_cascade
+              ? " (the first refinement by the multilevel cascade toward the edit, "
+                "MultiresDeformerSettings::refine_cascade), "
+              : " (same full-resolution solver, ScaleAwareSolver::set_positions), ")
       << (options.refine_slice > 0
               ? "as solves of " + std::to_string(options.refine_slice) +
                     " iterations in a row, each continuing the last (the server's background "
@@ -596,7 +618,8 @@ json to_json(const MachineInfo& machine, const std::string& load_end, const Opti
                     {"split_above", options.split_above},
                     {"single_start", core::start_name(options.single_start)},
                     {"refine_from", options.refine_from_drag_end ? "drag-end" : "converged-coarse"},
-                    {"refine_slice", options.refine_slice}};
+                    {"refine_slice", options.refine_slice},
+                    {"refine_cascade", options.refine_cascade}};
   out["targets"] = {{"warm_move_p50_ms_187k", kMoveP50TargetMs},
                     {"setup_s_187k", kSetupTargetSeconds},
                     {"peak_mib_187k", kMemory187kTargetMiB},

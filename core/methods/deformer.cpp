@@ -81,8 +81,13 @@ class MultiresScaleAwareDeformer final : public Deformer {
   Method method() const override { return Method::ScaleAware; }
   Result<SolveReport> solve(const Positions& targets, const SolveOptions& options,
                             const ProgressCallback& progress, std::stop_token stop) override {
-    if (options.full_resolution || options.ora || options.face_scale.size() > 0) {
-      return multires_.refine(targets, options, progress, std::move(stop));
+    if (options.full_resolution) return multires_.refine(targets, options, progress, std::move(stop));
+    if (options.ora || options.face_scale.size() > 0) {
+      // A move that needs the full resolution continues from the drag's prolonged result: the
+      // refinement's cascade (seconds at 10^5 vertices) is not a move's to run.
+      SolveOptions warm = options;
+      warm.multilevel = false;
+      return multires_.refine(targets, warm, progress, std::move(stop));
     }
     MD_ASSIGN_OR_RETURN(MultiresMove move, multires_.move(targets, options, progress, std::move(stop)));
     SolveReport report = std::move(move.coarse);
@@ -112,10 +117,10 @@ class MultiresScaleAwareDeformer final : public Deformer {
     if (!inputs) return {};
     auto shared = std::make_shared<const MultiresDeformer::FineSolverInputs>(std::move(*inputs));
     return [shared, id = id_](std::stop_token stop) -> Result<Installer> {
-      MD_ASSIGN_OR_RETURN(ScaleAwareSolver built,
+      MD_ASSIGN_OR_RETURN(MultilevelSolver built,
                           MultiresDeformer::build_fine_solver(*shared, std::move(stop)));
       // std::function needs a copyable callable: the solver travels in a shared_ptr.
-      auto solver = std::make_shared<ScaleAwareSolver>(std::move(built));
+      auto solver = std::make_shared<MultilevelSolver>(std::move(built));
       return Installer([solver, id](Deformer& deformer) {
         auto* target = dynamic_cast<MultiresScaleAwareDeformer*>(&deformer);
         if (target == nullptr || target->id_ != id) return;  // not the deformer it was built for
@@ -293,6 +298,17 @@ Result<StartFrom> parse_start(std::string_view name) {
 
 namespace {
 
+/// The multilevel solver's settings of a deformer (a cold solve's cascade, and the
+/// multiresolution deformer's refinement).
+MultilevelSettings multilevel_settings(const ScaleAwareSettings& solver,
+                                       const DeformerSettings& settings) {
+  MultilevelSettings multilevel;
+  multilevel.solver = solver;
+  multilevel.coarsest_vertices = std::max(settings.multilevel_coarsest_vertices, 100);
+  multilevel.threads = std::max(1, settings.threads);
+  return multilevel;
+}
+
 /// make_deformer; `checked` (may be null) is the topology of a mesh the caller validated.
 Result<std::unique_ptr<Deformer>> make_deformer_impl(Method method, const Positions& V0,
                                                      const Triangles& F,
@@ -319,6 +335,11 @@ Result<std::unique_ptr<Deformer>> make_deformer_impl(Method method, const Positi
         // Big handle regions would keep the coarse level large: only their borders are kept.
         multires.hierarchy.constraint_levels = ConstraintLevels::KeepBorders;
         multires.hierarchy.threads = std::max(1, settings.threads);
+        // Refinement after a drag runs the multilevel cascade where a cold solve would.
+        if (settings.multilevel_above > 0 && V0.rows() > settings.multilevel_above) {
+          multires.refine_cascade = true;
+          multires.cascade = multilevel_settings(s, settings);
+        }
         MD_ASSIGN_OR_RETURN(
             MultiresDeformer built,
             checked != nullptr
@@ -328,10 +349,7 @@ Result<std::unique_ptr<Deformer>> make_deformer_impl(Method method, const Positi
             std::make_unique<MultiresScaleAwareDeformer>(std::move(built), constrained));
       }
       if (settings.multilevel_above > 0 && V0.rows() > settings.multilevel_above) {
-        MultilevelSettings multilevel;
-        multilevel.solver = s;
-        multilevel.coarsest_vertices = std::max(settings.multilevel_coarsest_vertices, 100);
-        multilevel.threads = std::max(1, settings.threads);
+        const MultilevelSettings multilevel = multilevel_settings(s, settings);
         MD_ASSIGN_OR_RETURN(
             MultilevelSolver built,
             checked != nullptr

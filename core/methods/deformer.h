@@ -57,8 +57,11 @@ struct DeformerSettings {
   /// hierarchy (region borders of the constrained set kept) and are prolonged to full
   /// resolution with their details: a move costs a coarse solve plus a prolongation. Solves with
   /// SolveOptions::full_resolution, ORA or magnification run the full-resolution solver instead
-  /// (built on first use), warm-started from the prolonged result: background refinement
-  /// converges the full mesh that way. A coarse solve reports converged = false.
+  /// (built on first use): ORA and magnification moves warm-started from the prolonged result;
+  /// a full_resolution solve (background refinement) that does not continue an earlier one,
+  /// on a mesh above multilevel_above, by the multilevel cascade (as a cold solve; start Auto,
+  /// rigidity > 0, SolveOptions::multilevel), otherwise warm-started from the prolonged
+  /// result too. A coarse solve reports converged = false.
   int multires_above = 0;
   /// The coarse level's target vertex count (it stays above when the constrained region
   /// borders need more).

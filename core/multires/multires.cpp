@@ -931,7 +931,7 @@ struct MultiresDeformer::Impl {
   int level = 1;
   std::optional<Prolongation> prolongation;
   std::optional<ScaleAwareSolver> coarse;
-  std::optional<ScaleAwareSolver> fine;
+  std::optional<MultilevelSolver> fine;  // single level unless settings.refine_cascade
   MultiresBuildReport report;
   Positions positions;
   bool has_positions = false;  // a move or a refinement set `positions`
@@ -1052,26 +1052,35 @@ std::optional<MultiresDeformer::FineSolverInputs> MultiresDeformer::fine_solver_
   inputs.settings = s.settings.solver;
   inputs.settings.lazy_laplacian_guess = true;
   inputs.rigidity = rigidity;
+  if (s.settings.refine_cascade) {
+    inputs.multilevel = s.settings.cascade;
+  } else {
+    // No level is coarse enough to be kept: the single-level solver alone.
+    inputs.multilevel.coarsest_vertices = std::numeric_limits<int>::max();
+    inputs.multilevel.threads = std::max(1, s.settings.hierarchy.threads);
+  }
   return inputs;
 }
 
-Result<ScaleAwareSolver> MultiresDeformer::build_fine_solver(const FineSolverInputs& inputs,
+Result<MultilevelSolver> MultiresDeformer::build_fine_solver(const FineSolverInputs& inputs,
                                                              std::stop_token stop) {
-  MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver,
-                      ScaleAwareSolver::create(inputs.V, inputs.F, inputs.topology,
-                                               inputs.constrained, inputs.settings, stop));
+  MultilevelSettings settings = inputs.multilevel;
+  settings.solver = inputs.settings;  // lazy Laplacian guess: MultilevelSolver's fine solver has it
+  MD_ASSIGN_OR_RETURN(MultilevelSolver solver,
+                      MultilevelSolver::create(inputs.V, inputs.F, inputs.topology,
+                                               inputs.constrained, settings, {}, stop));
   if (inputs.rigidity >= 0) {
     if (stop.stop_requested()) {
       return Error(ErrorCode::Cancelled, "precompute cancelled (deadline or client)");
     }
-    MD_RETURN_IF_ERROR(solver.prepare(inputs.rigidity));
+    MD_RETURN_IF_ERROR(solver.fine().prepare(inputs.rigidity));
   }
   return solver;
 }
 
 bool MultiresDeformer::needs_fine_solver() const { return !impl_->fine.has_value(); }
 
-void MultiresDeformer::install_fine_solver(ScaleAwareSolver solver) {
+void MultiresDeformer::install_fine_solver(MultilevelSolver solver) {
   Impl& s = *impl_;
   if (s.fine) return;
   s.fine.emplace(std::move(solver));
@@ -1082,7 +1091,7 @@ Status MultiresDeformer::prepare_refinement(const BuildProgress& progress, std::
   std::optional<FineSolverInputs> inputs = fine_solver_inputs();
   if (!inputs) return Status::success();
   report_progress(progress, "fine_precompute", 0.0);
-  MD_ASSIGN_OR_RETURN(ScaleAwareSolver solver, build_fine_solver(*inputs, std::move(stop)));
+  MD_ASSIGN_OR_RETURN(MultilevelSolver solver, build_fine_solver(*inputs, std::move(stop)));
   install_fine_solver(std::move(solver));
   report_progress(progress, "fine_precompute", 1.0);
   return Status::success();
@@ -1093,15 +1102,26 @@ Result<SolveReport> MultiresDeformer::refine(const Positions& targets, const Sol
                                              std::stop_token stop) {
   Impl& s = *impl_;
   MD_RETURN_IF_ERROR(prepare_refinement({}, stop));
+  ScaleAwareSolver& fine = s.fine->fine();
+  // The cascade replaces a start from the prolonged move (and, before any move, the cold
+  // single-level Auto start); the paper mode (rigidity 0) and explicit starts stay as they were.
+  if (s.settings.refine_cascade && s.fine->level_count() > 1 && !s.fine_holds_positions &&
+      options.start == StartFrom::Auto && options.multilevel && options.rigidity > 0) {
+    MD_ASSIGN_OR_RETURN(SolveReport report, s.fine->solve(targets, options, progress, stop));
+    s.positions = report.V;
+    s.has_positions = true;
+    s.fine_holds_positions = true;
+    return report;
+  }
   SolveOptions run = options;
   if (s.has_positions &&
       (options.start == StartFrom::Auto || options.start == StartFrom::Previous)) {
     // A prolonged move seeds the fine solver; its own last result it continues from as is
     // (keeping its rotations and acceleration history).
-    if (!s.fine_holds_positions) MD_RETURN_IF_ERROR(s.fine->set_positions(s.positions));
+    if (!s.fine_holds_positions) MD_RETURN_IF_ERROR(fine.set_positions(s.positions));
     run.start = StartFrom::Previous;
   }
-  MD_ASSIGN_OR_RETURN(SolveReport report, s.fine->solve(targets, run, progress, stop));
+  MD_ASSIGN_OR_RETURN(SolveReport report, fine.solve(targets, run, progress, stop));
   s.positions = report.V;
   s.has_positions = true;
   s.fine_holds_positions = true;
@@ -1114,7 +1134,7 @@ void MultiresDeformer::reset() {
   s.has_positions = false;
   s.fine_holds_positions = false;
   s.coarse->reset();
-  if (s.fine) s.fine->reset();
+  if (s.fine) s.fine->fine().reset();
 }
 
 const Positions& MultiresDeformer::positions() const { return impl_->positions; }
@@ -1123,7 +1143,7 @@ int MultiresDeformer::coarse_level() const { return impl_->level; }
 const MultiresBuildReport& MultiresDeformer::build_report() const { return impl_->report; }
 ScaleAwareSolver& MultiresDeformer::coarse_solver() { return *impl_->coarse; }
 ScaleAwareSolver* MultiresDeformer::fine_solver() {
-  return impl_->fine ? &*impl_->fine : nullptr;
+  return impl_->fine ? &impl_->fine->fine() : nullptr;
 }
 
 }  // namespace meshdeform::core

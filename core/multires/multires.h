@@ -69,6 +69,7 @@
 #include "core/mesh/topology.h"
 #include "core/methods/deform_types.h"
 #include "core/methods/scale_aware.h"
+#include "core/multires/multilevel.h"
 
 namespace meshdeform::core {
 
@@ -226,6 +227,17 @@ struct MultiresDeformerSettings {
   MultiresSettings hierarchy;
   ScaleAwareSettings solver;  ///< for the coarse and the full-resolution solver alike
   int level = -1;             ///< the coarse level moves solve on; -1 the coarsest
+  /// The full-resolution solver is a MultilevelSolver (core/multires/multilevel.h) built with
+  /// `cascade` (its `solver` is replaced by the `solver` above), and a full-resolution solve
+  /// that does not continue the fine solver's own result (the first refine after moves, or
+  /// before any) with start Auto, rigidity > 0 and SolveOptions::multilevel runs its cascade
+  /// toward the targets instead of iterating from the prolonged move: the prolonged coarse
+  /// result differs from the full-resolution fixed point at low frequency, which the
+  /// full-resolution iteration removes slowly (docs/multilevel.md, "Refinement after a
+  /// drag"). Later refines continue the cascade's result warm. Off: every refine iterates
+  /// from the prolonged move (the fine solver is a single-level ScaleAwareSolver).
+  bool refine_cascade = false;
+  MultilevelSettings cascade;
 };
 
 /// Seconds spent by MultiresDeformer::create, and the sizes it chose.
@@ -292,22 +304,29 @@ class MultiresDeformer {
     /// The rigidity the first refinement will solve at: its setup (ScaleAwareSolver::prepare)
     /// is built with the solver; negative: none.
     double rigidity = -1;
+    /// MultiresDeformerSettings::cascade when refine_cascade is set (its hierarchy is built
+    /// too); otherwise a single level.
+    MultilevelSettings multilevel;
   };
   /// True until the fine solver is built or installed.
   [[nodiscard]] bool needs_fine_solver() const;
   /// The inputs, or nothing when the fine solver exists.
   /// @param[in] rigidity  what the first refinement will solve at (negative: unknown).
   [[nodiscard]] std::optional<FineSolverInputs> fine_solver_inputs(double rigidity = -1) const;
-  /// ScaleAwareSolver::create on the inputs; touches no deformer (any thread).
-  [[nodiscard]] static Result<ScaleAwareSolver> build_fine_solver(const FineSolverInputs& inputs,
+  /// MultilevelSolver::create on the inputs; touches no deformer (any thread).
+  [[nodiscard]] static Result<MultilevelSolver> build_fine_solver(const FineSolverInputs& inputs,
                                                                   std::stop_token stop = {});
   /// Installs a solver from build_fine_solver(fine_solver_inputs()); a no-op when one exists.
-  void install_fine_solver(ScaleAwareSolver solver);
+  void install_fine_solver(MultilevelSolver solver);
 
   /// Full-resolution solve toward the same kind of targets. With options.start Auto or
   /// Previous it starts from positions() once a move or a refinement has run (Auto before that:
-  /// the Laplacian guess); Laplacian and Rigid behave as in ScaleAwareSolver. The result becomes
-  /// positions(). Builds the fine solver first if needed.
+  /// the Laplacian guess); Laplacian and Rigid behave as in ScaleAwareSolver. With
+  /// MultiresDeformerSettings::refine_cascade, an Auto solve at rigidity > 0 with
+  /// options.multilevel that does not continue an earlier refine runs the multilevel cascade
+  /// instead (the report's levels and phases filled in; options.max_iterations is its
+  /// full-resolution budget). The result becomes positions(). Builds the fine solver first if
+  /// needed.
   [[nodiscard]] Result<SolveReport> refine(const Positions& targets,
                                            const SolveOptions& options = {},
                                            const ProgressCallback& progress = {},

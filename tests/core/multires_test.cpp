@@ -863,5 +863,130 @@ TEST(MultiresThroughMakeDeformer, SmallMeshesAndOtherMethodsStaySingleLevel) {
   EXPECT_EQ((*arap)->method(), Method::Arap);
 }
 
+// Issue 41: above multilevel_above, the first full-resolution solve after coarse moves is the
+// multilevel cascade toward the targets (a drag's prolonged result differs from the
+// full-resolution fixed point at low frequency, which warm iterations remove slowly); later
+// ones continue it warm, and ORA moves, the paper mode and multilevel = false keep starting
+// from the prolonged move.
+TEST(MultiresThroughMakeDeformer, RefinementAfterADragRunsTheCascadeAndThenContinuesIt) {
+  const Edit cactus = edit_of(make_cactus(2));  // 1,329 vertices
+  DeformerSettings settings;
+  settings.multires_above = 1000;
+  settings.multires_coarse_vertices = 500;
+  settings.multilevel_above = 1000;
+  settings.multilevel_coarsest_vertices = 300;  // one cascade level of ~332 vertices
+  auto make = [&](const DeformerSettings& s) {
+    auto made = make_deformer(Method::ScaleAware, cactus.mesh.V, cactus.mesh.F,
+                              cactus.setup.constrained, s);
+    EXPECT_TRUE(made.ok()) << made.status().to_string();
+    return std::move(made).value();
+  };
+  SolveOptions move;
+  move.track_metrics = false;
+  move.max_iterations = 1;
+  SolveOptions refine = move;
+  refine.full_resolution = true;
+  refine.max_iterations = 2;  // the server's slices
+  const auto drag = [&](Deformer& d) {
+    for (const double s : {0.3, 0.6, 1.0}) {
+      const Positions rest_targets = cactus.mesh.V(cactus.setup.constrained, Eigen::all);
+      ASSERT_TRUE(d.solve(rest_targets + s * (cactus.setup.targets - rest_targets), move).ok());
+    }
+  };
+
+  std::unique_ptr<Deformer> deformer = make(settings);
+  drag(*deformer);
+  auto first = deformer->solve(cactus.setup.targets, refine);
+  ASSERT_TRUE(first.ok()) << first.status().to_string();
+  ASSERT_EQ(first->levels.size(), 2u) << "the cascade ran (its two levels reported)";
+  EXPECT_GT(first->phases.start, 0.0);
+  EXPECT_EQ(first->iterations, 2);
+  EXPECT_EQ(deformer->positions(), first->V);
+
+  // It is the cold multilevel solve of the same mesh and targets, bit for bit: the drag left
+  // nothing in it.
+  DeformerSettings plain = settings;
+  plain.multires_above = 0;
+  std::unique_ptr<Deformer> cold = make(plain);
+  auto reference = cold->solve(cactus.setup.targets, refine);
+  ASSERT_TRUE(reference.ok()) << reference.status().to_string();
+  ASSERT_EQ(reference->levels.size(), 2u);
+  EXPECT_EQ(first->V, reference->V);
+
+  // The next slice continues the cascade's result at full resolution, as the cold solver's
+  // next (warm) solve does.
+  auto second = deformer->solve(cactus.setup.targets, refine);
+  auto reference_second = cold->solve(cactus.setup.targets, refine);
+  ASSERT_TRUE(second.ok() && reference_second.ok());
+  EXPECT_TRUE(second->levels.empty()) << "warm: no second cascade";
+  EXPECT_EQ(second->V, reference_second->V);
+
+  // A new move prolongs the coarse level again; the refinement after it is a cascade again.
+  ASSERT_TRUE(deformer->solve(cactus.setup.targets, move).ok());
+  auto again = deformer->solve(cactus.setup.targets, refine);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->levels.size(), 2u);
+
+  // Starting from the prolonged move instead: an ORA move, the paper mode (rigidity 0),
+  // multilevel = false, and a deformer below multilevel_above.
+  const auto warm_after_drag = [&](const DeformerSettings& s, SolveOptions options,
+                                   const char* what) {
+    SCOPED_TRACE(what);
+    std::unique_ptr<Deformer> d = make(s);
+    drag(*d);
+    auto solved = d->solve(cactus.setup.targets, options);
+    ASSERT_TRUE(solved.ok()) << solved.status().to_string();
+    EXPECT_TRUE(solved->levels.empty());
+    EXPECT_EQ(solved->start, StartFrom::Previous) << "from the prolonged move, not a cold start";
+  };
+  SolveOptions ora_move = move;
+  ora_move.ora = true;
+  warm_after_drag(settings, ora_move, "an ORA move");
+  SolveOptions paper = refine;
+  paper.rigidity = 0;
+  warm_after_drag(settings, paper, "rigidity 0");
+  SolveOptions off = refine;
+  off.multilevel = false;
+  warm_after_drag(settings, off, "multilevel = false");
+  DeformerSettings below = settings;
+  below.multilevel_above = 0;
+  warm_after_drag(below, refine, "multilevel_above 0");
+}
+
+// A rigid motion of the handles after a drag: the cascade's refinement returns the rigidly
+// moved mesh (exact through every level of the cascade, as a cold multilevel solve is: to the
+// rigid start's tolerance), whatever the drag before it left.
+TEST(MultiresThroughMakeDeformer, RefinementCascadeKeepsARigidMotionExact) {
+  const Edit cactus = edit_of(make_cactus(2));
+  DeformerSettings settings;
+  settings.multires_above = 1000;
+  settings.multires_coarse_vertices = 500;
+  settings.multilevel_above = 1000;
+  settings.multilevel_coarsest_vertices = 300;
+  auto deformer = make_deformer(Method::ScaleAware, cactus.mesh.V, cactus.mesh.F,
+                                cactus.setup.constrained, settings);
+  ASSERT_TRUE(deformer.ok()) << deformer.status().to_string();
+  SolveOptions options;
+  options.track_metrics = false;
+  options.max_iterations = 1;
+  ASSERT_TRUE((*deformer)->solve(cactus.setup.targets, options).ok());  // a drag elsewhere first
+  const Eigen::Matrix3d R =
+      Eigen::AngleAxisd(0.9, Eigen::Vector3d(0.2, 1, 0.4).normalized()).toRotationMatrix();
+  const Eigen::RowVector3d t(-0.4, 0.25, 0.6);
+  const Positions rest_targets = cactus.mesh.V(cactus.setup.constrained, Eigen::all);
+  SolveOptions refine = options;
+  refine.full_resolution = true;
+  refine.max_iterations = 30;
+  auto refined =
+      (*deformer)->solve((rest_targets * R.transpose()).rowwise() + t, refine);
+  ASSERT_TRUE(refined.ok()) << refined.status().to_string();
+  ASSERT_FALSE(refined->levels.empty());
+  const Positions moved = (cactus.mesh.V * R.transpose()).rowwise() + t;
+  EXPECT_LT((refined->V - moved).cwiseAbs().maxCoeff(),
+            test::kConvergedTol * bbox_diagonal(cactus.mesh));
+  EXPECT_TRUE(refined->converged);
+  EXPECT_EQ(refined->iterations, 1) << "exact at the cascade's start: the rule holds at once";
+}
+
 }  // namespace
 }  // namespace meshdeform::core
