@@ -420,6 +420,7 @@ Result<std::optional<WatchUpdate>> WatchStream::next() {
         stats.payload_bytes = message.delta().payload().size();
         stats.raw_bytes = header->raw_bytes;
         stats.continuation = message.continuation();
+        stats.lossless = header->mode == codec::DeltaMode::Lossless;
         update->delta = stats;
         update->result.positions = state_->decoder->positions();
       }
@@ -480,6 +481,7 @@ WatchStream Client::open_watch(const SessionRef& session, const CallOptions& cal
     options->set_tolerance(updates.tolerance);
     options->set_relative_tolerance(updates.relative_tolerance);
     options->set_max_update_bytes(updates.max_update_bytes);
+    options->set_lossless_settled(updates.lossless_settled);
   }
   request.set_coarse_preview(watch_options.coarse_preview);
   state->reader = impl_->stub->Watch(&state->context, request);

@@ -205,6 +205,10 @@ struct UpdateOptions {
   /// Quantized: most payload bytes per update (0: no limit; else >= 1024). The server sends a
   /// coarser or partial update and continues toward the same revision (continuation updates).
   std::uint32_t max_update_bytes = 0;
+  /// Quantized: settled revisions (DeformResult::settled: the result after a release, once
+  /// refinement is done) come lossless, so positions then equal the server's bit for bit; the
+  /// stream goes on quantized after them.
+  bool lossless_settled = false;
 };
 
 /// What a Watch stream asks for besides the session (meshdeform.v1.WatchRequest).
@@ -236,6 +240,9 @@ struct DeltaStats {
   std::size_t payload_bytes = 0;       ///< compressed
   std::uint64_t raw_bytes = 0;         ///< before compression
   bool continuation = false;           ///< the same revision as the update before, further on
+  /// Sent lossless (a lossless stream, or a settled revision with lossless_settled): the
+  /// positions are the server's bit for bit.
+  bool lossless = false;
   bool complete() const { return pending_vertices == 0; }
 };
 
@@ -259,6 +266,9 @@ struct DeformResult {
   bool built_deformer = false;  ///< this move factored a new system
   std::string editor;
   bool refinement = false;  ///< committed by the server's background refinement
+  /// No refinement revision follows until the next edit (converged, refinement off, or its
+  /// last slice).
+  bool settled = false;
 };
 
 /// One message of a Watch stream.

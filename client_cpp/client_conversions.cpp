@@ -149,6 +149,7 @@ Result<DeformResult> result_from_proto(const v1::DeformResult& in, const char* r
   out.built_deformer = in.built_deformer();
   out.editor = in.editor();
   out.refinement = in.refinement();
+  out.settled = in.settled();
   return out;
 }
 

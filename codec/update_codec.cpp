@@ -100,6 +100,35 @@ std::string serialize_quantized(const std::vector<Sent>& sent, int vertex_count)
   return raw;
 }
 
+/// A lossless payload: the vertices in `changed` (ascending), each coordinate's old ^ new bits.
+std::string serialize_lossless(const std::vector<int>& changed, std::size_t vertex_count,
+                               const std::vector<std::uint64_t>& old_bits,
+                               const std::vector<double>& target) {
+  std::string raw;
+  raw.reserve(12 + changed.size() * 29);
+  raw.push_back(static_cast<char>(kPayloadVersion));
+  const bool all = changed.size() == vertex_count;
+  raw.push_back(static_cast<char>(all ? 1 : 0));
+  put_varint(raw, changed.size());
+  if (!all) {
+    int previous = -1;
+    for (int v : changed) {
+      put_varint(raw, static_cast<std::uint64_t>(v - previous - 1));
+      previous = v;
+    }
+  }
+  for (int c = 0; c < 3; ++c) {
+    for (int b = 7; b >= 0; --b) {
+      for (int v : changed) {
+        const std::size_t i = 3 * static_cast<std::size_t>(v) + c;
+        const std::uint64_t x = old_bits[i] ^ bits_of(target[i]);
+        raw.push_back(static_cast<char>((x >> (8 * b)) & 0xff));
+      }
+    }
+  }
+  return raw;
+}
+
 }  // namespace
 
 std::size_t max_raw_payload_bytes(DeltaMode mode, std::uint32_t vertex_count) {
@@ -126,6 +155,8 @@ Result<StreamEncoder> StreamEncoder::create(const StreamSettings& settings, int 
   const auto n = static_cast<std::size_t>(vertex_count) * 3;
   if (settings.mode == DeltaMode::Quantized) {
     out.client_q_.assign(n, 0);
+    out.client_shown_.resize(n);
+    for (std::size_t i = 0; i < n; ++i) out.client_shown_[i] = settings.origin[static_cast<int>(i % 3)];
   } else {
     out.client_bits_.assign(n, 0);
   }
@@ -138,9 +169,8 @@ Positions StreamEncoder::client_positions() const {
   for (int v = 0; v < vertex_count_; ++v) {
     for (int c = 0; c < 3; ++c) {
       const auto i = static_cast<std::size_t>(3 * v + c);
-      out(v, c) = settings_.mode == DeltaMode::Quantized
-                      ? settings_.origin[c] + static_cast<double>(client_q_[i]) * settings_.tolerance
-                      : double_of(client_bits_[i]);
+      out(v, c) = settings_.mode == DeltaMode::Quantized ? client_shown_[i]
+                                                         : double_of(client_bits_[i]);
     }
   }
   return out;
@@ -148,10 +178,12 @@ Positions StreamEncoder::client_positions() const {
 
 std::size_t StreamEncoder::memory_bytes() const {
   return client_q_.capacity() * sizeof(std::int64_t) +
-         client_bits_.capacity() * sizeof(std::uint64_t) + target_.capacity() * sizeof(double);
+         client_bits_.capacity() * sizeof(std::uint64_t) +
+         (client_shown_.capacity() + target_.capacity()) * sizeof(double);
 }
 
-Result<EncodedUpdate> StreamEncoder::encode(const Positions& target, std::uint64_t revision) {
+Result<EncodedUpdate> StreamEncoder::encode(const Positions& target, std::uint64_t revision,
+                                            bool lossless) {
   if (target.rows() != vertex_count_) {
     return invalid("update of " + std::to_string(target.rows()) + " vertices on a stream of " +
                    std::to_string(vertex_count_));
@@ -172,12 +204,12 @@ Result<EncodedUpdate> StreamEncoder::encode(const Positions& target, std::uint64
     for (int c = 0; c < 3; ++c) target_[static_cast<std::size_t>(3 * v + c)] = target(v, c);
   }
   revision_ = revision;
-  return encode_current();
+  return encode_current(lossless);
 }
 
-Result<EncodedUpdate> StreamEncoder::encode_pending() { return encode_current(); }
+Result<EncodedUpdate> StreamEncoder::encode_pending() { return encode_current(false); }
 
-Result<EncodedUpdate> StreamEncoder::encode_current() {
+Result<EncodedUpdate> StreamEncoder::encode_current(bool lossless) {
   EncodedUpdate out;
   UpdateHeader& h = out.header;
   h.mode = settings_.mode;
@@ -186,43 +218,42 @@ Result<EncodedUpdate> StreamEncoder::encode_current() {
   h.vertex_count = static_cast<std::uint32_t>(vertex_count_);
   const auto n = static_cast<std::size_t>(vertex_count_);
 
-  if (settings_.mode == DeltaMode::Lossless) {
+  if (settings_.mode == DeltaMode::Lossless || lossless) {
+    // A lossless update: in a lossless stream against the bits the client holds; in a quantized
+    // stream (its settled revisions) against the positions it shows, which it then shows
+    // exactly. Its grid stays the stream's: the header carries it, and the grid coordinates do
+    // not change (a later quantized update of a vertex sends it back onto the grid).
+    const bool grid = settings_.mode == DeltaMode::Quantized;
+    std::vector<std::uint64_t> shown_bits;
+    if (grid) {
+      shown_bits.resize(client_shown_.size());
+      for (std::size_t i = 0; i < shown_bits.size(); ++i) shown_bits[i] = bits_of(client_shown_[i]);
+    }
+    std::vector<std::uint64_t>& old_bits = grid ? shown_bits : client_bits_;
     std::vector<int> changed;
     for (std::size_t v = 0; v < n; ++v) {
       for (int c = 0; c < 3; ++c) {
-        if (client_bits_[3 * v + c] != bits_of(target_[3 * v + c])) {
+        if (old_bits[3 * v + c] != bits_of(target_[3 * v + c])) {
           changed.push_back(static_cast<int>(v));
           break;
         }
       }
     }
-    std::string raw;
-    raw.reserve(12 + changed.size() * 29);
-    raw.push_back(static_cast<char>(kPayloadVersion));
-    const bool all = changed.size() == n;
-    raw.push_back(static_cast<char>(all ? 1 : 0));
-    put_varint(raw, changed.size());
-    if (!all) {
-      int previous = -1;
-      for (int v : changed) {
-        put_varint(raw, static_cast<std::uint64_t>(v - previous - 1));
-        previous = v;
-      }
-    }
-    for (int c = 0; c < 3; ++c) {
-      for (int b = 7; b >= 0; --b) {
-        for (int v : changed) {
-          const std::size_t i = 3 * static_cast<std::size_t>(v) + c;
-          const std::uint64_t x = client_bits_[i] ^ bits_of(target_[i]);
-          raw.push_back(static_cast<char>((x >> (8 * b)) & 0xff));
-        }
-      }
-    }
+    const std::string raw = serialize_lossless(changed, n, old_bits, target_);
     for (int v : changed) {
       for (int c = 0; c < 3; ++c) {
         const std::size_t i = 3 * static_cast<std::size_t>(v) + c;
-        client_bits_[i] = bits_of(target_[i]);
+        if (grid) {
+          client_shown_[i] = target_[i];
+        } else {
+          client_bits_[i] = bits_of(target_[i]);
+        }
       }
+    }
+    h.mode = DeltaMode::Lossless;
+    if (grid) {
+      h.step = settings_.tolerance;
+      h.origin = settings_.origin;
     }
     h.vertices_sent = static_cast<std::uint32_t>(changed.size());
     h.raw_bytes = raw.size();
@@ -239,13 +270,22 @@ Result<EncodedUpdate> StreamEncoder::encode_current() {
   for (std::size_t v = 0; v < n; ++v) {
     double e2 = 0;
     for (int c = 0; c < 3; ++c) {
-      const double shown = origin[c] + static_cast<double>(client_q_[3 * v + c]) * step;
-      const double d = shown - target_[3 * v + c];
+      const double d = client_shown_[3 * v + c] - target_[3 * v + c];
       e2 += d * d;
     }
     error[v] = std::sqrt(e2);
     if (error[v] > settings_.tolerance) candidates.push_back(static_cast<int>(v));
   }
+  // Whether a vertex shows a lossless update's position rather than its grid point: sent
+  // again, it goes back onto the grid even when its grid coordinate does not change.
+  auto off_grid = [&](std::size_t v) {
+    for (int c = 0; c < 3; ++c) {
+      if (client_shown_[3 * v + c] != origin[c] + static_cast<double>(client_q_[3 * v + c]) * step) {
+        return true;
+      }
+    }
+    return false;
+  };
   auto values_at = [&](int shift, const std::vector<int>& vertices) {
     std::vector<Sent> sent;
     sent.reserve(vertices.size());
@@ -260,7 +300,7 @@ Result<EncodedUpdate> StreamEncoder::encode_current() {
         s.d[c] = (delta + half) >> shift;  // round to the nearest multiple of 2^shift
         any = any || s.d[c] != 0;
       }
-      if (any) sent.push_back(s);
+      if (any || off_grid(static_cast<std::size_t>(v))) sent.push_back(s);
     }
     return sent;
   };
@@ -352,6 +392,7 @@ Result<EncodedUpdate> StreamEncoder::encode_current() {
     for (int c = 0; c < 3; ++c) {
       client_q_[3 * v + c] += s.d[c] * (std::int64_t{1} << shift);
       const double shown = origin[c] + static_cast<double>(client_q_[3 * v + c]) * step;
+      client_shown_[3 * v + c] = shown;
       const double d = shown - target_[3 * v + c];
       e2 += d * d;
     }
@@ -381,13 +422,15 @@ Status StreamDecoder::apply(const UpdateHeader& h, std::string_view payload) {
                  "update " + std::to_string(h.sequence) + " out of sequence (expected " +
                      std::to_string(sequence_ + 1) + ")");
   }
-  if (sequence_ > 0 && (h.mode != mode_ || h.vertex_count != vertex_count_ ||
-                        (h.mode == DeltaMode::Quantized &&
-                         (h.step != step_ || h.origin != origin_)))) {
+  // A stream is on a grid (quantized; its settled revisions may come lossless, on the same
+  // grid) or lossless throughout (no grid: step 0), from its first update on.
+  const bool grid = h.mode == DeltaMode::Quantized || h.step != 0;
+  if (sequence_ > 0 && (grid != grid_ || h.vertex_count != vertex_count_ ||
+                        (grid && (h.step != step_ || h.origin != origin_)))) {
     return Error(ErrorCode::FailedPrecondition, "update of another stream (count, mode or grid)");
   }
-  if (h.mode == DeltaMode::Quantized &&
-      (!(h.step > 0) || !std::isfinite(h.step) || !h.origin.allFinite() || h.shift > kMaxShift)) {
+  if (grid && (!(h.step > 0) || !std::isfinite(h.step) || !h.origin.allFinite() ||
+               h.shift > kMaxShift || (h.mode == DeltaMode::Lossless && h.shift != 0))) {
     return invalid("bad grid in update header");
   }
   const unsigned long long declared = ZSTD_getFrameContentSize(payload.data(), payload.size());
@@ -429,6 +472,9 @@ Status StreamDecoder::apply(const UpdateHeader& h, std::string_view payload) {
     }
   }
   const std::size_t total = static_cast<std::size_t>(h.vertex_count) * 3;
+  // A grid stream starts with every vertex at grid point 0, the origin.
+  Positions shown = positions_;
+  if (sequence_ == 0 && grid) shown = h.origin.transpose().replicate(h.vertex_count, 1);
   if (h.mode == DeltaMode::Quantized) {
     std::vector<std::int64_t> q = sequence_ > 0 ? q_ : std::vector<std::int64_t>(total, 0);
     for (int c = 0; c < 3; ++c) {
@@ -456,12 +502,31 @@ Status StreamDecoder::apply(const UpdateHeader& h, std::string_view payload) {
     }
     if (in.left() != 0) return invalid("payload has trailing bytes");
     q_ = std::move(q);
-    positions_.resize(h.vertex_count, 3);
-    for (std::uint32_t v = 0; v < h.vertex_count; ++v) {
+    // The vertices sent show their grid points; the others keep what they showed (their grid
+    // points, or a lossless update's positions).
+    for (std::size_t k = 0; k < n; ++k) {
+      const std::uint32_t v = index[k];
       for (int c = 0; c < 3; ++c) {
-        positions_(v, c) = h.origin[c] + static_cast<double>(q_[3 * static_cast<std::size_t>(v) + c]) * h.step;
+        shown(v, c) = h.origin[c] + static_cast<double>(q_[3 * static_cast<std::size_t>(v) + c]) * h.step;
       }
     }
+    positions_ = std::move(shown);
+  } else if (grid) {
+    // Lossless on a grid stream: against the positions shown; the grid coordinates stay.
+    if (in.left() != n * 24) return invalid("payload size disagrees with its vertex count");
+    if (sequence_ == 0) q_.assign(total, 0);
+    const char* base = in.here();
+    for (int c = 0; c < 3; ++c) {
+      for (int b = 7; b >= 0; --b) {
+        const char* plane = base + (static_cast<std::size_t>(c) * 8 + static_cast<std::size_t>(7 - b)) * n;
+        for (std::size_t k = 0; k < n; ++k) {
+          double& value = shown(index[k], c);
+          value = double_of(bits_of(value) ^
+                            (static_cast<std::uint64_t>(static_cast<std::uint8_t>(plane[k])) << (8 * b)));
+        }
+      }
+    }
+    positions_ = std::move(shown);
   } else {
     if (in.left() != n * 24) return invalid("payload size disagrees with its vertex count");
     std::vector<std::uint64_t> bits = sequence_ > 0 ? bits_ : std::vector<std::uint64_t>(total, 0);
@@ -484,7 +549,7 @@ Status StreamDecoder::apply(const UpdateHeader& h, std::string_view payload) {
   sequence_ = h.sequence;
   revision_ = h.revision;
   complete_ = h.complete();
-  mode_ = h.mode;
+  grid_ = grid;
   vertex_count_ = h.vertex_count;
   step_ = h.step;
   origin_ = h.origin;

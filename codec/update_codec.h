@@ -17,6 +17,12 @@
 ///  - Lossless: the client's state is the 64-bit pattern of every double; a vertex is sent when
 ///    any coordinate's bits differ, as the XOR of old and new bits. Every update is complete and
 ///    reproduces the revision bit for bit (the byte budget does not apply).
+///  - Both: a quantized stream may send single updates lossless (StreamEncoder::encode's
+///    `lossless`: the server does so for settled revisions when a watcher asks,
+///    UpdateOptions.lossless_settled). Such an update carries the stream's grid in its header
+///    and XORs the bits of the positions the client shows; the client then shows the revision
+///    exactly, and a later quantized update puts a vertex it sends back on the grid (its grid
+///    coordinate never changed), even when that coordinate's delta is 0.
 ///
 /// Byte budget (quantized): an update whose payload would exceed `max_update_bytes` is sent at
 /// a coarser precision (values rounded to multiples of 2^shift grid steps: every moved vertex
@@ -66,6 +72,9 @@ struct StreamSettings {
   /// At least kMinUpdateBytes when set.
   std::size_t max_update_bytes = 0;
   int zstd_level = 1;
+  /// Quantized: the stream's owner sends settled revisions lossless (encode's `lossless`;
+  /// UpdateOptions.lossless_settled). The encoder itself does not read it.
+  bool lossless_settled = false;
 };
 
 /// The smallest byte budget accepted (an update must be able to carry something).
@@ -103,9 +112,15 @@ class StreamEncoder {
                                                     int vertex_count);
 
   /// The next update toward `target` (#V x 3, the revision's positions).
+  /// @param lossless  in a quantized stream: send this update lossless (every position exact,
+  ///                  complete; the byte budget does not apply), e.g. a settled revision
+  ///                  (UpdateOptions.lossless_settled). Its header keeps the stream's grid, and
+  ///                  the client keeps showing those exact positions until a later quantized
+  ///                  update sends a vertex again. Lossless streams ignore it.
   /// @return the update; InvalidArgument for a row count other than the stream's or a
   ///         non-finite position.
-  [[nodiscard]] Result<EncodedUpdate> encode(const Positions& target, std::uint64_t revision);
+  [[nodiscard]] Result<EncodedUpdate> encode(const Positions& target, std::uint64_t revision,
+                                             bool lossless = false);
   /// Whether the client is not yet within tolerance of the last target (quantized with a
   /// budget): encode_pending() makes the next step.
   bool pending() const { return pending_ > 0; }
@@ -120,13 +135,14 @@ class StreamEncoder {
 
  private:
   StreamEncoder() = default;
-  Result<EncodedUpdate> encode_current();
+  Result<EncodedUpdate> encode_current(bool lossless);
 
   StreamSettings settings_;
   int vertex_count_ = 0;
   std::uint64_t sequence_ = 0;
   std::uint64_t revision_ = 0;
   std::vector<std::int64_t> client_q_;     // quantized: 3 per vertex
+  std::vector<double> client_shown_;       // quantized: what the client shows (grid or exact)
   std::vector<std::uint64_t> client_bits_; // lossless: 3 per vertex
   std::vector<double> target_;             // the last target, 3 per vertex (row-major)
   std::size_t pending_ = 0;
@@ -137,7 +153,9 @@ class StreamDecoder {
  public:
   /// Applies an update.
   /// @return success; FailedPrecondition for an update out of sequence or of another stream
-  ///         (vertex count, mode or grid changed); InvalidArgument for a payload that does not
+  ///         (vertex count or grid changed, a quantized update in a lossless stream; a
+  ///         lossless update in a quantized stream carries the stream's grid and is accepted);
+  ///         InvalidArgument for a payload that does not
   ///         decode (truncated, wrong version, index out of range, a count that disagrees with
   ///         the header, more bytes than such an update can hold). The state is unchanged on
   ///         error.
@@ -156,7 +174,7 @@ class StreamDecoder {
   std::uint64_t sequence_ = 0;
   std::uint64_t revision_ = 0;
   bool complete_ = false;
-  DeltaMode mode_ = DeltaMode::Quantized;
+  bool grid_ = false;  // a quantized stream (its lossless updates carry the grid too)
   std::uint32_t vertex_count_ = 0;
   double step_ = 0;
   Eigen::Vector3d origin_ = Eigen::Vector3d::Zero();

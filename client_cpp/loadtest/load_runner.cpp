@@ -180,6 +180,10 @@ struct SessionState {
   // The newest converged revision any watcher received, and when it first arrived.
   std::uint64_t converged_revision = 0;
   Clock::time_point converged_at;
+  // The same for settled revisions, and whether that update was lossless.
+  std::uint64_t settled_revision = 0;
+  Clock::time_point settled_at;
+  bool settled_lossless = false;
   std::vector<std::unique_ptr<WatcherState>> watchers;
 };
 
@@ -448,6 +452,7 @@ void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
       updates->set_tolerance(options_.tolerance);
       updates->set_relative_tolerance(options_.relative_tolerance);
       updates->set_max_update_bytes(options_.max_update_bytes);
+      updates->set_lossless_settled(options_.lossless_settled);
     }
     request.set_coarse_preview(options_.coarse_preview);
     codec::StreamDecoder decoder;
@@ -471,6 +476,7 @@ void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
           watcher.context->TryCancel();
           break;
         }
+        if (update.delta().mode() == v1::DELTA_MODE_LOSSLESS) ++result.lossless_updates;
         if (result.updates > 0) {
           result.decode_ms.push_back(ms_between(decode_start, Clock::now()));
           result.update_bytes.push_back(static_cast<double>(update.ByteSizeLong()));
@@ -514,6 +520,16 @@ void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
       result.last_revision = deform.revision();
       if (watcher.seen.size() < kMaxSeenPerWatcher) {
         watcher.seen.push_back(Seen{deform.revision(), at, deform.refinement()});
+      }
+      if (deform.settled()) {
+        const std::lock_guard lock(session.mutex);
+        if (deform.revision() > session.settled_revision) {
+          session.settled_revision = deform.revision();
+          session.settled_at = at;
+          session.settled_lossless =
+              update.has_delta() && update.delta().mode() == v1::DELTA_MODE_LOSSLESS;
+          session.changed.notify_all();
+        }
       }
       if (deform.converged()) {
         const std::lock_guard lock(session.mutex);
@@ -672,10 +688,18 @@ void LoadRun::settle(SessionState& session) {
       responded + std::chrono::duration_cast<Clock::duration>(
                       std::chrono::duration<double>(options_.settle_seconds));
   std::unique_lock lock(session.mutex);
+  // A converged revision is settled too (nothing refines it further); a settled one need not
+  // be converged (refinement's budget ended it).
   if (session.changed.wait_until(lock, std::min(bound, settle_end_), [&] {
-        return session.converged_revision >= revision;
+        return session.converged_revision >= revision || session.settled_revision >= revision;
       })) {
-    result.settle_ms = ms_between(responded, session.converged_at);
+    if (session.converged_revision >= revision) {
+      result.settle_ms = ms_between(responded, session.converged_at);
+    }
+    if (session.settled_revision >= revision) {
+      result.settled_ms = ms_between(responded, session.settled_at);
+      result.settled_lossless = session.settled_lossless;
+    }
   }
 }
 

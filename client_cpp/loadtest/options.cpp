@@ -158,6 +158,10 @@ std::string usage_text() {
          "  --relative-tolerance X quantized: fraction of the bounding-box diagonal (server\n"
          "                         default 1e-4)\n"
          "  --max-update-bytes N   quantized: payload budget per update (0: none; >= 1024)\n"
+         "  --lossless-settled     quantized: settled revisions (no refinement follows: the\n"
+         "                         result after a release) come lossless; the report counts the\n"
+         "                         lossless updates, and --settle-seconds also times the settled\n"
+         "                         revision\n"
          "  --fixed-receive-window keep gRPC's 64 KiB receive window (no BDP probing): HTTP/2\n"
          "                         flow control then bounds what a watch has in flight, and a\n"
          "                         slow line skips to the newest revision (a remote viewer's\n"
@@ -209,6 +213,7 @@ ParseOutcome parse_options(const std::vector<std::string>& args, Options& option
   command_line::add_flag(app, "--fixed-receive-window", options.fixed_receive_window);
   command_line::add_flag(app, "--send-on-response", options.send_on_response);
   command_line::add_flag(app, "--coarse-preview", options.coarse_preview);
+  command_line::add_flag(app, "--lossless-settled", options.lossless_settled);
   bool has_sample = false;
   // The value is refused with the generic message below; no per-flag text.
   const auto check = [](bool ok) { return ok ? std::nullopt : std::optional<std::string>(""); };
@@ -327,6 +332,9 @@ ParseOutcome parse_options(const std::vector<std::string>& args, Options& option
   if (options.updates == Updates::Off &&
       (options.tolerance > 0 || options.relative_tolerance > 0 || options.max_update_bytes > 0)) {
     return usage_error("--tolerance, --relative-tolerance and --max-update-bytes need --updates");
+  }
+  if (options.lossless_settled && options.updates != Updates::Quantized) {
+    return usage_error("--lossless-settled needs --updates quantized");
   }
   if (options.settle_seconds > 0 && options.watchers < 1) {
     return usage_error("--settle-seconds needs --watchers >= 1 (a watcher sees the refinement)");

@@ -76,6 +76,9 @@ struct Options {
   double tolerance = 0.0;           ///< --tolerance (model units; 0: relative)
   double relative_tolerance = 0.0;  ///< --relative-tolerance (0: the server's default 1e-4)
   std::uint32_t max_update_bytes = 0;  ///< --max-update-bytes (0: no budget)
+  /// --lossless-settled (with --updates quantized): settled revisions come lossless
+  /// (UpdateOptions.lossless_settled); --settle-seconds then also waits for a settled one.
+  bool lossless_settled = false;
 
   /// Channels actually used: `connections`, or one per session when 0 (never more than sessions).
   int channel_count() const;

@@ -174,6 +174,7 @@ Aggregate aggregate(const RunResult& run) {
       totals.watcher_deltas += watcher.deltas;
       delta_bytes += watcher.delta_bytes;
       totals.watcher_refinements += watcher.refinements;
+      totals.watcher_lossless_updates += watcher.lossless_updates;
       totals.watcher_skipped_revisions += watcher.skipped_revisions;
       totals.watcher_seen_before_response += watcher.seen_before_response;
       delays.insert(delays.end(), watcher.delays_ms.begin(), watcher.delays_ms.end());
@@ -218,6 +219,14 @@ Aggregate aggregate(const RunResult& run) {
   }
   totals.sessions_settled = static_cast<int>(settle.size());
   totals.settle_ms = summarize(std::move(settle));
+  std::vector<double> settled;
+  for (const SessionResult& s : run.sessions) {
+    if (!s.settled_ms) continue;
+    settled.push_back(*s.settled_ms);
+    if (s.settled_lossless) ++totals.settled_lossless;
+  }
+  totals.sessions_with_settled = static_cast<int>(settled.size());
+  totals.settled_ms = summarize(std::move(settled));
   if (totals.watchers > 0) totals.watcher_join_bytes = join_bytes / totals.watchers;
   if (phase > 0.0 && totals.watchers > 0) {
     totals.watcher_revision_updates_per_second_each =
@@ -284,6 +293,13 @@ std::string summary_text(const RunResult& run, const Aggregate& t) {
         << rate_text(t.watcher_updates_per_second_each) << "/s each), " << t.watcher_snapshots
         << " snapshots, " << t.watcher_refinements << " refinements, "
         << t.watcher_skipped_revisions << " skipped revisions\n";
+    if (o.settle_seconds > 0) {
+      out << "  settle      converged revision seen by " << t.sessions_settled << " of "
+          << t.sessions << " sessions (p50 " << ms_text(t.settle_ms.p50)
+          << " ms after the last move's response); settled by " << t.sessions_with_settled
+          << " (p50 " << ms_text(t.settled_ms.p50) << " ms, " << t.settled_lossless
+          << " lossless); " << t.watcher_lossless_updates << " lossless updates\n";
+    }
     out << "  propagation after the move response: p50 " << ms_text(t.watcher_delay_ms.p50)
         << " ms, p95 " << ms_text(t.watcher_delay_ms.p95) << " ms, p99 "
         << ms_text(t.watcher_delay_ms.p99) << " ms, max " << ms_text(t.watcher_delay_ms.max)
@@ -399,7 +415,10 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
   for (const auto& [name, count] : t.watcher_end_status) end_status[name] = count;
   json["settle"] = Json{{"seconds", o.settle_seconds},
                         {"sessions_settled", t.sessions_settled},
-                        {"ms_after_last_response", summary_json(t.settle_ms)}};
+                        {"ms_after_last_response", summary_json(t.settle_ms)},
+                        {"sessions_with_settled_revision", t.sessions_with_settled},
+                        {"settled_ms_after_last_response", summary_json(t.settled_ms)},
+                        {"settled_lossless", t.settled_lossless}};
   json["watchers"] =
       Json{{"streams", t.watchers},
            {"with_join_snapshot", t.watchers_with_join_snapshot},
@@ -408,6 +427,7 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
            {"mean_delta_bytes", rounded(t.mean_watcher_delta_bytes)},
            {"deltas", t.watcher_deltas},
            {"refinements", t.watcher_refinements},
+           {"lossless_updates", t.watcher_lossless_updates},
            {"skipped_revisions", t.watcher_skipped_revisions},
            {"updates_per_second_total", rounded(t.watcher_updates_per_second)},
            {"updates_per_second_per_watcher", rounded(t.watcher_updates_per_second_each)},
@@ -488,6 +508,8 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
         {"last_revision", s.last_revision},
         {"close_status", s.close_status},
         {"settle_ms", s.settle_ms ? Json(rounded(*s.settle_ms)) : Json(nullptr)},
+        {"settled_ms", s.settled_ms ? Json(rounded(*s.settled_ms)) : Json(nullptr)},
+        {"settled_lossless", s.settled_lossless},
         {"watchers", watchers}});
   }
   json["sessions"] = sessions;
@@ -565,6 +587,10 @@ std::string report_markdown(const RunResult& run, const Aggregate& t) {
         << format("%g", o.settle_seconds) << "): sessions, p50 / max ms | "
         << t.sessions_settled << " of " << t.sessions << ", " << ms_text(t.settle_ms.p50)
         << " / " << ms_text(t.settle_ms.max) << " |\n";
+    out << "| settled revision seen (no refinement follows; lossless with --lossless-settled): "
+           "sessions, lossless, p50 / max ms | "
+        << t.sessions_with_settled << " of " << t.sessions << ", " << t.settled_lossless << ", "
+        << ms_text(t.settled_ms.p50) << " / " << ms_text(t.settled_ms.max) << " |\n";
   }
   if (t.watchers > 0) {
     out << "| watcher streams (with join snapshot) | " << t.watchers << " ("

@@ -72,6 +72,10 @@ struct Aggregate {
   Summary watcher_coarse_bytes;               ///< ... and the coarse part's serialized size
   int sessions_settled = 0;  ///< --settle-seconds: sessions that saw a converged revision
   Summary settle_ms;         ///< ... from their last move's response
+  int sessions_with_settled = 0;  ///< --settle-seconds: sessions that saw a settled revision
+  Summary settled_ms;             ///< ... from their last move's response
+  int settled_lossless = 0;       ///< ... whose settled update came lossless
+  std::int64_t watcher_lossless_updates = 0;  ///< link-sized updates in mode LOSSLESS
   double watcher_revision_updates_per_second_each = 0;  ///< newer revisions applied per second
 };
 

@@ -40,6 +40,7 @@ struct WatcherResult {
   std::int64_t snapshots = 0;      ///< is_snapshot (join, and after a gap)
   std::int64_t deltas = 0;
   std::int64_t refinements = 0;        ///< DeformResult.refinement (server background refinement)
+  std::int64_t lossless_updates = 0;   ///< link-sized updates in mode LOSSLESS (join included)
   std::int64_t skipped_revisions = 0;  ///< sum of DeformUpdate.skipped_revisions
   std::uint64_t last_revision = 0;
   std::uint64_t delta_bytes = 0;  ///< serialized size of the non-snapshot updates, summed
@@ -76,6 +77,10 @@ struct SessionResult {
   /// --settle-seconds: from the last own move's response to the first watcher's receipt of a
   /// converged revision at or past it (ms); empty when none came within the bound.
   std::optional<double> settle_ms;
+  /// The same for a settled revision (DeformResult.settled: converged, or refinement's last),
+  /// and whether that update came lossless.
+  std::optional<double> settled_ms;
+  bool settled_lossless = false;
   int channel = 0;
   bool is_set_up = false;  ///< CreateSession and SetHandles succeeded
   std::string

@@ -45,6 +45,7 @@ Result<std::optional<codec::StreamSettings>> stream_settings_from_proto(
                       : (relative > 0 ? relative : kDefaultRelativeTolerance) * diagonal;
   out.origin = bbox_min.allFinite() ? bbox_min : Eigen::Vector3d::Zero();
   out.max_update_bytes = options.max_update_bytes();
+  out.lossless_settled = options.lossless_settled();
   return std::optional<codec::StreamSettings>(out);
 }
 
@@ -55,7 +56,8 @@ void delta_to_proto(const codec::EncodedUpdate& update, v1::VertexDelta* out) {
   out->set_sequence(h.sequence);
   out->set_vertex_count(h.vertex_count);
   out->set_vertices_sent(h.vertices_sent);
-  if (h.mode == codec::DeltaMode::Quantized) {
+  // A quantized stream's lossless updates (its settled revisions) carry its grid too.
+  if (h.mode == codec::DeltaMode::Quantized || h.step != 0) {
     out->set_step(h.step);
     vec_to_proto(h.origin, out->mutable_origin());
     out->set_shift(h.shift);

@@ -180,7 +180,7 @@ const char* script_text(int index) {
 constexpr int kScriptCount = 7;
 
 // --- Log entry bytes ------------------------------------------------------------------------------
-// u8 format(1), u8 method, u8 flags (converged, refinement, built), f64 rigidity, e_theta, e_phi,
+// u8 format(1), u8 method, u8 flags (converged, refinement, built, settled), f64 rigidity, e_theta, e_phi,
 // area_log_rms, solve_seconds, i32 iterations, pcg_iterations, str editor, matrix positions,
 // matrix targets. Little-endian hosts only, as persistence.cpp.
 
@@ -190,8 +190,10 @@ std::string encode_entry(const SharedLogEntry& entry) {
   // Format 2 adds the edit state (format 1, without it, is still read).
   out.pod<std::uint8_t>(2);
   out.pod<std::uint8_t>(static_cast<std::uint8_t>(r.method));
+  // (Readers before `settled` ignore its bit.)
   out.pod<std::uint8_t>(static_cast<std::uint8_t>((r.converged ? 1 : 0) | (r.refinement ? 2 : 0) |
-                                                  (r.built_deformer ? 4 : 0)));
+                                                  (r.built_deformer ? 4 : 0) |
+                                                  (r.settled ? 8 : 0)));
   out.pod(r.rigidity);
   out.pod(r.e_theta);
   out.pod(r.e_phi);
@@ -246,6 +248,7 @@ Result<SharedLogEntry> decode_entry(std::string_view bytes) {
   result->converged = (flags & 1) != 0;
   result->refinement = (flags & 2) != 0;
   result->built_deformer = (flags & 4) != 0;
+  result->settled = (flags & 8) != 0;
   result->iterations = iterations;
   result->pcg_iterations = pcg;
   result->positions = std::make_shared<const Positions>(std::move(positions));

@@ -667,7 +667,8 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
     DeformerCache::Entry no_deformer;
     Result<DeformResult> committed =
         commit(std::move(report), request.method, rigidity, targets, base_revision, base_positions,
-               /*built=*/false, request.editor, /*refinement=*/false, &no_deformer, &edit);
+               /*built=*/false, request.editor, /*refinement=*/false, /*settled=*/true,
+               &no_deformer, &edit);
     if (!committed.ok()) return committed.status();
     DeformResult result = std::move(committed).value();
     counters_->moves_committed.fetch_add(1);
@@ -711,9 +712,11 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   }
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " was closed");
 
+  // Settled when no refinement will follow (as below).
+  const bool settled = options_.refine_budget <= 0 || report->converged;
   Result<DeformResult> committed =
       commit(std::move(report).value(), request.method, rigidity, targets, base_revision,
-             base_positions, built, request.editor, /*refinement=*/false, entry, &edit);
+             base_positions, built, request.editor, /*refinement=*/false, settled, entry, &edit);
   if (!committed.ok()) return committed.status();
   DeformResult result = std::move(committed).value();
   counters_->moves_committed.fetch_add(1);
@@ -733,7 +736,8 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
                                      std::uint64_t base_revision,
                                      const std::shared_ptr<const Positions>& base_positions,
                                      bool built, const std::string& editor, bool refinement,
-                                     DeformerCache::Entry* entry, const EditState* edit) {
+                                     bool settled, DeformerCache::Entry* entry,
+                                     const EditState* edit) {
   const int nv = static_cast<int>(rest_.V.rows());
   auto result = std::make_shared<DeformResult>();
   result->method = method;
@@ -764,6 +768,7 @@ Result<DeformResult> Session::commit(core::SolveReport report, core::Method meth
   result->built_deformer = built;
   result->editor = editor;
   result->refinement = refinement;
+  result->settled = settled;
   result->pcg_iterations = report.pcg_iterations;
   result->coarse = std::move(report.coarse);
   counters_->pcg_iterations.fetch_add(static_cast<std::uint64_t>(std::max(report.pcg_iterations, 0)));
@@ -956,10 +961,12 @@ Result<std::optional<DeformResult>> Session::refine(
     return Error(ErrorCode::NotFound, "session " + id_.value + " was closed");
   }
   const int iterations = report->iterations;
+  // The last slice: converged, or the budget ends with it (as below).
+  const bool last = report->converged || state.remaining - std::max(iterations, 1) <= 0;
   Result<DeformResult> committed =
       commit(std::move(report).value(), state.method, state.rigidity, targets, base_revision,
-             base_positions, /*built=*/false, "refinement", /*refinement=*/true, entry,
-             /*edit=*/nullptr);
+             base_positions, /*built=*/false, "refinement", /*refinement=*/true,
+             /*settled=*/last, entry, /*edit=*/nullptr);
   if (!committed.ok()) {
     refine_.reset();
     return committed.status();

@@ -296,11 +296,12 @@ class Session : public std::enable_shared_from_this<Session> {
   /// Strand only.
   /// @return the revision; with a shared store, the store's refusal (Aborted naming the current
   ///         revision, NotFound, Internal), and then nothing is committed.
+  /// @param settled  no refinement revision will follow (DeformResult::settled).
   /// @param edit  the session's edit state after this revision (null: unchanged, refinement).
   Result<DeformResult> commit(core::SolveReport report, core::Method method, double rigidity,
                               const Positions& targets, std::uint64_t base_revision,
                               const std::shared_ptr<const Positions>& base_positions, bool built,
-                              const std::string& editor, bool refinement,
+                              const std::string& editor, bool refinement, bool settled,
                               DeformerCache::Entry* entry,
                               const EditState* edit);
   /// Shared store: takes the lease (waiting at most `wait`) and catches up (sync_shared).

@@ -168,6 +168,10 @@ struct DeformResult {
   /// Committed by background refinement (ServiceOptions::refine_budget) on the previous
   /// revision's targets, not by a move; editor is "refinement".
   bool refinement = false;
+  /// No refinement revision follows this one (until the next edit): it converged, background
+  /// refinement is off, or this is refinement's last slice (converged or its budget spent).
+  /// Watchers that ask for it get a settled revision exactly (UpdateOptions.lossless_settled).
+  bool settled = false;
   int pcg_iterations = 0;       ///< conjugate-gradient iterations of step two in this solve
   /// A multiresolution session's move solved on its coarse level (then prolonged into
   /// `positions`): that level's mesh and positions, for watchers that draw the coarse level

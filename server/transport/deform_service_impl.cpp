@@ -309,8 +309,10 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::DeformUpdate> {
                                                            static_cast<int>(positions.rows())));
           encoder_.emplace(std::move(created));
         }
-        MD_ASSIGN_OR_RETURN(codec::EncodedUpdate delta,
-                            encoder_->encode(positions, update->result->revision));
+        MD_ASSIGN_OR_RETURN(
+            codec::EncodedUpdate delta,
+            encoder_->encode(positions, update->result->revision,
+                             deltas_->lossless_settled && update->result->settled));
         last_result_ = update->result;
         last_revision_at_ = std::chrono::steady_clock::now();
         message_.set_skipped_revisions(update->skipped_revisions);

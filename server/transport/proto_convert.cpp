@@ -296,6 +296,7 @@ void result_metrics_to_proto(const service::DeformResult& result, v1::DeformResu
   out->set_built_deformer(result.built_deformer);
   out->set_editor(result.editor);
   out->set_refinement(result.refinement);
+  out->set_settled(result.settled);
   out->set_pcg_iterations(static_cast<std::uint32_t>(std::max(result.pcg_iterations, 0)));
   if (result.history_position) {
     out->set_history_position(static_cast<std::uint32_t>(std::max(*result.history_position, 0)));

@@ -310,6 +310,87 @@ TEST_F(LinkUpdatesTest, ASlowWatcherGetsTheNewestRevisionAndTheSkippedOnesCounte
   EXPECT_TRUE(*received.back().result.positions == *truth);
 }
 
+// UpdateOptions.lossless_settled through the link: a quantized watcher gets the settled revision
+// (refinement's last: here its budget of 4 iterations ends it) lossless, equal bit for bit to a
+// lossless watcher's, the drag's revisions before it quantized, and the next drag quantized
+// again from it; a watcher that did not ask gets the settled revision quantized.
+class SettledUpdatesTest : public LinkUpdatesTest {
+ protected:
+  void SetUp() override {
+    start_server({"--refine-budget", "4", "--refine-delay-ms", "0", "--workers", "2"});
+  }
+};
+
+TEST_F(SettledUpdatesTest, ASettledRevisionArrivesExactlyInAQuantizedStream) {
+  const Session session = create_with_handles("cylinder");
+  Result<SessionInfo> info = editor_->session_info(session.view());
+  ASSERT_TRUE(info.ok());
+  const double tolerance = 1e-4 * (info->bbox_max - info->bbox_min).norm();
+  const Client watcher = via_link("20mbit,40ms");
+  UpdateOptions settled_exact;
+  settled_exact.mode = UpdateOptions::Mode::Quantized;
+  settled_exact.lossless_settled = true;
+  UpdateOptions quantized;
+  quantized.mode = UpdateOptions::Mode::Quantized;
+  UpdateOptions lossless;
+  lossless.mode = UpdateOptions::Mode::Lossless;
+  WatchStream asked = watcher.open_watch(session.view(), {}, settled_exact);
+  WatchStream plain = watcher.open_watch(session.view(), {}, quantized);
+  WatchStream reference = editor_->open_watch(session.view(), {}, lossless);
+
+  // Reads a stream up to the first settled revision at or past `revision` (bounded); the
+  // updates before it that were sent lossless are counted in `lossless_before`.
+  const auto until_settled = [](WatchStream& stream, std::uint64_t revision,
+                                int* lossless_before = nullptr) -> std::optional<WatchUpdate> {
+    for (int i = 0; i < 200; ++i) {
+      Result<std::optional<WatchUpdate>> next = stream.next();
+      EXPECT_TRUE(next.ok() && next->has_value()) << message_of(next);
+      if (!next.ok() || !next->has_value()) break;
+      WatchUpdate update = std::move(**next);
+      if (update.result.settled && update.result.revision >= revision) return update;
+      if (lossless_before != nullptr && update.delta && update.delta->lossless) ++*lossless_before;
+    }
+    ADD_FAILURE() << "no settled revision at or past " << revision;
+    return std::nullopt;
+  };
+  int lossless_before = 0;  // in the asking stream, over both drags
+
+  for (int drag = 1; drag <= 2; ++drag) {
+    SCOPED_TRACE(drag);
+    // One move of a single iteration does not converge: refinement follows, and its last slice
+    // (the budget) is the settled revision.
+    MoveSpec spec = bend(12.0 * drag);
+    spec.max_iterations = 1;
+    Result<DeformResult> moved = editor_->move(session.edit(), spec);
+    ASSERT_TRUE(moved.ok()) << message_of(moved);
+    EXPECT_FALSE(moved->converged);
+    EXPECT_FALSE(moved->settled) << "refinement follows a move that did not converge";
+
+    const std::optional<WatchUpdate> exact_update = until_settled(reference, moved->revision);
+    const std::optional<WatchUpdate> got = until_settled(asked, moved->revision, &lossless_before);
+    const std::optional<WatchUpdate> other = until_settled(plain, moved->revision);
+    ASSERT_TRUE(exact_update && got && other);
+    ASSERT_EQ(got->result.revision, exact_update->result.revision);
+    EXPECT_TRUE(got->result.refinement);
+    ASSERT_TRUE(got->delta && got->result.positions && exact_update->result.positions);
+    EXPECT_TRUE(got->delta->lossless);
+    EXPECT_TRUE(got->delta->complete());
+    const Positions& truth = *exact_update->result.positions;
+    ASSERT_EQ(got->result.positions->rows(), truth.rows());
+    EXPECT_EQ(std::memcmp(got->result.positions->data(), truth.data(),
+                          sizeof(double) * static_cast<std::size_t>(truth.size())),
+              0)
+        << "the settled revision, bit for bit";
+    // Without the ask: quantized, within the tolerance, not exact.
+    ASSERT_TRUE(other->delta && other->result.positions);
+    EXPECT_FALSE(other->delta->lossless);
+    EXPECT_LE(max_distance(*other->result.positions, truth), tolerance);
+    EXPECT_FALSE(*other->result.positions == truth);
+  }
+  // Only the join (revision 0, which nothing refines: settled) may have come lossless before.
+  EXPECT_LE(lossless_before, 1);
+}
+
 // The coarse preview through the C++ client (issue 44's WatchRequest.coarse_preview): a watcher
 // that asks for it gets, with each move a multiresolution session solved on its coarse level,
 // that level with its mesh filled in on every update (the server sends the mesh once per

@@ -209,6 +209,80 @@ TEST(UpdateCodec, TheDecoderRefusesWhatDoesNotDecodeAndKeepsItsState) {
   EXPECT_EQ(decoder.sequence(), 2u);
 }
 
+// UpdateOptions.lossless_settled: a quantized stream sends a settled revision lossless (exact),
+// then goes on quantized; every update keeps the encoder's model of the client exact.
+TEST(UpdateCodec, AQuantizedStreamCarriesExactSettledRevisionsAndGoesOn) {
+  const Positions rest = grid_mesh(3000, 7);
+  constexpr double kTolerance = 1e-4;
+  for (const std::size_t budget : {std::size_t{0}, std::size_t{4000}}) {
+    SCOPED_TRACE(budget == 0 ? "no budget" : "a byte budget");
+    auto encoder = StreamEncoder::create(quantized(kTolerance, budget), 3000);
+    ASSERT_TRUE(encoder.ok()) << encoder.status().message();
+    StreamDecoder decoder;
+    const auto deliver = [&](const Positions& target, std::uint64_t revision, bool lossless) {
+      auto update = encoder->encode(target, revision, lossless);
+      ASSERT_TRUE(update.ok()) << update.status().message();
+      EXPECT_EQ(update->header.mode, lossless ? DeltaMode::Lossless : DeltaMode::Quantized);
+      EXPECT_EQ(update->header.step, kTolerance) << "the stream's grid, in every update";
+      ASSERT_TRUE(decoder.apply(update->header, update->payload).ok()) << "revision " << revision;
+      while (encoder->pending()) {  // a budget's continuations
+        auto more = encoder->encode_pending();
+        ASSERT_TRUE(more.ok());
+        ASSERT_TRUE(decoder.apply(more->header, more->payload).ok());
+      }
+      EXPECT_TRUE(encoder->client_positions() == decoder.positions()) << "revision " << revision;
+    };
+    // A drag, quantized; the settled revision exact; the next drag quantized again.
+    for (int r = 0; r < 5; ++r) {
+      deliver(bend(rest, 0.02 * r), static_cast<std::uint64_t>(r), false);
+      EXPECT_LE(max_distance(decoder.positions(), bend(rest, 0.02 * r)), kTolerance);
+    }
+    Positions settled = bend(rest, 0.08);
+    settled(7, 1) = std::nextafter(settled(7, 1), 10.0);  // off any grid
+    deliver(settled, 5, true);
+    EXPECT_EQ(std::memcmp(decoder.positions().data(), settled.data(), sizeof(double) * 9000), 0)
+        << "the settled revision, bit for bit";
+    // A vertex whose grid coordinate the next revision leaves where it was is still sent back
+    // onto the grid when it is farther than the tolerance.
+    for (int r = 6; r < 10; ++r) {
+      const Positions target = bend(rest, 0.08 - 0.01 * (r - 5));
+      deliver(target, static_cast<std::uint64_t>(r), false);
+      EXPECT_LE(max_distance(decoder.positions(), target), kTolerance) << "revision " << r;
+    }
+    // A settled revision again, equal to the last quantized target: exact again.
+    const Positions again = bend(rest, 0.04);
+    deliver(again, 10, true);
+    EXPECT_TRUE(decoder.positions() == again);
+    // And back to a revision it had shown: only what is off by more than the tolerance travels.
+    deliver(again, 11, false);
+    EXPECT_TRUE(decoder.positions() == again) << "nothing farther than the tolerance: nothing sent";
+  }
+
+  // A settled revision as the stream's first update (a watcher joining a settled session).
+  auto encoder = StreamEncoder::create(quantized(kTolerance), 3000);
+  ASSERT_TRUE(encoder.ok());
+  StreamDecoder decoder;
+  const Positions target = bend(rest, 0.05);
+  auto first = encoder->encode(target, 3, true);
+  ASSERT_TRUE(first.ok());
+  ASSERT_TRUE(decoder.apply(first->header, first->payload).ok());
+  EXPECT_TRUE(decoder.positions() == target);
+  auto next = encoder->encode(bend(rest, 0.06), 4);
+  ASSERT_TRUE(next.ok());
+  ASSERT_TRUE(decoder.apply(next->header, next->payload).ok());
+  EXPECT_LE(max_distance(decoder.positions(), bend(rest, 0.06)), kTolerance);
+
+  // A lossless stream stays one: a quantized header there is another stream's.
+  auto lossless = StreamEncoder::create(StreamSettings{DeltaMode::Lossless}, 3000);
+  ASSERT_TRUE(lossless.ok());
+  StreamDecoder exact;
+  auto l1 = lossless->encode(rest, 0);
+  ASSERT_TRUE(l1.ok() && exact.apply(l1->header, l1->payload).ok());
+  UpdateHeader quantized_header = next->header;
+  quantized_header.sequence = 2;
+  EXPECT_EQ(exact.apply(quantized_header, next->payload).code(), ErrorCode::FailedPrecondition);
+}
+
 TEST(UpdateCodec, SettingsAreChecked) {
   EXPECT_FALSE(StreamEncoder::create(quantized(0), 10).ok());
   EXPECT_FALSE(StreamEncoder::create(quantized(std::nan("")), 10).ok());

@@ -78,7 +78,10 @@ Positions pose(int revision, int n, bool noisy) {
   return out;
 }
 
-Json stream_json(DeltaMode mode, std::size_t budget, int n = 64, double tolerance = 1e-3) {
+/// `lossless_revision` >= 0: that revision goes lossless in a quantized stream (a settled one,
+/// UpdateOptions.lossless_settled).
+Json stream_json(DeltaMode mode, std::size_t budget, int n = 64, double tolerance = 1e-3,
+                 int lossless_revision = -1) {
   const bool noisy = budget > 0;
   StreamSettings settings;
   settings.mode = mode;
@@ -96,7 +99,7 @@ Json stream_json(DeltaMode mode, std::size_t budget, int n = 64, double toleranc
     for (int v = 0; v < n; ++v) {
       for (int c = 0; c < 3; ++c) positions.push_back(client(v, c));
     }
-    updates.push_back(Json{{"mode", mode == DeltaMode::Quantized ? 1 : 2},
+    updates.push_back(Json{{"mode", h.mode == DeltaMode::Quantized ? 1 : 2},
                            {"sequence", h.sequence},
                            {"revision", h.revision},
                            {"vertexCount", h.vertex_count},
@@ -110,7 +113,7 @@ Json stream_json(DeltaMode mode, std::size_t budget, int n = 64, double toleranc
                            {"positions", positions}});
   };
   for (int r = 0; r < 4; ++r) {
-    auto u = encoder->encode(pose(r, n, noisy), static_cast<std::uint64_t>(r));
+    auto u = encoder->encode(pose(r, n, noisy), static_cast<std::uint64_t>(r), r == lossless_revision);
     EXPECT_TRUE(u.ok());
     add(*u);
     for (int i = 0; i < 20 && encoder->pending(); ++i) {
@@ -128,14 +131,15 @@ TEST(ViewerFixture, TheCommittedFixtureDecodesHereToItsPositions) {
     const Json fixture{{"note", "made by tests/codec/viewer_fixture_test.cpp (codec/update_codec.h)"},
                        {"quantized", stream_json(DeltaMode::Quantized, 0)},
                        {"budgeted", stream_json(DeltaMode::Quantized, 1024, 400, 1e-9)},
-                       {"lossless", stream_json(DeltaMode::Lossless, 0)}};
+                       {"lossless", stream_json(DeltaMode::Lossless, 0)},
+                       {"settled", stream_json(DeltaMode::Quantized, 0, 64, 1e-3, 2)}};
     std::ofstream(path) << fixture.dump() << "\n";
   }
   std::ifstream in(path);
   ASSERT_TRUE(in) << "missing " << path;
   const Json fixture = Json::parse(in);
   int decoded = 0;
-  for (const char* name : {"quantized", "budgeted", "lossless"}) {
+  for (const char* name : {"quantized", "budgeted", "lossless", "settled"}) {
     StreamDecoder decoder;
     for (const Json& u : fixture.at(name)) {
       UpdateHeader h;

@@ -754,6 +754,7 @@ TEST(RefinementTest, ContinuesTheSameSolveWhileHandlesRestAndStops) {
       service.move_handles(f.created.id, f.created.edit_token, bend_move(60.0, 1));
   ASSERT_TRUE(moved.ok()) << message_of(moved);
   EXPECT_FALSE(moved->refinement);
+  EXPECT_FALSE(moved->settled) << "refinement follows";
   EXPECT_EQ(moved->revision, 1u);
 
   const std::uint64_t last = 1 + expected.size();
@@ -779,6 +780,8 @@ TEST(RefinementTest, ContinuesTheSameSolveWhileHandlesRestAndStops) {
       EXPECT_TRUE(update->result->refinement);
       EXPECT_EQ(update->result->editor, "refinement");
     }
+    // Settled: refinement's last revision only (converged, or the budget spent with it).
+    EXPECT_EQ(update->result->settled, seen == last) << "revision " << seen;
   }
   const ServiceStats stats = service.stats();
   EXPECT_EQ(stats.refinements_committed, expected.size());
@@ -825,6 +828,8 @@ TEST(RefinementTest, OffByDefaultInTheService) {
   Result<DeformResult> moved =
       service.move_handles(f.created.id, f.created.edit_token, bend_move(60.0, 1));
   ASSERT_TRUE(moved.ok());
+  EXPECT_FALSE(moved->converged);
+  EXPECT_TRUE(moved->settled) << "no refinement follows";
   // A second edit through the strand runs after anything the first could have queued.
   ASSERT_TRUE(service.set_handles(f.created.id, f.created.edit_token,
                                   SetHandlesRequest{f.groups, core::Method::ScaleAware})

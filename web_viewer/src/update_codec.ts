@@ -8,15 +8,23 @@
 //   n index gaps unless bit 0, then per axis x, y, z:
 //     quantized: n zigzag varints, d_i - d_{i-1}: the vertex's grid delta in units of 2^shift;
 //     lossless:  8 planes (byte 7 down to 0) of n bytes: the XOR of old and new double bits.
+// A quantized stream may carry lossless updates (its settled revisions, UpdateOptions.
+// lossless_settled): they keep the stream's grid in the header, XOR the positions shown, and
+// leave the grid coordinates as they were; a later quantized update puts a vertex it sends back
+// on the grid.
 import { create } from "@bufbuild/protobuf";
 import { decompress } from "fzstd";
 import { DeltaMode, UpdateOptionsSchema, type DeformUpdate, type UpdateOptions, type VertexDelta } from "./gen/meshdeform/v1/deformation_pb";
 
-/** The viewer's ask, from the page URL: ?updates=quantized|lossless[&tolerance=X][&budget=BYTES]. */
+/**
+ * The viewer's ask, from the page URL:
+ * ?updates=quantized|lossless[&tolerance=X][&budget=BYTES][&exact_settled=1].
+ */
 export interface LinkSizedChoice {
   mode: "off" | "quantized" | "lossless";
   relativeTolerance: number; // 0: the server's default (1e-4 of the bounding-box diagonal)
   maxUpdateBytes: number; // 0: no budget
+  losslessSettled: boolean; // quantized: the result after a release, once settled, exactly
 }
 
 export function parseLinkSized(params: URLSearchParams): LinkSizedChoice {
@@ -28,6 +36,7 @@ export function parseLinkSized(params: URLSearchParams): LinkSizedChoice {
     mode,
     relativeTolerance: Number.isFinite(tol) && tol > 0 && tol <= 0.1 ? tol : 0,
     maxUpdateBytes: Number.isFinite(budget) && budget >= 1024 ? budget : 0,
+    losslessSettled: mode === "quantized" && params.get("exact_settled") === "1",
   };
 }
 
@@ -38,6 +47,7 @@ export function linkSizedOptions(choice: LinkSizedChoice): UpdateOptions | undef
     mode: choice.mode === "lossless" ? DeltaMode.LOSSLESS : DeltaMode.QUANTIZED,
     relativeTolerance: choice.relativeTolerance,
     maxUpdateBytes: choice.maxUpdateBytes,
+    losslessSettled: choice.losslessSettled,
   });
 }
 
@@ -79,7 +89,7 @@ export class StreamDecoder {
   sequence = 0;
   revision = 0;
   complete = false;
-  private mode: DeltaMode = DeltaMode.UNSPECIFIED;
+  private grid = false; // a quantized stream (its lossless updates carry the grid too)
   private count = 0;
   private step = 0;
   private origin: [number, number, number] = [0, 0, 0];
@@ -98,11 +108,13 @@ export class StreamDecoder {
     if (mode !== DeltaMode.QUANTIZED && mode !== DeltaMode.LOSSLESS) throw new DeltaError(`unknown delta mode ${mode}`);
     const count = delta.vertexCount;
     const origin: [number, number, number] = [delta.origin?.x ?? 0, delta.origin?.y ?? 0, delta.origin?.z ?? 0];
-    if (this.sequence > 0 && (mode !== this.mode || count !== this.count ||
-        (mode === DeltaMode.QUANTIZED && (delta.step !== this.step || origin.some((o, i) => o !== this.origin[i]))))) {
+    const grid = mode === DeltaMode.QUANTIZED || delta.step !== 0;
+    if (this.sequence > 0 && (grid !== this.grid || count !== this.count ||
+        (grid && (delta.step !== this.step || origin.some((o, i) => o !== this.origin[i]))))) {
       throw new DeltaError("update of another stream (count, mode or grid changed)");
     }
-    if (mode === DeltaMode.QUANTIZED && (!(delta.step > 0) || !Number.isFinite(delta.step) || delta.shift > 24)) {
+    if (grid && (!(delta.step > 0) || !Number.isFinite(delta.step) || delta.shift > 24 ||
+        (mode === DeltaMode.LOSSLESS && delta.shift !== 0))) {
       throw new DeltaError("bad grid in update header");
     }
     let raw: Uint8Array;
@@ -132,6 +144,9 @@ export class StreamDecoder {
       }
     }
     const fresh = this.sequence === 0;
+    // What the client shows: a grid stream starts with every vertex at the origin.
+    const shown = fresh ? new Float64Array(count * 3) : this.positions.slice();
+    if (fresh && grid) for (let i = 0; i < count * 3; i++) shown[i] = origin[i % 3];
     if (mode === DeltaMode.QUANTIZED) {
       const q = fresh ? new Float64Array(count * 3) : this.q.slice();
       const unit = 2 ** delta.shift;
@@ -144,10 +159,27 @@ export class StreamDecoder {
         }
       }
       if (r.at !== raw.length) throw new DeltaError("payload has trailing bytes");
-      const out = new Float64Array(count * 3);
-      for (let i = 0; i < count * 3; i++) out[i] = origin[i % 3] + q[i] * delta.step;
+      // The vertices sent show their grid points; the others keep what they showed.
+      for (let k = 0; k < n; k++) {
+        for (let c = 0; c < 3; c++) {
+          const i = 3 * index[k] + c;
+          shown[i] = origin[c] + q[i] * delta.step;
+        }
+      }
       this.q = q;
-      this.positions = out;
+      this.positions = shown;
+    } else if (grid) {
+      // Lossless on a grid stream: against the positions shown; the grid coordinates stay.
+      if (raw.length - r.at !== n * 24) throw new DeltaError("payload size disagrees with its vertex count");
+      if (fresh) this.q = new Float64Array(count * 3);
+      const bytes = new Uint8Array(shown.buffer); // little-endian, as every browser is
+      let at = r.at;
+      for (let c = 0; c < 3; c++) {
+        for (let b = 7; b >= 0; b--) {
+          for (let k = 0; k < n; k++) bytes[(3 * index[k] + c) * 8 + b] ^= raw[at++];
+        }
+      }
+      this.positions = shown;
     } else {
       if (raw.length - r.at !== n * 24) throw new DeltaError("payload size disagrees with its vertex count");
       const bits = fresh ? new Float64Array(count * 3) : this.bits.slice();
@@ -164,7 +196,7 @@ export class StreamDecoder {
     this.sequence = sequence;
     this.revision = revision;
     this.complete = delta.pendingVertices === 0;
-    this.mode = mode;
+    this.grid = grid;
     this.count = count;
     this.step = delta.step;
     this.origin = origin;

@@ -27,7 +27,7 @@ function delta(u: FixtureUpdate): VertexDelta {
 }
 
 describe("StreamDecoder on the C++ encoder's updates", () => {
-  for (const name of ["quantized", "budgeted", "lossless"]) {
+  for (const name of ["quantized", "budgeted", "lossless", "settled"]) {
     it(`reconstructs every ${name} update exactly as the encoder's client model`, () => {
       const decoder = new StreamDecoder();
       expect(fixture[name].length).toBeGreaterThanOrEqual(4);
@@ -99,14 +99,31 @@ describe("applyLinkSized", () => {
 describe("the URL's choice", () => {
   it("parses updates, tolerance and budget and maps them to UpdateOptions", () => {
     const choice = parseLinkSized(new URLSearchParams("updates=quantized&tolerance=0.001&budget=150000"));
-    expect(choice).toEqual({ mode: "quantized", relativeTolerance: 0.001, maxUpdateBytes: 150000 });
+    expect(choice).toEqual({ mode: "quantized", relativeTolerance: 0.001, maxUpdateBytes: 150000, losslessSettled: false });
     const options = linkSizedOptions(choice);
     expect(options?.mode).toBe(DeltaMode.QUANTIZED);
     expect(options?.relativeTolerance).toBe(0.001);
     expect(options?.maxUpdateBytes).toBe(150000);
     expect(linkSizedOptions(parseLinkSized(new URLSearchParams("")))).toBeUndefined();
     expect(parseLinkSized(new URLSearchParams("updates=lossless&tolerance=5&budget=10"))).toEqual({
-      mode: "lossless", relativeTolerance: 0, maxUpdateBytes: 0,
+      mode: "lossless", relativeTolerance: 0, maxUpdateBytes: 0, losslessSettled: false,
     });
+    // exact_settled=1: quantized streams ask for settled revisions lossless (lossless ones are
+    // exact already).
+    const settled = parseLinkSized(new URLSearchParams("updates=quantized&exact_settled=1"));
+    expect(settled.losslessSettled).toBe(true);
+    expect(linkSizedOptions(settled)?.losslessSettled).toBe(true);
+    expect(parseLinkSized(new URLSearchParams("updates=lossless&exact_settled=1")).losslessSettled).toBe(false);
+  });
+
+  it("shows a settled revision exactly, then goes on quantized from it", () => {
+    const decoder = new StreamDecoder();
+    const stream = fixture.settled;
+    expect(stream.some((u) => u.mode === DeltaMode.LOSSLESS)).toBe(true);
+    expect(stream.some((u, k) => k > 0 && u.mode === DeltaMode.QUANTIZED && stream[k - 1].mode === DeltaMode.LOSSLESS)).toBe(true);
+    for (const u of stream) {
+      decoder.apply(delta(u), u.revision);
+      expect(Array.from(decoder.positions)).toEqual(u.positions);
+    }
   });
 });
