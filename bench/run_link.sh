@@ -10,6 +10,10 @@
 #    update (the message around it adds ~60 bytes: at most 150,000 on the wire), the same
 #    with --send-on-response (a missed tick's target sent as the response arrives), and the
 #    same with --coarse-preview (the watcher also gets the coarse level of each move);
+#  - link_spot187k_20mbit_budget149k_lossless_settled: that drag sending on response with the
+#    adaptive window, its watcher asking for the settled revision exactly (--lossless-settled),
+#    then up to 150 s after the drag for it (--settle-seconds): when the result after the
+#    release arrives, and that it came lossless;
 #  - link_spot47k_20mbit_quantized, link_cylinder_20mbit_{quantized,lossless}: the same drag of
 #    Spot subdivided twice (46,850 vertices) and of the 4,802-vertex cylinder over the same
 #    line, quantized without a budget (and the cylinder lossless): the cost at 5k and 50k;
@@ -82,6 +86,9 @@ drag link_spot187k_20mbit_budget149k_send_on_response "$scratch/spot187k.obj" --
 window=()
 drag link_spot187k_20mbit_budget149k_send_on_response_adaptive_window "$scratch/spot187k.obj" \
   --updates quantized --max-update-bytes 149000 --send-on-response
+drag link_spot187k_20mbit_budget149k_lossless_settled "$scratch/spot187k.obj" \
+  --updates quantized --max-update-bytes 149000 --send-on-response --lossless-settled \
+  --settle-seconds 150
 window=(--fixed-receive-window)
 drag link_spot187k_20mbit_budget149k_coarse_preview "$scratch/spot187k.obj" --updates quantized \
   --max-update-bytes 149000 --coarse-preview

@@ -81,12 +81,14 @@ it out of the process list):
       method; default: the session's, set by create --rigidity, else 30).
   watch --session ID --token T [--max-updates N] [--seconds S]
         [--updates quantized|lossless [--tolerance X | --relative-tolerance X]
-         [--max-update-bytes N]] [--coarse-preview]
+         [--max-update-bytes N] [--lossless-settled]] [--coarse-preview]
       Prints one JSON line per committed revision (the first is a snapshot) until the session
       closes, N updates were printed or S seconds passed. --updates asks for link-sized updates
       (deltas against what this stream delivered, zstd; quantized within the tolerance, default
       1e-4 of the bounding-box diagonal, or lossless); each line then also has "delta" (bytes,
-      vertices sent, max error, pending vertices, continuation). --coarse-preview: the lines of
+      vertices sent, max error, pending vertices, continuation, lossless). --lossless-settled
+      (quantized): the settled revision (no refinement follows: the result after a release)
+      comes lossless, bit for bit the server's. --coarse-preview: the lines of
       a multiresolution session's moves also have "coarse" (the level the move was solved on:
       key, vertices, faces, its centroid).
   get --session ID --token T --out FILE [--revision N]
@@ -137,7 +139,7 @@ const std::map<std::string, std::set<std::string>> kCommandFlags = {
     {"create", {"weld", "progress"}},
     {"handles", {"progress"}},
     {"move", {"ora"}},
-    {"watch", {"coarse-preview"}},
+    {"watch", {"coarse-preview", "lossless-settled"}},
 };
 
 /// Parses the command line with CLI11: the commands are subcommands, the global options are the
@@ -343,7 +345,8 @@ json result_json(const mc::DeformResult& r) {
           {"queue_seconds", r.queue_seconds},
           {"built_deformer", r.built_deformer},
           {"editor", r.editor},
-          {"refinement", r.refinement}};
+          {"refinement", r.refinement},
+          {"settled", r.settled}};
 }
 
 /// A failed call: exit code 1 with the error code's name.
@@ -654,8 +657,9 @@ int cmd_watch(const mc::Client& client, const Args& args) {
       throw UsageError{"--updates must be off, quantized or lossless, got '" + *mode + "'"};
     }
   }
-  for (const char* flag : {"tolerance", "relative-tolerance", "max-update-bytes"}) {
-    if (args.get(flag) && updates.mode != mc::UpdateOptions::Mode::Quantized) {
+  for (const char* flag :
+       {"tolerance", "relative-tolerance", "max-update-bytes", "lossless-settled"}) {
+    if (args.has(flag) && updates.mode != mc::UpdateOptions::Mode::Quantized) {
       throw UsageError{std::string("--") + flag + " needs --updates quantized"};
     }
   }
@@ -667,6 +671,7 @@ int cmd_watch(const mc::Client& client, const Args& args) {
     updates.max_update_bytes =
         static_cast<std::uint32_t>(parse_int_or_throw("max-update-bytes", *b, 0, 1 << 30));
   }
+  updates.lossless_settled = args.has("lossless-settled");
   mc::SessionMirror mirror;
   Status mirror_error;
   long long printed = 0;
@@ -690,7 +695,8 @@ int cmd_watch(const mc::Client& client, const Args& args) {
                                {"shift", d.shift},
                                {"max_error", d.max_error},
                                {"pending_vertices", d.pending_vertices},
-                               {"continuation", d.continuation}};
+                               {"continuation", d.continuation},
+                               {"lossless", d.lossless}};
         }
         if (update.coarse) {
           const mc::CoarseLevel& c = *update.coarse;

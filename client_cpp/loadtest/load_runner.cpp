@@ -517,6 +517,10 @@ void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
       }
       if (deform.refinement()) ++result.refinements;
       result.skipped_revisions += static_cast<std::int64_t>(update.skipped_revisions());
+      if (deform.revision() >= result.last_revision) {
+        result.last_e_theta = deform.e_theta();
+        result.last_e_phi = deform.e_phi();
+      }
       result.last_revision = deform.revision();
       if (watcher.seen.size() < kMaxSeenPerWatcher) {
         watcher.seen.push_back(Seen{deform.revision(), at, deform.refinement()});

@@ -475,6 +475,8 @@ std::string report_json(const RunResult& run, const Aggregate& t) {
                {"refinements", w.refinements},
                {"skipped_revisions", w.skipped_revisions},
                {"last_revision", w.last_revision},
+               {"last_e_theta", w.last_e_theta},
+               {"last_e_phi", w.last_e_phi},
                {"propagation_delay_ms", summary_json(summarize(w.delays_ms))},
                {"seen_before_response", w.seen_before_response},
                {"delay_after_send_ms", summary_json(summarize(w.delays_after_send_ms))},

@@ -43,6 +43,10 @@ struct WatcherResult {
   std::int64_t lossless_updates = 0;   ///< link-sized updates in mode LOSSLESS (join included)
   std::int64_t skipped_revisions = 0;  ///< sum of DeformUpdate.skipped_revisions
   std::uint64_t last_revision = 0;
+  /// The errors of the newest revision received (after --settle-seconds: the result the
+  /// session settled on, as far as this watcher saw).
+  double last_e_theta = 0.0;
+  double last_e_phi = 0.0;
   std::uint64_t delta_bytes = 0;  ///< serialized size of the non-snapshot updates, summed
   /// Watcher receipt minus the editor's MoveHandles response, for each revision the editor
   /// committed and this watcher saw (ms; negative when the watcher saw it first).

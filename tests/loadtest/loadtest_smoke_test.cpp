@@ -285,12 +285,39 @@ TEST_F(LoadtestTest, SettleWaitsForTheRefinementsConvergedRevision) {
       << markdown;
 }
 
+TEST_F(LoadtestTest, LosslessSettledTimesTheSettledRevisionAndCountsItLossless) {
+  // --lossless-settled: quantized watchers get the settled revision (here refinement's last,
+  // its budget of 4 iterations spent) lossless; --settle-seconds waits for it and reports it.
+  const auto server = start_server({"--refine-budget", "4"});
+  ASSERT_NE(server, nullptr);
+  const fs::path json_path = dir_ / "settled.json";
+  const ChildResult run = run_loadtest(
+      {"--server", server->address(), "--sessions", "2", "--moves", "3", "--rate", "0",
+       "--iterations", "1", "--watchers", "1", "--sample", "cylinder_small", "--duration", "60",
+       "--updates", "quantized", "--lossless-settled", "--settle-seconds", "120", "--json",
+       json_path.string()},
+      std::chrono::seconds(300));
+  ASSERT_FALSE(run.is_timed_out) << run.out << run.err;
+  ASSERT_EQ(run.exit_code, kExitOk) << run.out << run.err;
+  const json report = json::parse(read_text(json_path));
+  EXPECT_EQ(report["moves"]["ok"], 6);
+  EXPECT_EQ(report["settle"]["sessions_with_settled_revision"], 2) << report["settle"].dump();
+  EXPECT_EQ(report["settle"]["settled_lossless"], 2);
+  EXPECT_GE(report["watchers"]["lossless_updates"].get<int>(), 2);
+  EXPECT_EQ(report["watchers"]["link_sized"]["decode_failures"], 0);
+  for (const json& session : report["sessions"]) {
+    EXPECT_TRUE(session["settled_lossless"].get<bool>()) << session.dump();
+    EXPECT_GT(session["settled_ms"].get<double>(), 0.0) << session.dump();
+  }
+}
+
 TEST_F(LoadtestTest, BadLinkOrUpdateFlagsAreUsageErrors) {
   for (const std::vector<std::string>& args : std::vector<std::vector<std::string>>{
            {"--server", "127.0.0.1:1", "--via-link", "20furlongs"},
            {"--server", "127.0.0.1:1", "--updates", "lossy"},
            {"--server", "127.0.0.1:1", "--updates", "quantized", "--max-update-bytes", "10"},
-           {"--server", "127.0.0.1:1", "--max-update-bytes", "4096"}}) {
+           {"--server", "127.0.0.1:1", "--max-update-bytes", "4096"},
+           {"--server", "127.0.0.1:1", "--updates", "lossless", "--lossless-settled"}}) {
     const ChildResult run = run_loadtest(args, std::chrono::seconds(30));
     ASSERT_FALSE(run.is_timed_out);
     EXPECT_EQ(run.exit_code, kExitUsage) << args[2] << "\n" << run.err;
