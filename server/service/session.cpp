@@ -113,7 +113,10 @@ std::size_t estimate_session_bytes(int vertices, int faces, int cached_deformers
   // 977 MiB peak with the refinement, 1020 before). Refinement slices that continue one another
   // keep Anderson's window between them (288 B per vertex, twice that while a slice runs: the
   // bench's 187k refinement in slices peaked at 1,067 MiB against 998 as one solve), which the
-  // charge still covers (4.6 + 0.6 KB).
+  // charge still covers (4.6 + 0.6 KB). Refinement after a drag by the multilevel cascade
+  // (issue 41: its hierarchy and prolongations are kept, its coarse solvers live for one
+  // cascade) peaked at 1,039 MiB in the same bench against 960 from the drag's end (2026-12-07,
+  // docs/multilevel.md): within the charge too.
   const std::size_t per_deformer = v * 5200;
   return base + per_deformer * static_cast<std::size_t>(std::max(cached_deformers, 0));
 }
