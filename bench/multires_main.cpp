@@ -236,6 +236,7 @@ json run_multires(const Model& model, const Options& options) {
     settings.cascade.solver = settings.solver;
     settings.cascade.coarsest_vertices = core::kDefaultMultilevelCoarsest;
     settings.cascade.threads = settings.hierarchy.threads;
+    settings.cascade.keep_fine_start = true;  // as make_deformer's
   }
   auto start = std::chrono::steady_clock::now();
   core::MultiresDeformer deformer = value_or_throw(

@@ -339,6 +339,8 @@ Result<std::unique_ptr<Deformer>> make_deformer_impl(Method method, const Positi
         if (settings.multilevel_above > 0 && V0.rows() > settings.multilevel_above) {
           multires.refine_cascade = true;
           multires.cascade = multilevel_settings(s, settings);
+          // A move preempts refinement: no full-resolution factorization inside a cascade.
+          multires.cascade.keep_fine_start = true;
         }
         MD_ASSIGN_OR_RETURN(
             MultiresDeformer built,

@@ -88,6 +88,7 @@ struct MultilevelSolver::Impl {
   /// prolongation[i] was built with).
   std::vector<Eigen::VectorXi> restriction_rows;
   std::optional<ScaleAwareSolver> fine;
+  std::optional<ArapSolver> fine_start;  // settings.keep_fine_start: level 0's ARAP, kept
   double hierarchy_seconds = 0, prolongation_seconds = 0, fine_setup_seconds = 0;
 
   // Without a coarse level (a mesh too small to decimate) there is no hierarchy: level 0 is the
@@ -265,6 +266,14 @@ Status MultilevelSolver::Impl::build(const Positions& V_in, const Triangles& F_i
                       ScaleAwareSolver::create(V, F, topology, constrained, fine_settings, stop,
                                                progress));
   fine.emplace(std::move(solver));
+  if (settings.keep_fine_start && top() > 0) {
+    if (stop.stop_requested()) return Error(ErrorCode::Cancelled, "precompute cancelled");
+    ArapSettings arap_settings;
+    arap_settings.threads = settings.solver.threads;
+    MD_ASSIGN_OR_RETURN(ArapSolver arap,
+                        ArapSolver::create(V, F, topology, constrained, arap_settings));
+    fine_start.emplace(std::move(arap));
+  }
   fine_setup_seconds = seconds_since(start);
   const Measures rest = compute_measures(V, F, topology);
   rest_phi = rest.phi;
@@ -391,12 +400,18 @@ Result<SolveReport> MultilevelSolver::solve(const Positions& targets, const Solv
     if (stop.stop_requested()) return cancelled();
     const auto level_start = Clock::now();
     MD_ASSIGN_OR_RETURN(const Positions level_targets, s.targets_of(i, targets));
-    MD_ASSIGN_OR_RETURN(ArapSolver solver,
-                        i == 0 ? ArapSolver::create(s.V, s.F, s.topology, s.constrained,
-                                                    arap_settings)
-                               : ArapSolver::create(s.level(i).V, s.level(i).F,
-                                                    s.topology_of(i), s.constrained_of(i),
-                                                    arap_settings));
+    // Level 0's solver is the kept one when there is one (settings.keep_fine_start).
+    std::optional<ArapSolver> created;
+    if (i != 0 || !s.fine_start) {
+      MD_ASSIGN_OR_RETURN(ArapSolver made,
+                          i == 0 ? ArapSolver::create(s.V, s.F, s.topology, s.constrained,
+                                                      arap_settings)
+                                 : ArapSolver::create(s.level(i).V, s.level(i).F,
+                                                      s.topology_of(i), s.constrained_of(i),
+                                                      arap_settings));
+      created.emplace(std::move(made));
+    }
+    ArapSolver& solver = created ? *created : *s.fine_start;
     if (i == top) {
       arap_options.start = StartFrom::Laplacian;
       arap_options.max_iterations = options.rigid_start_iterations;

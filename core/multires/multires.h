@@ -235,7 +235,9 @@ struct MultiresDeformerSettings {
   /// result differs from the full-resolution fixed point at low frequency, which the
   /// full-resolution iteration removes slowly (docs/multilevel.md, "Refinement after a
   /// drag"). Later refines continue the cascade's result warm. Off: every refine iterates
-  /// from the prolonged move (the fine solver is a single-level ScaleAwareSolver).
+  /// from the prolonged move (the fine solver is a single-level ScaleAwareSolver). A cascade
+  /// that a move must be able to preempt wants `cascade.keep_fine_start` (make_deformer sets
+  /// it): the start's full-resolution factorization is then built with the solver.
   bool refine_cascade = false;
   MultilevelSettings cascade;
 };

@@ -305,6 +305,30 @@ TEST(MultilevelSolver, IsDeterministic) {
   }
 }
 
+// keep_fine_start (the refinement's setting): the kept full-resolution ARAP solver carries
+// nothing from one cascade to the next; every cascade equals a fresh solver's, bit for bit.
+TEST(MultilevelSolver, AKeptFullResolutionStartCascadesAsAFreshOne) {
+  const Edit& edit = cactus();
+  MultilevelSettings kept = three_levels();
+  kept.keep_fine_start = true;
+  auto solver =
+      MultilevelSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained, kept);
+  ASSERT_TRUE(solver.ok()) << solver.status().to_string();
+  const Positions rest = edit.mesh.V(edit.setup.constrained, Eigen::all);
+  for (const double s : {1.0, 0.5, 0.8}) {
+    SCOPED_TRACE(s);
+    const Positions targets = rest + s * (edit.setup.targets - rest);
+    auto fresh = MultilevelSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained,
+                                          three_levels());
+    ASSERT_TRUE(fresh.ok());
+    auto want = fresh->solve(targets);
+    auto got = solver->solve(targets);
+    ASSERT_TRUE(want.ok() && got.ok());
+    EXPECT_EQ(got->V, want->V);
+    EXPECT_EQ(got->levels.back().start_iterations, want->levels.back().start_iterations);  // level 0
+  }
+}
+
 TEST(MultilevelSolver, CancelsBetweenAndWithinLevelsAndKeepsItsState) {
   const Edit& edit = cactus();
   auto solver = MultilevelSolver::create(edit.mesh.V, edit.mesh.F, edit.setup.constrained,
