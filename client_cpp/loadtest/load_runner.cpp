@@ -525,23 +525,20 @@ void LoadRun::run_watcher(SessionState& session, WatcherState& watcher) {
       if (watcher.seen.size() < kMaxSeenPerWatcher) {
         watcher.seen.push_back(Seen{deform.revision(), at, deform.refinement()});
       }
-      if (deform.settled()) {
+      if (deform.settled() || deform.converged()) {
+        // Both under one lock: settle() must not see a converged revision as settled only.
         const std::lock_guard lock(session.mutex);
-        if (deform.revision() > session.settled_revision) {
+        if (deform.settled() && deform.revision() > session.settled_revision) {
           session.settled_revision = deform.revision();
           session.settled_at = at;
           session.settled_lossless =
               update.has_delta() && update.delta().mode() == v1::DELTA_MODE_LOSSLESS;
-          session.changed.notify_all();
         }
-      }
-      if (deform.converged()) {
-        const std::lock_guard lock(session.mutex);
-        if (deform.revision() > session.converged_revision) {
+        if (deform.converged() && deform.revision() > session.converged_revision) {
           session.converged_revision = deform.revision();
           session.converged_at = at;
-          session.changed.notify_all();
         }
+        session.changed.notify_all();
       }
       mark_joined();
     }
