@@ -113,11 +113,13 @@ std::size_t estimate_session_bytes(int vertices, int faces, int cached_deformers
   // 977 MiB peak with the refinement, 1020 before). Refinement slices that continue one another
   // keep Anderson's window between them (288 B per vertex, twice that while a slice runs: the
   // bench's 187k refinement in slices peaked at 1,067 MiB against 998 as one solve), which the
-  // charge still covers (4.6 + 0.6 KB). Refinement after a drag by the multilevel cascade
-  // (issue 41: its hierarchy and prolongations are kept, its coarse solvers live for one
-  // cascade) peaked at 1,039 MiB in the same bench against 960 from the drag's end (2026-12-07,
-  // docs/multilevel.md): within the charge too.
-  const std::size_t per_deformer = v * 5200;
+  // charge covered (4.6 + 0.6 KB). Since refinement after a drag runs the multilevel cascade
+  // (issue 41: its hierarchy, prolongations and full-resolution ARAP factor are kept) the
+  // multiresolution deformer holds 5.9 KB per vertex after a drag, its background build and
+  // three refinement slices (measured 2026-12-07 on Spot at 187k: 1,052 MiB resident against
+  // 793 without the cascade, 4.4 KB per vertex), plus the window's copy while a slice runs: the
+  // charge is 6.2 KB.
+  const std::size_t per_deformer = v * 6200;
   return base + per_deformer * static_cast<std::size_t>(std::max(cached_deformers, 0));
 }
 
