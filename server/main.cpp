@@ -79,7 +79,7 @@ struct Flags {
   int heavy_total = 16;       // ... and over all clients
   int heavy_lanes = 0;        // workers that may run them (0 = workers - 1)
   int max_sessions_per_client = 0;       // 0 = a quarter of --max-sessions
-  int memory_budget_per_client_mib = 0;  // 0 = half of --memory-budget-mib
+  int memory_budget_per_client_mib = 0;  // 0 = three quarters of --memory-budget-mib
   int max_connections = 1024;            // per port
   int max_connections_per_address = 64;  // per port and client address
   int header_timeout_seconds = 10;       // first bytes of a connection / a request's header
@@ -167,11 +167,12 @@ constexpr const char* kUsage =
     "  --max-sessions-per-client N sessions one client may hold open (default 0 = a quarter of\n"
     "                              --max-sessions); over it: RESOURCE_EXHAUSTED\n"
     "  --memory-budget-per-client-mib N  what one client's sessions may hold of the memory\n"
-    "                              budget (default 0 = half of it). Room is made by evicting\n"
-    "                              the client's own idle sessions, then those of clients over\n"
-    "                              this quota, then (with --state-dir or --redis only, where\n"
-    "                              eviction loses nothing) any idle session; in memory only,\n"
-    "                              another client's session within its quota is never evicted\n"
+    "                              budget (default 0 = three quarters of it). Room is made by\n"
+    "                              evicting the client's own idle sessions, then those of\n"
+    "                              clients over this quota, then (with --state-dir or --redis\n"
+    "                              only, where eviction loses nothing) any idle session; in\n"
+    "                              memory only, another client's session within its quota is\n"
+    "                              never evicted\n"
     "  --max-connections N         open connections per port (gRPC and HTTP each; default 1024;\n"
     "                              lowered at start to fit the descriptor limit, which the\n"
     "                              server first raises to its hard limit); more are closed at once\n"

@@ -288,7 +288,7 @@ TEST(QuotaTest, MemoryBudgetNeverEvictsAnotherClientsSessionInMemory) {
   const std::size_t one = estimate_session_bytes(nv, nf, 0, options.kept_revisions);
   options.memory_budget_bytes = 3 * one + one / 2;
   DeformationService service(options);
-  // Three clients hold one idle session each (each within its quota of half the budget).
+  // Three clients hold one idle session each (each within its quota of three quarters).
   std::vector<CreatedSession> held;
   for (const char* client : {"ipv4:10.0.0.2", "ipv4:10.0.0.3", "ipv4:10.0.0.4"}) {
     auto created = service.create_session(sample_request("cactus_small", client));
