@@ -84,6 +84,21 @@ function unzigzag(v: number): number {
   return v % 2 === 1 ? -(v + 1) / 2 : v / 2;
 }
 
+/**
+ * A lossless payload's values from `at` on (per axis, 8 byte planes from the most significant,
+ * each with a byte per vertex sent): XORs them into the bits of `values` (xyz per vertex).
+ */
+function xorPlanes(values: Float64Array, raw: Uint8Array, at: number, index: Uint32Array): void {
+  const n = index.length;
+  if (raw.length - at !== n * 24) throw new DeltaError("payload size disagrees with its vertex count");
+  const bytes = new Uint8Array(values.buffer); // little-endian, as every browser is
+  for (let c = 0; c < 3; c++) {
+    for (let b = 7; b >= 0; b--) {
+      for (let k = 0; k < n; k++) bytes[(3 * index[k] + c) * 8 + b] ^= raw[at++];
+    }
+  }
+}
+
 /** The positions one Watch stream's deltas have built. A sequence-1 update starts over. */
 export class StreamDecoder {
   sequence = 0;
@@ -170,26 +185,12 @@ export class StreamDecoder {
       this.positions = shown;
     } else if (grid) {
       // Lossless on a grid stream: against the positions shown; the grid coordinates stay.
-      if (raw.length - r.at !== n * 24) throw new DeltaError("payload size disagrees with its vertex count");
+      xorPlanes(shown, raw, r.at, index);
       if (fresh) this.q = new Float64Array(count * 3);
-      const bytes = new Uint8Array(shown.buffer); // little-endian, as every browser is
-      let at = r.at;
-      for (let c = 0; c < 3; c++) {
-        for (let b = 7; b >= 0; b--) {
-          for (let k = 0; k < n; k++) bytes[(3 * index[k] + c) * 8 + b] ^= raw[at++];
-        }
-      }
       this.positions = shown;
     } else {
-      if (raw.length - r.at !== n * 24) throw new DeltaError("payload size disagrees with its vertex count");
       const bits = fresh ? new Float64Array(count * 3) : this.bits.slice();
-      const bytes = new Uint8Array(bits.buffer); // little-endian, as every browser is
-      let at = r.at;
-      for (let c = 0; c < 3; c++) {
-        for (let b = 7; b >= 0; b--) {
-          for (let k = 0; k < n; k++) bytes[(3 * index[k] + c) * 8 + b] ^= raw[at++];
-        }
-      }
+      xorPlanes(bits, raw, r.at, index);
       this.bits = bits;
       this.positions = bits.slice();
     }
