@@ -102,8 +102,7 @@ std::string serialize_quantized(const std::vector<Sent>& sent, int vertex_count)
 
 /// A lossless payload: the vertices in `changed` (ascending), each coordinate's old ^ new bits.
 std::string serialize_lossless(const std::vector<int>& changed, std::size_t vertex_count,
-                               const std::vector<std::uint64_t>& old_bits,
-                               const std::vector<double>& target) {
+                               const std::vector<double>& old, const std::vector<double>& target) {
   std::string raw;
   raw.reserve(12 + changed.size() * 29);
   raw.push_back(static_cast<char>(kPayloadVersion));
@@ -121,7 +120,7 @@ std::string serialize_lossless(const std::vector<int>& changed, std::size_t vert
     for (int b = 7; b >= 0; --b) {
       for (int v : changed) {
         const std::size_t i = 3 * static_cast<std::size_t>(v) + c;
-        const std::uint64_t x = old_bits[i] ^ bits_of(target[i]);
+        const std::uint64_t x = bits_of(old[i]) ^ bits_of(target[i]);
         raw.push_back(static_cast<char>((x >> (8 * b)) & 0xff));
       }
     }
@@ -153,12 +152,12 @@ Result<StreamEncoder> StreamEncoder::create(const StreamSettings& settings, int 
   out.settings_ = settings;
   out.vertex_count_ = vertex_count;
   const auto n = static_cast<std::size_t>(vertex_count) * 3;
+  // A quantized client starts with every vertex at grid point 0 (the origin), a lossless one
+  // at the doubles of bit pattern 0.
+  out.client_shown_.assign(n, 0.0);
   if (settings.mode == DeltaMode::Quantized) {
     out.client_q_.assign(n, 0);
-    out.client_shown_.resize(n);
     for (std::size_t i = 0; i < n; ++i) out.client_shown_[i] = settings.origin[static_cast<int>(i % 3)];
-  } else {
-    out.client_bits_.assign(n, 0);
   }
   out.target_.assign(n, 0.0);
   return out;
@@ -169,8 +168,7 @@ Positions StreamEncoder::client_positions() const {
   for (int v = 0; v < vertex_count_; ++v) {
     for (int c = 0; c < 3; ++c) {
       const auto i = static_cast<std::size_t>(3 * v + c);
-      out(v, c) = settings_.mode == DeltaMode::Quantized ? client_shown_[i]
-                                                         : double_of(client_bits_[i]);
+      out(v, c) = client_shown_[i];
     }
   }
   return out;
@@ -178,7 +176,6 @@ Positions StreamEncoder::client_positions() const {
 
 std::size_t StreamEncoder::memory_bytes() const {
   return client_q_.capacity() * sizeof(std::int64_t) +
-         client_bits_.capacity() * sizeof(std::uint64_t) +
          (client_shown_.capacity() + target_.capacity()) * sizeof(double);
 }
 
@@ -219,39 +216,28 @@ Result<EncodedUpdate> StreamEncoder::encode_current(bool lossless) {
   const auto n = static_cast<std::size_t>(vertex_count_);
 
   if (settings_.mode == DeltaMode::Lossless || lossless) {
-    // A lossless update: in a lossless stream against the bits the client holds; in a quantized
-    // stream (its settled revisions) against the positions it shows, which it then shows
-    // exactly. Its grid stays the stream's: the header carries it, and the grid coordinates do
-    // not change (a later quantized update of a vertex sends it back onto the grid).
-    const bool grid = settings_.mode == DeltaMode::Quantized;
-    std::vector<std::uint64_t> shown_bits;
-    if (grid) {
-      shown_bits.resize(client_shown_.size());
-      for (std::size_t i = 0; i < shown_bits.size(); ++i) shown_bits[i] = bits_of(client_shown_[i]);
-    }
-    std::vector<std::uint64_t>& old_bits = grid ? shown_bits : client_bits_;
+    // A lossless update, against the positions the client shows, which it then shows exactly.
+    // In a quantized stream (its settled revisions) the grid stays the stream's: the header
+    // carries it, and the grid coordinates do not change (a later quantized update of a vertex
+    // sends it back onto the grid).
     std::vector<int> changed;
     for (std::size_t v = 0; v < n; ++v) {
       for (int c = 0; c < 3; ++c) {
-        if (old_bits[3 * v + c] != bits_of(target_[3 * v + c])) {
+        if (bits_of(client_shown_[3 * v + c]) != bits_of(target_[3 * v + c])) {
           changed.push_back(static_cast<int>(v));
           break;
         }
       }
     }
-    const std::string raw = serialize_lossless(changed, n, old_bits, target_);
+    const std::string raw = serialize_lossless(changed, n, client_shown_, target_);
     for (int v : changed) {
       for (int c = 0; c < 3; ++c) {
         const std::size_t i = 3 * static_cast<std::size_t>(v) + c;
-        if (grid) {
-          client_shown_[i] = target_[i];
-        } else {
-          client_bits_[i] = bits_of(target_[i]);
-        }
+        client_shown_[i] = target_[i];
       }
     }
     h.mode = DeltaMode::Lossless;
-    if (grid) {
+    if (settings_.mode == DeltaMode::Quantized) {
       h.step = settings_.tolerance;
       h.origin = settings_.origin;
     }
@@ -472,9 +458,13 @@ Status StreamDecoder::apply(const UpdateHeader& h, std::string_view payload) {
     }
   }
   const std::size_t total = static_cast<std::size_t>(h.vertex_count) * 3;
-  // A grid stream starts with every vertex at grid point 0, the origin.
+  // What the client shows: a grid stream starts with every vertex at grid point 0 (the origin),
+  // a lossless one at the doubles of bit pattern 0.
   Positions shown = positions_;
-  if (sequence_ == 0 && grid) shown = h.origin.transpose().replicate(h.vertex_count, 1);
+  if (sequence_ == 0) {
+    shown = grid ? Positions(h.origin.transpose().replicate(h.vertex_count, 1))
+                 : Positions(Positions::Zero(h.vertex_count, 3));
+  }
   if (h.mode == DeltaMode::Quantized) {
     std::vector<std::int64_t> q = sequence_ > 0 ? q_ : std::vector<std::int64_t>(total, 0);
     for (int c = 0; c < 3; ++c) {
@@ -511,10 +501,10 @@ Status StreamDecoder::apply(const UpdateHeader& h, std::string_view payload) {
       }
     }
     positions_ = std::move(shown);
-  } else if (grid) {
-    // Lossless on a grid stream: against the positions shown; the grid coordinates stay.
+  } else {
+    // Lossless: against the positions shown; a grid stream's grid coordinates stay.
     if (in.left() != n * 24) return invalid("payload size disagrees with its vertex count");
-    if (sequence_ == 0) q_.assign(total, 0);
+    if (sequence_ == 0 && grid) q_.assign(total, 0);
     const char* base = in.here();
     for (int c = 0; c < 3; ++c) {
       for (int b = 7; b >= 0; --b) {
@@ -527,24 +517,6 @@ Status StreamDecoder::apply(const UpdateHeader& h, std::string_view payload) {
       }
     }
     positions_ = std::move(shown);
-  } else {
-    if (in.left() != n * 24) return invalid("payload size disagrees with its vertex count");
-    std::vector<std::uint64_t> bits = sequence_ > 0 ? bits_ : std::vector<std::uint64_t>(total, 0);
-    const char* base = in.here();
-    for (int c = 0; c < 3; ++c) {
-      for (int b = 7; b >= 0; --b) {
-        const char* plane = base + (static_cast<std::size_t>(c) * 8 + static_cast<std::size_t>(7 - b)) * n;
-        for (std::size_t k = 0; k < n; ++k) {
-          const std::size_t i = 3 * static_cast<std::size_t>(index[k]) + static_cast<std::size_t>(c);
-          bits[i] ^= static_cast<std::uint64_t>(static_cast<std::uint8_t>(plane[k])) << (8 * b);
-        }
-      }
-    }
-    bits_ = std::move(bits);
-    positions_.resize(h.vertex_count, 3);
-    for (std::uint32_t v = 0; v < h.vertex_count; ++v) {
-      for (int c = 0; c < 3; ++c) positions_(v, c) = double_of(bits_[3 * static_cast<std::size_t>(v) + c]);
-    }
   }
   sequence_ = h.sequence;
   revision_ = h.revision;
