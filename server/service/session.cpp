@@ -717,7 +717,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   }
   if (is_closed()) return Error(ErrorCode::NotFound, "session " + id_.value + " was closed");
 
-  // Settled when no refinement will follow (as below).
+  // Settled when no refinement will follow.
   const bool settled = options_.refine_budget <= 0 || report->converged;
   Result<DeformResult> committed =
       commit(std::move(report).value(), request.method, rigidity, targets, base_revision,
@@ -727,7 +727,7 @@ Result<DeformResult> Session::move(const MoveRequest& request, std::stop_token s
   counters_->moves_committed.fetch_add(1);
   last_move_ticks_.store(std::chrono::steady_clock::now().time_since_epoch().count());
   result.history_position = edit.position;
-  if (options_.refine_budget > 0 && !result.converged) {
+  if (!settled) {
     refine_ = RefineState{request.method,           request.ora, std::move(face_scale),
                           request.tolerance,        options_.refine_budget, rigidity};
   } else {
@@ -966,7 +966,7 @@ Result<std::optional<DeformResult>> Session::refine(
     return Error(ErrorCode::NotFound, "session " + id_.value + " was closed");
   }
   const int iterations = report->iterations;
-  // The last slice: converged, or the budget ends with it (as below).
+  // The last slice: converged, or the budget ends with it.
   const bool last = report->converged || state.remaining - std::max(iterations, 1) <= 0;
   Result<DeformResult> committed =
       commit(std::move(report).value(), state.method, state.rigidity, targets, base_revision,
@@ -979,7 +979,7 @@ Result<std::optional<DeformResult>> Session::refine(
   DeformResult result = std::move(committed).value();
   counters_->refinements_committed.fetch_add(1);
   refine_->remaining -= std::max(iterations, 1);
-  if (result.converged || refine_->remaining <= 0) refine_.reset();
+  if (last) refine_.reset();
   return std::optional<DeformResult>(std::move(result));
 }
 
