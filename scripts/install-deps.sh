@@ -7,6 +7,7 @@ set -euo pipefail
 packages=(
   cmake g++ make pkg-config
   ccache  # repeated builds on one machine (CMakeLists.txt, MESHDEFORM_CCACHE)
+  lld  # the linker (CMakeLists.txt, MESHDEFORM_LLD)
   libeigen3-dev libtinygltf-dev nlohmann-json3-dev
   libsuitesparse-dev libopenblas-dev libopenblas0-pthread
   libgtest-dev libgmock-dev libbenchmark-dev
