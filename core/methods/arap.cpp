@@ -392,6 +392,7 @@ Result<SolveReport> ArapSolver::solve(const Positions& targets, const SolveOptio
         P = G;
         info.energy = s.fit_rotations(P, R);
         accelerator.reset(flat(P));
+        ++report.anderson_rejections;
       }
     } else {
       info.energy = s.fit_rotations(P, R);

@@ -79,8 +79,11 @@ class ArapSolver {
   /// min_R E(V, R) of that iterate (non-increasing), e_theta / e_phi against the rest mesh when
   /// options.track_metrics, normal_sweeps = pcg_iterations = 0, normals_seconds the local step
   /// (rotation fits and energy), linear_seconds the global step (right-hand side and
-  /// back-substitution), assemble_seconds 0. Stops when the relative energy
-  /// change falls below options.tolerance, or the energy below 1e-20 (bbox diagonal)^2 sum w_ij
+  /// back-substitution), assemble_seconds 0. Anderson acceleration over the positions
+  /// (options.anderson_window; 0 turns it off) is safeguarded by the energy: a mix that does not
+  /// lower it is replaced by the plain update, counted in anderson_rejections. Stops when
+  /// options.stopping_rule holds at options.tolerance (core/methods/convergence.h), or the
+  /// energy falls below 1e-20 (bbox diagonal)^2 sum w_ij
   /// (a weighted RMS edge residual of 1e-10 of the bounding box: an exact fit), or after
   /// options.max_iterations iterations. options.inner_iterations, lambda, pcg_tolerance and
   /// adaptive_pcg do not apply to ARAP and are ignored; ora and face_scale (scale-aware only)

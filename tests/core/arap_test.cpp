@@ -119,6 +119,29 @@ TEST(ArapSolver, EnergyNeverIncreasesAndHandlesAreExact) {
   EXPECT_EQ(report->factorizations, 0);
 }
 
+// The report counts the mixes Anderson's safeguard replaced by the plain update (it said 0 for
+// ARAP before), and none without acceleration.
+TEST(ArapSolver, TheSafeguardsReplacementsAreCounted) {
+  const Bend bend = make_bend(16);
+  SolveOptions options;
+  options.max_iterations = 60;
+  options.tolerance = 0;  // run the whole budget
+  options.track_metrics = false;
+  for (const int window : {6, 0}) {
+    auto solver = ArapSolver::create(bend.mesh.V, bend.mesh.F, bend.constrained);
+    ASSERT_TRUE(solver.ok()) << solver.status().to_string();
+    options.anderson_window = window;
+    auto report = solver->solve(bend.targets, options);
+    ASSERT_TRUE(report.ok()) << report.status().to_string();
+    if (window == 0) {
+      EXPECT_EQ(report->anderson_rejections, 0);
+    } else {
+      EXPECT_GT(report->anderson_rejections, 0);
+      EXPECT_LE(report->anderson_rejections, report->iterations);
+    }
+  }
+}
+
 TEST(ArapSolver, WarmStartedRepeatOfTheSameTargetsIsAlreadyConverged) {
   const Bend bend = make_bend(12);
   auto solver = ArapSolver::create(bend.mesh.V, bend.mesh.F, bend.constrained);
