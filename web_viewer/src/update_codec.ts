@@ -109,7 +109,6 @@ export class StreamDecoder {
   private step = 0;
   private origin: [number, number, number] = [0, 0, 0];
   private q: Float64Array = new Float64Array(0); // quantized: integer grid coordinates
-  private bits: Float64Array = new Float64Array(0); // lossless: the doubles themselves
   /** The reconstructed positions, xyz per vertex, as doubles. */
   positions: Float64Array = new Float64Array(0);
 
@@ -159,7 +158,8 @@ export class StreamDecoder {
       }
     }
     const fresh = this.sequence === 0;
-    // What the client shows: a grid stream starts with every vertex at the origin.
+    // What the client shows: a grid stream starts with every vertex at the origin, a lossless
+    // one at the doubles of bit pattern 0.
     const shown = fresh ? new Float64Array(count * 3) : this.positions.slice();
     if (fresh && grid) for (let i = 0; i < count * 3; i++) shown[i] = origin[i % 3];
     if (mode === DeltaMode.QUANTIZED) {
@@ -183,16 +183,11 @@ export class StreamDecoder {
       }
       this.q = q;
       this.positions = shown;
-    } else if (grid) {
-      // Lossless on a grid stream: against the positions shown; the grid coordinates stay.
-      xorPlanes(shown, raw, r.at, index);
-      if (fresh) this.q = new Float64Array(count * 3);
-      this.positions = shown;
     } else {
-      const bits = fresh ? new Float64Array(count * 3) : this.bits.slice();
-      xorPlanes(bits, raw, r.at, index);
-      this.bits = bits;
-      this.positions = bits.slice();
+      // Lossless: against the positions shown; a grid stream's grid coordinates stay.
+      xorPlanes(shown, raw, r.at, index);
+      if (fresh && grid) this.q = new Float64Array(count * 3);
+      this.positions = shown;
     }
     this.sequence = sequence;
     this.revision = revision;
