@@ -112,6 +112,14 @@ struct MultilevelSolver::Impl {
   }
   /// The constrained vertices of level i in the order of targets_of(i).
   Eigen::VectorXi constrained_of(int i) const { return i == 0 ? constrained : level(i).constrained; }
+  /// A new ARAP solver for the start on level i (its factorization is built here).
+  Result<ArapSolver> make_start_solver(int i) const {
+    ArapSettings arap_settings;
+    arap_settings.threads = settings.solver.threads;
+    if (i == 0) return ArapSolver::create(V, F, topology, constrained, arap_settings);
+    return ArapSolver::create(level(i).V, level(i).F, topology_of(i), constrained_of(i),
+                              arap_settings);
+  }
   /// LevelReport::handle_error of level i's positions `X`.
   double handle_error(int i, const Positions& X, const Positions& level_targets) const {
     const Eigen::VectorXi c = constrained_of(i);
@@ -268,10 +276,7 @@ Status MultilevelSolver::Impl::build(const Positions& V_in, const Triangles& F_i
   fine.emplace(std::move(solver));
   if (settings.keep_fine_start && top() > 0) {
     if (stop.stop_requested()) return Error(ErrorCode::Cancelled, "precompute cancelled");
-    ArapSettings arap_settings;
-    arap_settings.threads = settings.solver.threads;
-    MD_ASSIGN_OR_RETURN(ArapSolver arap,
-                        ArapSolver::create(V, F, topology, constrained, arap_settings));
+    MD_ASSIGN_OR_RETURN(ArapSolver arap, make_start_solver(0));
     fine_start.emplace(std::move(arap));
   }
   fine_setup_seconds = seconds_since(start);
@@ -394,8 +399,6 @@ Result<SolveReport> MultilevelSolver::solve(const Positions& targets, const Solv
   arap_options.stopping_rule = StoppingRule::Change;  // the rigid start's documented tolerance
   arap_options.track_metrics = false;
   arap_options.anderson_window = SolveOptions{}.anderson_window;
-  ArapSettings arap_settings;
-  arap_settings.threads = s.settings.solver.threads;
   for (int i = top; i >= 0; --i) {
     if (stop.stop_requested()) return cancelled();
     const auto level_start = Clock::now();
@@ -403,12 +406,7 @@ Result<SolveReport> MultilevelSolver::solve(const Positions& targets, const Solv
     // Level 0's solver is the kept one when there is one (settings.keep_fine_start).
     std::optional<ArapSolver> created;
     if (i != 0 || !s.fine_start) {
-      MD_ASSIGN_OR_RETURN(ArapSolver made,
-                          i == 0 ? ArapSolver::create(s.V, s.F, s.topology, s.constrained,
-                                                      arap_settings)
-                                 : ArapSolver::create(s.level(i).V, s.level(i).F,
-                                                      s.topology_of(i), s.constrained_of(i),
-                                                      arap_settings));
+      MD_ASSIGN_OR_RETURN(ArapSolver made, s.make_start_solver(i));
       created.emplace(std::move(made));
     }
     ArapSolver& solver = created ? *created : *s.fine_start;
