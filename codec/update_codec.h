@@ -142,7 +142,7 @@ class StreamEncoder {
   std::uint64_t sequence_ = 0;
   std::uint64_t revision_ = 0;
   std::vector<std::int64_t> client_q_;     // quantized: 3 per vertex
-  std::vector<double> client_shown_;       // what the client shows (grid points or exact), 3 per vertex
+  std::vector<double> client_shown_;       // what the client shows (grid or exact), 3 per vertex
   std::vector<double> target_;             // the last target, 3 per vertex (row-major)
   std::size_t pending_ = 0;
 };

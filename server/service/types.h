@@ -388,10 +388,10 @@ struct ServiceOptions {
   /// network address); the empty name (in-process callers) is not limited.
   int max_sessions_per_client = 0;
   /// Estimated memory (as memory_budget_bytes counts it) one client's sessions may hold; 0 =
-  /// three quarters of memory_budget_bytes. Room for a client is made by evicting, in this order, its own
-  /// idle sessions, then idle sessions of clients over this quota, then (only where sessions
-  /// persist: a state directory or a shared store, so eviction loses nothing) any idle session;
-  /// in memory only, another client's session within its quota is never evicted.
+  /// three quarters of memory_budget_bytes. Room for a client is made by evicting, in this
+  /// order, its own idle sessions, then idle sessions of clients over this quota, then (only
+  /// where sessions persist: a state directory or a shared store, so eviction loses nothing) any
+  /// idle session; in memory only, another client's session within its quota is never evicted.
   std::size_t memory_budget_per_client_bytes = 0;
   /// Test seam of the state directory (persistence.h): consulted before each system call that
   /// writes a state file, with the call's name; a non-zero errno fails that call as the OS would
