@@ -48,7 +48,7 @@ Result<std::string> read_file(const std::filesystem::path& path) {
     return Error(ErrorCode::NotFound, "mesh file '" + path.string() + "' not found");
   }
   if (std::filesystem::is_directory(path, ec)) {
-    return invalid("'" + path.string() + "' is a directory, not a mesh file");
+    return invalid("mesh path '" + path.string() + "' is a directory, not a mesh file");
   }
   std::ifstream in(path, std::ios::binary);
   if (!in) return Error(ErrorCode::Internal, "cannot open '" + path.string() + "' for reading");

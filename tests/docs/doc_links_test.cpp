@@ -67,7 +67,7 @@ std::set<std::string> anchors_of(const fs::path& path) {
     if (!std::regex_match(line, match, std::regex(R"(#{1,6}\s+(.*?)\s*#*\s*)"))) continue;
     std::string anchor = slug(match[1].str());
     const int count = seen[anchor]++;
-    if (count > 0) anchor += "-" + std::to_string(count);
+    if (count > 0) anchor.append(1, '-').append(std::to_string(count));
     anchors.insert(anchor);
   }
   return anchors;

@@ -240,6 +240,17 @@ TEST(MeshIoTest, MissingFileIsNotFound) {
   EXPECT_EQ(loaded.status().code(), ErrorCode::NotFound);
 }
 
+TEST(MeshIoTest, ADirectoryIsInvalidArgumentNamingThePath) {
+  TempDir dir;
+  const fs::path folder = dir.path() / "looks_like_a_mesh.obj";
+  fs::create_directories(folder);
+  const auto r = read_mesh(folder);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.status().code(), ErrorCode::InvalidArgument);
+  EXPECT_NE(r.status().message().find(folder.string() + "' is a directory"), std::string::npos)
+      << r.status().message();
+}
+
 TEST(MeshIoTest, WriteRejectsIndexOutOfRangeAndUnknownExtension) {
   MeshData m = test::make_triangle();
   m.F(0, 2) = 3;

@@ -57,7 +57,8 @@ TEST(RateLimiterTest, ClientsAndCallsHaveSeparateBuckets) {
 TEST(RateLimiterTest, ZeroRateIsUnlimitedAndTracksNobody) {
   RateLimiter limiter({0, 1}, {0, 1});
   for (int i = 0; i < 10'000; ++i) {
-    ASSERT_FALSE(limiter.admit("a" + std::to_string(i % 7), RateLimitedCall::MoveHandles));
+    const std::string client = std::string("a").append(std::to_string(i % 7));
+    ASSERT_FALSE(limiter.admit(client, RateLimitedCall::MoveHandles));
   }
   EXPECT_EQ(limiter.tracked_clients(), 0u);
 }

@@ -885,7 +885,8 @@ TEST(ProtoConvertTest, ARevisionIsEncodedOnceForItsResponseAndEveryWatcher) {
   auto mesh = std::make_shared<core::CoarseLevelMesh>();
   mesh->F = Triangles(1, 3);
   mesh->F << 0, 1, 2;
-  mesh->to_fine = Eigen::Vector3i(0, 10, 20);
+  mesh->to_fine.resize(3);
+  mesh->to_fine << 0, 10, 20;
   mesh->key = core::coarse_level_key(mesh->F, mesh->to_fine);
   Positions coarse_rows(3, 3);
   for (int i = 0; i < 3; ++i) coarse_rows.row(i) = V.row(mesh->to_fine(i));
