@@ -17,8 +17,9 @@ stage() { echo "== test.sh: $1 ($(( SECONDS - start ))s)" >&2; }
 start=$SECONDS
 
 "$root/scripts/build-viewer.sh" --test
+# -Werror: both compilers' builds stay free of warnings (MESHDEFORM_WERROR; docs/testing.md).
 "$root/scripts/build.sh" -DMESHDEFORM_BUILD_TESTS=ON -DMESHDEFORM_BUILD_BENCH=ON -DMESHDEFORM_BUILD_CLI=ON \
-  -DMESHDEFORM_BUILD_SERVER=ON -DMESHDEFORM_VIEWER_TESTS=ON
+  -DMESHDEFORM_BUILD_SERVER=ON -DMESHDEFORM_VIEWER_TESTS=ON -DMESHDEFORM_WERROR=ON
 ctest --test-dir "$root/build" --output-on-failure --timeout 600 -j"$(nproc)"
 # A test binary killed with SIGKILL mid-run leaves no server behind and no open stdout.
 "$root/scripts/kill-check.sh" "$root/build"
@@ -29,10 +30,15 @@ fuzzers=0  # 1: stage 2 built the fuzz targets
 if [ "${MESHDEFORM_SKIP_SANITIZE:-0}" != "1" ]; then
   # The fuzz targets are built in the same instrumented build (one clang build, not two).
   # (Not with MESHDEFORM_SANITIZE_CXX=g++: libFuzzer is clang's; stage 3 then builds its own.)
+  # -Werror with clang, the default; GCC's instrumented build is a local option and is left out.
+  werror=()
   case "$(basename "${MESHDEFORM_SANITIZE_CXX:-clang++}")" in
-    clang*) [ "$fuzz_seconds" != "0" ] && fuzzers=1 ;;
+    clang*)
+      [ "$fuzz_seconds" != "0" ] && fuzzers=1
+      werror=(-DMESHDEFORM_WERROR=ON)
+      ;;
   esac
-  MESHDEFORM_SANITIZE_FUZZERS=$fuzzers "$root/scripts/test-sanitize.sh"
+  MESHDEFORM_SANITIZE_FUZZERS=$fuzzers "$root/scripts/test-sanitize.sh" "${werror[@]}"
   stage "stage 2 (ASan + UBSan tests) done"
 fi
 
